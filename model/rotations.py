@@ -1,0 +1,312 @@
+"""Rotation representations and conversions between them, batched over leading dimensions.
+
+Glossary, fixed once for the whole project (model, wire format and engine clients alike):
+
+* ``quat``: a unit quaternion stored as ``(..., 4)`` in **x, y, z, w** order. ``q`` and ``-q``
+  are the same rotation; functions return whichever sign the maths gives unless they say so.
+* ``matrix``: a rotation matrix ``(..., 3, 3)`` acting on column vectors, ``v' = R @ v``.
+* ``sixd``: the 6D representation (Zhou et al. 2019), ``(..., 6)``: the first two **columns**
+  of the matrix, concatenated. Decoding uses Gram-Schmidt, so any non-degenerate 6-vector maps
+  to a valid rotation.
+* ``euler``: three angles in **radians**, ``(..., 3)``, listed in the order of an axis string
+  such as ``"ZXY"``; the rotation is ``R = R_Z(a0) @ R_X(a1) @ R_Y(a2)`` (intrinsic, the BVH
+  convention: channels apply in the order they are listed).
+* ``quat_mul(a, b)`` composes ``a`` after ``b``, matching ``matrix(a) @ matrix(b)``.
+
+Everything is plain torch and keeps the input's dtype and device.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+Tensor = torch.Tensor
+
+_AXES = {"X": 0, "Y": 1, "Z": 2}
+_EPS = 1e-8
+
+
+def quat_identity(shape: tuple[int, ...] = (), dtype: torch.dtype = torch.float32) -> Tensor:
+    """Identity quaternions of the given leading ``shape``: ``(*shape, 4)``."""
+    q = torch.zeros(*shape, 4, dtype=dtype)
+    q[..., 3] = 1.0
+    return q
+
+
+def quat_normalize(q: Tensor) -> Tensor:
+    """Scale quaternions to unit length."""
+    return q / q.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+
+
+def quat_conjugate(q: Tensor) -> Tensor:
+    """Conjugate, which is the inverse for unit quaternions."""
+    return torch.cat([-q[..., :3], q[..., 3:]], dim=-1)
+
+
+quat_inverse = quat_conjugate
+
+
+def quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product ``a * b`` (apply ``b`` first, then ``a``). Broadcasts."""
+    ax, ay, az, aw = a.unbind(-1)
+    bx, by, bz, bw = b.unbind(-1)
+    return torch.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        dim=-1,
+    )
+
+
+def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
+    """Rotate vectors ``v (..., 3)`` by unit quaternions ``q (..., 4)``. Broadcasts."""
+    qv = q[..., :3]
+    w = q[..., 3:]
+    t = 2.0 * torch.linalg.cross(qv, v)
+    return v + w * t + torch.linalg.cross(qv, t)
+
+
+def quat_canonical(q: Tensor) -> Tensor:
+    """Pick the sign with ``w >= 0`` so equal rotations compare equal."""
+    return torch.where(q[..., 3:] < 0, -q, q)
+
+
+def quat_make_continuous(q: Tensor, dim: int = 0) -> Tensor:
+    """Flip signs along ``dim`` (time) so consecutive quaternions have a non-negative dot product.
+
+    Interpolation and finite differences need this; the rotations themselves do not change.
+    """
+    q = q.movedim(dim, 0)
+    dots = (q[1:] * q[:-1]).sum(-1, keepdim=True)
+    flips = torch.cumprod(torch.where(dots < 0, -1.0, 1.0).to(q.dtype), dim=0)
+    out = torch.cat([q[:1], q[1:] * flips], dim=0)
+    return out.movedim(0, dim)
+
+
+def quat_to_matrix(q: Tensor) -> Tensor:
+    """Unit quaternions ``(..., 4)`` to rotation matrices ``(..., 3, 3)``."""
+    x, y, z, w = quat_normalize(q).unbind(-1)
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    m = torch.stack(
+        [
+            1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+            2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+            2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
+        ],
+        dim=-1,
+    )
+    return m.reshape(*q.shape[:-1], 3, 3)
+
+
+def matrix_to_quat(m: Tensor) -> Tensor:
+    """Rotation matrices ``(..., 3, 3)`` to unit quaternions ``(..., 4)`` with ``w >= 0``.
+
+    Uses the numerically best of the four Shepperd candidates per element, so it is exact near
+    180-degree rotations too.
+    """
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    # 4 * (component of largest magnitude)^2 for w, x, y, z.
+    t = torch.stack(
+        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], dim=-1
+    )
+    best = t.argmax(dim=-1, keepdim=True)
+    s = torch.sqrt(t.clamp_min(_EPS))  # 2 * |component|
+    cand = torch.stack(
+        [
+            torch.stack([m21 - m12, m02 - m20, m10 - m01, t[..., 0]], dim=-1) / s[..., 0:1],
+            torch.stack([t[..., 1], m01 + m10, m02 + m20, m21 - m12], dim=-1) / s[..., 1:2],
+            torch.stack([m01 + m10, t[..., 2], m12 + m21, m02 - m20], dim=-1) / s[..., 2:3],
+            torch.stack([m02 + m20, m12 + m21, t[..., 3], m10 - m01], dim=-1) / s[..., 3:4],
+        ],
+        dim=-2,
+    )  # (..., 4 candidates, 4 components)
+    q = torch.gather(cand, -2, best.unsqueeze(-1).expand(*best.shape[:-1], 1, 4)).squeeze(-2)
+    return quat_canonical(quat_normalize(q))
+
+
+def matrix_to_sixd(m: Tensor) -> Tensor:
+    """Rotation matrices ``(..., 3, 3)`` to 6D ``(..., 6)``: first column, then second column."""
+    return torch.cat([m[..., :, 0], m[..., :, 1]], dim=-1)
+
+
+def sixd_to_matrix(d: Tensor) -> Tensor:
+    """6D ``(..., 6)`` to rotation matrices by Gram-Schmidt on the two columns."""
+    a1, a2 = d[..., :3], d[..., 3:]
+    b1 = a1 / a1.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    a2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
+    b2 = a2 / a2.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    b3 = torch.linalg.cross(b1, b2)
+    return torch.stack([b1, b2, b3], dim=-1)
+
+
+def quat_to_sixd(q: Tensor) -> Tensor:
+    """Unit quaternions to 6D."""
+    return matrix_to_sixd(quat_to_matrix(q))
+
+
+def sixd_to_quat(d: Tensor) -> Tensor:
+    """6D to unit quaternions (``w >= 0``)."""
+    return matrix_to_quat(sixd_to_matrix(d))
+
+
+def sixd_normalize(d: Tensor) -> Tensor:
+    """Project 6D vectors back onto valid rotations (Gram-Schmidt, re-encoded)."""
+    return matrix_to_sixd(sixd_to_matrix(d))
+
+
+def axis_angle_to_quat(axis: Tensor, angle: Tensor) -> Tensor:
+    """Rotations of ``angle (...)`` radians about unit ``axis (..., 3)``."""
+    half = 0.5 * angle.unsqueeze(-1)
+    return torch.cat([axis * torch.sin(half), torch.cos(half)], dim=-1)
+
+
+def rotvec_to_quat(v: Tensor) -> Tensor:
+    """Rotation vectors (axis times angle in radians) ``(..., 3)`` to quaternions."""
+    angle = v.norm(dim=-1, keepdim=True)
+    half = 0.5 * angle
+    # sin(x/2)/x -> 1/2 as x -> 0; the Taylor branch keeps gradients finite.
+    small = angle < 1e-6
+    k = torch.where(small, 0.5 - angle * angle / 48.0, torch.sin(half) / angle.clamp_min(1e-12))
+    return torch.cat([v * k, torch.cos(half)], dim=-1)
+
+
+def quat_to_rotvec(q: Tensor) -> Tensor:
+    """Unit quaternions to rotation vectors with angle in ``[0, pi]``."""
+    q = quat_canonical(quat_normalize(q))
+    s = q[..., :3].norm(dim=-1, keepdim=True)
+    angle = 2.0 * torch.atan2(s, q[..., 3:])
+    small = s < 1e-6
+    k = torch.where(small, 2.0 + angle * angle / 12.0, angle / s.clamp_min(1e-12))
+    return q[..., :3] * k
+
+
+def _axis_matrix(axis: int, angle: Tensor) -> Tensor:
+    c, s = torch.cos(angle), torch.sin(angle)
+    one, zero = torch.ones_like(angle), torch.zeros_like(angle)
+    if axis == 0:
+        rows = [one, zero, zero, zero, c, -s, zero, s, c]
+    elif axis == 1:
+        rows = [c, zero, s, zero, one, zero, -s, zero, c]
+    else:
+        rows = [c, -s, zero, s, c, zero, zero, zero, one]
+    return torch.stack(rows, dim=-1).reshape(*angle.shape, 3, 3)
+
+
+def _parse_order(order: str) -> tuple[int, int, int]:
+    up = order.upper()
+    if len(up) != 3 or any(c not in _AXES for c in up) or len(set(up)) != 3:
+        raise ValueError(
+            f"Euler order {order!r} is not supported: use three distinct axes from X, Y, Z, e.g. 'ZXY'"
+        )
+    return _AXES[up[0]], _AXES[up[1]], _AXES[up[2]]
+
+
+def euler_to_matrix(angles: Tensor, order: str) -> Tensor:
+    """Euler angles ``(..., 3)`` in radians, listed in ``order``, to matrices ``(..., 3, 3)``."""
+    i, j, k = _parse_order(order)
+    return _axis_matrix(i, angles[..., 0]) @ _axis_matrix(j, angles[..., 1]) @ _axis_matrix(k, angles[..., 2])
+
+
+def matrix_to_euler(m: Tensor, order: str) -> Tensor:
+    """Rotation matrices to Euler angles in radians listed in ``order``.
+
+    The middle angle lies in ``[-pi/2, pi/2]``. At gimbal lock (middle angle at +-90 degrees) the
+    last angle is set to 0 and the first one carries the whole rotation about the locked axis.
+    """
+    i, j, k = _parse_order(order)
+    # +1 for cyclic orders (XYZ, YZX, ZXY), -1 for the others.
+    s = 1.0 if (j - i) % 3 == 1 else -1.0
+    sin_b = (s * m[..., i, k]).clamp(-1.0, 1.0)
+    b = torch.asin(sin_b)
+    cos_b = torch.sqrt((1.0 - sin_b * sin_b).clamp_min(0.0))
+    locked = cos_b < 1e-6
+    a = torch.atan2(-s * m[..., j, k], m[..., k, k])
+    c = torch.atan2(-s * m[..., i, j], m[..., i, i])
+    a_locked = torch.atan2(s * m[..., k, j], m[..., j, j])
+    a = torch.where(locked, a_locked, a)
+    c = torch.where(locked, torch.zeros_like(c), c)
+    return torch.stack([a, b, c], dim=-1)
+
+
+def euler_to_quat(angles: Tensor, order: str) -> Tensor:
+    """Euler angles in radians listed in ``order`` to quaternions."""
+    i, j, k = _parse_order(order)
+    eye = torch.eye(3, dtype=angles.dtype, device=angles.device)
+    qs = [axis_angle_to_quat(eye[a].expand(*angles.shape[:-1], 3), angles[..., n]) for n, a in enumerate((i, j, k))]
+    return quat_mul(quat_mul(qs[0], qs[1]), qs[2])
+
+
+def quat_to_euler(q: Tensor, order: str) -> Tensor:
+    """Quaternions to Euler angles in radians listed in ``order`` (see :func:`matrix_to_euler`)."""
+    return matrix_to_euler(quat_to_matrix(q), order)
+
+
+def quat_slerp(a: Tensor, b: Tensor, t: Tensor | float) -> Tensor:
+    """Spherical linear interpolation from ``a`` (t=0) to ``b`` (t=1) along the shorter arc.
+
+    ``t`` broadcasts against the leading dimensions (shape ``(...)`` or ``(..., 1)``).
+    """
+    t = torch.as_tensor(t, dtype=a.dtype, device=a.device)
+    if t.dim() < a.dim():
+        t = t.unsqueeze(-1)
+    dot = (a * b).sum(-1, keepdim=True)
+    b = torch.where(dot < 0, -b, b)
+    dot = dot.abs().clamp(max=1.0)
+    theta = torch.acos(dot)
+    sin_theta = torch.sin(theta)
+    near = sin_theta < 1e-6
+    safe = torch.where(near, torch.ones_like(sin_theta), sin_theta)
+    wa = torch.where(near, 1.0 - t, torch.sin((1.0 - t) * theta) / safe)
+    wb = torch.where(near, t, torch.sin(t * theta) / safe)
+    return quat_normalize(wa * a + wb * b)
+
+
+def quat_between(u: Tensor, v: Tensor) -> Tensor:
+    """The shortest-arc rotation taking direction ``u (..., 3)`` onto direction ``v (..., 3)``.
+
+    For opposite directions any perpendicular axis is valid; one is chosen deterministically.
+    """
+    u = u / u.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    v = v / v.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+    w = 1.0 + (u * v).sum(-1, keepdim=True)
+    axis = torch.linalg.cross(u, v, dim=-1)
+    # For u ~ -v pick an axis perpendicular to u: cross with the least aligned basis vector.
+    ex = torch.zeros_like(u)
+    ex[..., 0] = 1.0
+    ey = torch.zeros_like(u)
+    ey[..., 1] = 1.0
+    other = torch.where(u[..., :1].abs() < 0.9, ex, ey)
+    perp = torch.linalg.cross(u, other, dim=-1)
+    opposite = w < 1e-7
+    axis = torch.where(opposite, perp, axis)
+    w = torch.where(opposite, torch.zeros_like(w), w)
+    return quat_normalize(torch.cat([axis, w], dim=-1))
+
+
+def quat_angle(a: Tensor, b: Tensor) -> Tensor:
+    """Angle in radians between rotations ``a`` and ``b`` (sign-invariant), shape ``(...)``.
+
+    Computed as ``2 atan2(|v|, |w|)`` of the relative rotation, which stays accurate for tiny
+    angles where ``acos`` of a dot product loses everything in float32.
+    """
+    rel = quat_mul(quat_conjugate(quat_normalize(a)), quat_normalize(b))
+    return 2.0 * torch.atan2(rel[..., :3].norm(dim=-1), rel[..., 3].abs())
+
+
+def yaw_quat(angle: Tensor) -> Tensor:
+    """Rotations of ``angle (...)`` radians about the +Y (up) axis."""
+    half = 0.5 * angle
+    zero = torch.zeros_like(angle)
+    return torch.stack([zero, torch.sin(half), zero, torch.cos(half)], dim=-1)
+
+
+DEG = 180.0 / math.pi

@@ -1,0 +1,5 @@
+import sys
+
+from rsmt_cli.main import main
+
+sys.exit(main())

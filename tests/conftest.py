@@ -1,0 +1,21 @@
+"""Shared fixtures: the real motion data (skipped with a reason when absent)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from model.data_dir import ENV_VAR, find_data_dir
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The folder of real BVH takes; tests using it skip when it is not there."""
+    path = find_data_dir()
+    if path is None:
+        pytest.skip(
+            f"real motion data not found: set {ENV_VAR} to the unpacked Bandai-Namco folder "
+            "(../shared/data/unpack.sh prints it)"
+        )
+    return path
