@@ -188,3 +188,21 @@ def temporal_rescale(clip: Clip, generator: torch.Generator | None = None) -> Cl
         out = out.window(0, t)
     return replace(out, name=f"rescale({clip.name})" if clip.name else "rescale")
 
+
+
+def local_frame_features(global_positions: Tensor, global_rotations: Tensor, skeleton: Skeleton) -> Tensor:
+    """Each frame in its own canonical frame (its facing to +Z, its root over the origin).
+
+    The style encoder's input, as in RSMT: invariant to where and which way the clip moves, so a
+    style code carries posture and rhythm, not a path. Returns ``[..., T-1, J*12]``: per joint the
+    position, the velocity ``p[t] - p[t-1]`` (both turned by frame ``t``'s facing) and the 6D
+    rotation, for frames ``1..T-1`` (frame 0 has no velocity).
+    """
+    yaw = facing_yaw(global_positions, skeleton)[..., 1:]  # [..., T-1]
+    root = global_positions[..., 1:, skeleton.roles.root, :].clone()
+    root[..., 1] = 0.0
+    turn = yaw_quat(-yaw).unsqueeze(-2)  # [..., T-1, 1, 4]
+    pos = quat_rotate(turn, global_positions[..., 1:, :, :] - root.unsqueeze(-2))
+    vel = quat_rotate(turn, global_positions[..., 1:, :, :] - global_positions[..., :-1, :, :])
+    rot = quat_to_sixd(quat_mul(turn, global_rotations[..., 1:, :, :]))
+    return torch.cat([pos, vel, rot], dim=-1).flatten(-2)

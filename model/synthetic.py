@@ -91,3 +91,36 @@ def synthetic_walk(
         )
     rot[:, sk.index("Spine")] = axis_angle_to_quat(ex, torch.full_like(t, math.radians(4.0)))
     return Clip(skeleton=sk, rotations=rot.float(), root_positions=root.float(), fps=fps, name="synthetic-walk")
+
+
+# Per synthetic "style": speed (cm/s), cadence (Hz) and stride (degrees), so styles differ in rhythm.
+SYNTHETIC_STYLES = {
+    "brisk": (150.0, 1.1, 30.0),
+    "slow": (70.0, 0.7, 18.0),
+    "bouncy": (110.0, 1.4, 35.0),
+}
+SYNTHETIC_CONTENTS = {"walk": 0.0, "walk-turn-left": 40.0, "walk-turn-right": -40.0}
+
+
+def write_synthetic_dataset(folder, takes_per_pair: int = 3, frames: int = 150, fps: float = 30.0) -> list:
+    """Write BVH takes named like Bandai-Namco's (``dataset-2_{content}_{style}_{NNN}.bvh``).
+
+    3 styles x 3 contents x ``takes_per_pair`` takes of procedural walking; returns the paths.
+    """
+    from pathlib import Path
+
+    from model.bvh import dump_clip
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for s_i, (style, (speed, cadence, stride)) in enumerate(SYNTHETIC_STYLES.items()):
+        for content, turn in SYNTHETIC_CONTENTS.items():
+            for n in range(takes_per_pair):
+                clip = synthetic_walk(frames=frames, fps=fps, speed_cm_s=speed * (1 + 0.05 * n), turn_deg_s=turn,
+                                      cadence_hz=cadence, stride_deg=stride, start_yaw_deg=37.0 * (n + s_i),
+                                      phase=0.7 * n)
+                path = folder / f"dataset-2_{content}_{style}_{n + 1:03d}.bvh"
+                path.write_text(dump_clip(clip))
+                paths.append(path)
+    return paths

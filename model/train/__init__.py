@@ -1,0 +1,1 @@
+"""Training recipes: one module per stage, sharing the loop in :mod:`model.train.loop`."""

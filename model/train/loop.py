@@ -1,0 +1,193 @@
+"""The training loop every stage shares: progress bar, validation each epoch, checkpoints, resume.
+
+Resume state (weights, optimiser moments, RNG, step, history) is written as safetensors + JSON in
+the run folder, atomically, every ``checkpoint_every_s`` seconds and at each epoch's end; nothing
+is pickled. A run that is stopped (Ctrl-C, a killed process) restarts from its last checkpoint
+when launched again with the same run folder.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+from torch import nn
+from tqdm import tqdm
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LoopConfig:
+    """Schedule of one training stage.
+
+    Attributes:
+        iterations: optimiser steps in total.
+        epoch_iterations: steps between validations (an "epoch" of the progress report).
+        lr / lr_final: learning rate, decayed by cosine to ``lr_final`` after ``warmup``.
+        warmup: steps of linear warm-up.
+        grad_clip: gradient-norm clip.
+        weight_decay: AdamW decay (biases and norms excluded).
+        seed: torch seed at the start (restored from checkpoints on resume).
+        checkpoint_every_s: seconds between checkpoints within an epoch.
+        time_limit_s: stop (after a checkpoint) when this much time has passed in this run; 0 = none.
+    """
+
+    iterations: int = 1000
+    epoch_iterations: int = 100
+    lr: float = 1e-3
+    lr_final: float = 1e-5
+    warmup: int = 50
+    grad_clip: float = 1.0
+    weight_decay: float = 0.0
+    seed: int = 0
+    checkpoint_every_s: float = 120.0
+    time_limit_s: float = 0.0
+
+
+@dataclass
+class LoopResult:
+    history: list[dict] = field(default_factory=list)
+    seconds: float = 0.0
+    finished: bool = False
+
+
+def step_generator(seed: int, step: int) -> torch.Generator:
+    """The random stream of one training step: a resumed run draws exactly the batches it would have."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + step)
+
+
+def make_optimizer(params: list[tuple[str, nn.Parameter]], cfg: LoopConfig) -> torch.optim.Optimizer:
+    """AdamW with decay on matrices only (biases, norms and gains stay undecayed)."""
+    decay = [p for n, p in params if p.dim() >= 2]
+    plain = [p for n, p in params if p.dim() < 2]
+    groups = [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": plain, "weight_decay": 0.0}]
+    return torch.optim.AdamW(groups, lr=cfg.lr, betas=(0.9, 0.99))
+
+
+def learning_rate(step: int, cfg: LoopConfig) -> float:
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    progress = min(1.0, (step - cfg.warmup) / max(1, cfg.iterations - cfg.warmup))
+    return cfg.lr_final + 0.5 * (cfg.lr - cfg.lr_final) * (1 + math.cos(math.pi * progress))
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def save_checkpoint(folder: Path, model: nn.Module, optimizer: torch.optim.Optimizer, step: int, history: list[dict],
+                    extra: dict | None = None) -> None:
+    """Weights, optimiser moments and RNG in safetensors; counters and history in JSON."""
+    folder.mkdir(parents=True, exist_ok=True)
+    tensors = {f"model.{k}": v.detach().contiguous().clone() for k, v in model.state_dict().items()}
+    opt = optimizer.state_dict()
+    for pid, state in opt["state"].items():
+        for k, v in state.items():
+            t = v if torch.is_tensor(v) else torch.tensor(v)
+            tensors[f"opt.{pid}.{k}"] = t.detach().contiguous().clone()
+    tensors["rng.torch"] = torch.get_rng_state()
+    tmp = folder / "checkpoint.safetensors.tmp"
+    save_file(tensors, str(tmp))
+    os.replace(tmp, folder / "checkpoint.safetensors")
+    meta = {"step": step, "history": history, "param_groups": [
+        {k: v for k, v in g.items() if k != "params"} | {"params": list(g["params"])} for g in opt["param_groups"]
+    ], "extra": extra or {}}
+    _atomic_write_text(folder / "checkpoint.json", json.dumps(meta, indent=1))
+
+
+def load_checkpoint(folder: Path, model: nn.Module, optimizer: torch.optim.Optimizer) -> tuple[int, list[dict], dict] | None:
+    """Restore a checkpoint written by :func:`save_checkpoint`; ``None`` when there is none."""
+    if not (folder / "checkpoint.json").is_file() or not (folder / "checkpoint.safetensors").is_file():
+        return None
+    meta = json.loads((folder / "checkpoint.json").read_text())
+    tensors = load_file(str(folder / "checkpoint.safetensors"))
+    model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")}, strict=True)
+    state: dict[int, dict] = {}
+    for key, v in tensors.items():
+        if key.startswith("opt."):
+            _, pid, name = key.split(".", 2)
+            state.setdefault(int(pid), {})[name] = v
+    optimizer.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+    torch.set_rng_state(tensors["rng.torch"])
+    return int(meta["step"]), list(meta["history"]), dict(meta.get("extra", {}))
+
+
+def train_loop(
+    name: str,
+    folder: Path,
+    model: nn.Module,
+    params: list[tuple[str, nn.Parameter]],
+    cfg: LoopConfig,
+    train_step: Callable[[int], dict[str, float]],
+    validate: Callable[[], dict[str, float]],
+    progress: bool = True,
+) -> LoopResult:
+    """Run (or resume) a stage. ``train_step(step)`` returns its losses after ``loss.backward()``.
+
+    The loop owns zeroing, clipping, the learning-rate schedule and the optimiser step.
+    """
+    torch.manual_seed(cfg.seed)
+    optimizer = make_optimizer(params, cfg)
+    start, history = 0, []
+    restored = load_checkpoint(folder, model, optimizer)
+    if restored is not None:
+        start, history, _ = restored
+        log.info("%s: resuming at step %d of %d", name, start, cfg.iterations)
+    began = time.monotonic()
+    last_ckpt = began
+    result = LoopResult(history=history)
+    bar = tqdm(total=cfg.iterations, initial=start, desc=name, disable=not progress, dynamic_ncols=True)
+    running: dict[str, float] = {}
+    step = start
+    try:
+        while step < cfg.iterations:
+            model.train()
+            lr = learning_rate(step, cfg)
+            for g in optimizer.param_groups:
+                g["lr"] = lr
+            optimizer.zero_grad(set_to_none=True)
+            losses = train_step(step)
+            torch.nn.utils.clip_grad_norm_([p for _, p in params], cfg.grad_clip)
+            optimizer.step()
+            step += 1
+            for k, v in losses.items():
+                running[k] = 0.9 * running.get(k, v) + 0.1 * v
+            bar.update(1)
+            bar.set_postfix({k: f"{v:.4g}" for k, v in list(running.items())[:4]})
+            epoch_end = step % cfg.epoch_iterations == 0 or step == cfg.iterations
+            if epoch_end:
+                model.eval()
+                with torch.no_grad():
+                    figures = validate()
+                entry = {"step": step, "lr": lr, **{f"train_{k}": round(v, 6) for k, v in running.items()},
+                         **{f"val_{k}": round(v, 6) for k, v in figures.items()}}
+                history.append(entry)
+                bar.write(f"{name} step {step}/{cfg.iterations}: " + ", ".join(f"{k} {v:.4g}" for k, v in entry.items() if k.startswith(("val_", "train_"))))
+            now = time.monotonic()
+            if epoch_end or now - last_ckpt > cfg.checkpoint_every_s:
+                save_checkpoint(folder, model, optimizer, step, history)
+                last_ckpt = now
+            if cfg.time_limit_s and now - began > cfg.time_limit_s and step < cfg.iterations:
+                save_checkpoint(folder, model, optimizer, step, history)
+                log.warning("%s: time limit reached at step %d; run again to resume", name, step)
+                break
+    except KeyboardInterrupt:
+        save_checkpoint(folder, model, optimizer, step, history)
+        bar.close()
+        raise
+    bar.close()
+    result.seconds = time.monotonic() - began
+    result.finished = step >= cfg.iterations
+    (folder / "config.json").write_text(json.dumps(asdict(cfg), indent=1))
+    return result

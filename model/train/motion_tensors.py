@@ -1,0 +1,146 @@
+"""Training motion held in memory: every take's world positions and rotations, concatenated, with
+labels, optional mirrored and time-rescaled copies, and per-frame phase labels once computed.
+
+Windows are addressed by global frame index, so a batch is one gather, not a Python loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import torch
+from tqdm import tqdm
+
+from model.clip import Clip
+from model.features import temporal_rescale
+from model.kinematics import forward_kinematics
+from model.mirror import mirror_global, mirror_reflections
+from model.motion_cache import MotionCache
+from model.rotations import quat_make_continuous, quat_normalize
+from model.skeleton import Skeleton
+
+Tensor = torch.Tensor
+log = logging.getLogger(__name__)
+
+
+def mean_skeleton(cache: MotionCache, takes: Sequence[int]) -> Skeleton:
+    """The rig with each bone offset averaged over the takes' performers (frame-weighted)."""
+    first = cache.skeleton(takes[0])
+    total = torch.zeros(first.num_joints, 3, dtype=torch.float64)
+    weight = 0.0
+    for i in takes:
+        sk = cache.skeleton(i)
+        if not sk.same_rig(first):
+            raise ValueError(f"take {cache.takes[i].take_id} is on another rig than {cache.takes[takes[0]].take_id}")
+        n = cache.num_frames(i)
+        total += sk.offsets_tensor(torch.float64) * n
+        weight += n
+    offsets = (total / weight).tolist()
+    return Skeleton(names=first.names, parents=first.parents, offsets=tuple(tuple(o) for o in offsets),
+                    roles=first.roles, end_sites=first.end_sites, units=first.units)
+
+
+def _mirror_content(content: str) -> str:
+    swap = {"left": "right", "right": "left", "Left": "Right", "Right": "Left"}
+    return re.sub(r"left|right|Left|Right", lambda m: swap[m.group(0)], content)
+
+
+@dataclass
+class MotionTensors:
+    """Concatenated takes; rows ``take_start[i] : take_start[i] + take_len[i]`` are take ``i``.
+
+    Attributes:
+        positions / rotations: ``[N, J, 3]`` world positions (cm) and ``[N, J, 4]`` world rotations.
+        take_start / take_len / style / content: ``[n]`` per take (style and content are ids).
+        source: per take, ``"orig"``, ``"mirror"`` or ``"rescale"``.
+        phase / amplitude / frequency: ``[N, M, 2]``, ``[N, M]``, ``[N, M]`` labels (after labelling).
+    """
+
+    skeleton: Skeleton
+    positions: Tensor
+    rotations: Tensor
+    take_start: Tensor
+    take_len: Tensor
+    style: Tensor
+    content: Tensor
+    styles: list[str]
+    contents: list[str]
+    source: list[str] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+    phase: Tensor | None = None
+    amplitude: Tensor | None = None
+    frequency: Tensor | None = None
+
+    @classmethod
+    def from_cache(cls, cache: MotionCache, takes: Sequence[int], skeleton: Skeleton | None = None,
+                   augment: bool = True, seed: int = 0, progress: bool = True) -> MotionTensors:
+        """FK every take (with its own performer's offsets), plus mirrored and rescaled copies."""
+        if not takes:
+            raise ValueError("no takes to train on")
+        skeleton = skeleton or mean_skeleton(cache, takes)
+        reflections = mirror_reflections(skeleton)
+        gen = torch.Generator().manual_seed(seed)
+        styles, contents = list(cache.styles), list(cache.contents)
+        pos_parts, rot_parts, lens, sty, con, src, names = [], [], [], [], [], [], []
+
+        def add(clip: Clip, style: int, content: str, source: str) -> None:
+            sk = clip.skeleton
+            p, r = forward_kinematics(clip.rotations.double(), clip.root_positions.double(), sk.offsets_tensor(torch.float64), sk.parents)
+            if source == "mirror":
+                p, r = mirror_global(p, r, sk, reflections)
+            if content not in contents:
+                contents.append(content)
+            pos_parts.append(p.float())
+            rot_parts.append(quat_make_continuous(quat_normalize(r.float()), dim=0))
+            lens.append(clip.num_frames)
+            sty.append(style)
+            con.append(contents.index(content))
+            src.append(source)
+            names.append(f"{source}:{clip.name}")
+
+        for i in tqdm(takes, desc="takes", disable=not progress, leave=False):
+            clip = cache.clip(i)
+            style, content = cache.style_id(i), cache.takes[i].content
+            add(clip, style, content, "orig")
+            if augment:
+                add(clip, style, _mirror_content(content), "mirror")
+                rescaled = temporal_rescale(clip, gen)
+                if rescaled.num_frames >= 2:
+                    add(rescaled, style, content, "rescale")
+        lens_t = torch.tensor(lens)
+        starts = torch.cumsum(lens_t, 0) - lens_t
+        return cls(skeleton, torch.cat(pos_parts), torch.cat(rot_parts), starts, lens_t, torch.tensor(sty),
+                   torch.tensor(con), styles, contents, src, names)
+
+    @property
+    def num_takes(self) -> int:
+        return len(self.take_len)
+
+    def window_starts(self, length: int, step: int, min_length: int | None = None) -> tuple[Tensor, Tensor]:
+        """Global start rows and take indices of every window of ``length`` frames fitting in a take."""
+        starts, owners = [], []
+        for i in range(self.num_takes):
+            n = int(self.take_len[i])
+            s0 = int(self.take_start[i])
+            for s in range(0, n - length + 1, step):
+                starts.append(s0 + s)
+                owners.append(i)
+        return torch.tensor(starts, dtype=torch.long), torch.tensor(owners, dtype=torch.long)
+
+    def gather(self, starts: Tensor, length: int) -> tuple[Tensor, Tensor]:
+        """``(positions [B, L, J, 3], rotations [B, L, J, 4])`` of windows starting at ``starts``."""
+        idx = starts.unsqueeze(1) + torch.arange(length)
+        return self.positions[idx], self.rotations[idx]
+
+    def gather_phase(self, starts: Tensor, length: int) -> tuple[Tensor, Tensor, Tensor]:
+        if self.phase is None or self.amplitude is None or self.frequency is None:
+            raise ValueError("phase labels are missing: label the data with the phase model first")
+        idx = starts.unsqueeze(1) + torch.arange(length)
+        return self.phase[idx], self.amplitude[idx], self.frequency[idx]
+
+    def take_slice(self, i: int) -> slice:
+        s = int(self.take_start[i])
+        return slice(s, s + int(self.take_len[i]))

@@ -1,0 +1,195 @@
+"""The whole recipe: data → phase model → labels → manifold → sampler → bundle, stage by stage.
+
+Each stage writes its weights into the run folder, so ``rsmt train manifold`` can follow an earlier
+``rsmt train phase``, and ``rsmt train all`` resumes wherever a previous run stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import sys
+import time
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from model.bundle import Bundle, BundleMeta
+from model.manifold import ManifoldConfig, MotionManifold
+from model.motion_cache import MotionCache, load_motion_cache
+from model.phase import PeriodicAutoencoder, PhaseConfig
+from model.sampler import SamplerConfig, TransitionSampler
+from model.train.manifold_stage import ManifoldStageConfig, train_manifold
+from model.train.motion_tensors import MotionTensors, mean_skeleton
+from model.train.phase_stage import PhaseStageConfig, label_tensors, phase_summary, train_phase
+from model.train.sampler_stage import SamplerStageConfig, train_sampler
+
+log = logging.getLogger(__name__)
+STAGES = ("phase", "manifold", "sampler")
+
+
+@dataclass
+class TrainConfig:
+    """Everything a training run depends on; saved beside every stage's weights."""
+
+    name: str = "rsmt-default"
+    about: str = ""
+    seed: int = 0
+    fps: float = 30.0
+    profile: str | None = None
+    ratios: tuple[float, float, float] = (0.8, 0.1, 0.1)
+    holdout_styles: tuple[str, ...] = ()
+    augment: bool = True
+    threads: int = 0
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    manifold: ManifoldConfig = field(default_factory=ManifoldConfig)
+    phase: PhaseConfig = field(default_factory=PhaseConfig)
+    phase_stage: PhaseStageConfig = field(default_factory=PhaseStageConfig)
+    manifold_stage: ManifoldStageConfig = field(default_factory=ManifoldStageConfig)
+    sampler_stage: SamplerStageConfig = field(default_factory=SamplerStageConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        return _from_dict(cls, data)
+
+    @classmethod
+    def load(cls, path: str | Path) -> TrainConfig:
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text()))
+        except (json.JSONDecodeError, TypeError) as exc:
+            raise ValueError(f"{path}: not a valid training config: {exc}") from exc
+
+
+def _from_dict(cls: type, data: dict[str, Any]) -> Any:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - known
+    if unknown:
+        raise TypeError(f"unknown field(s) for {cls.__name__}: {', '.join(sorted(unknown))}")
+    kwargs = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+            kwargs[name] = _from_dict(hint, value)
+        elif isinstance(value, list):
+            kwargs[name] = tuple(value)
+        else:
+            kwargs[name] = value
+    return cls(**kwargs)
+
+
+def fit_to_skeleton(cfg: TrainConfig, joints: int, root: int) -> TrainConfig:
+    """Make the three model configs agree with the rig and with each other."""
+    cfg.sampler.joints = cfg.manifold.joints = joints
+    cfg.manifold.root = cfg.sampler.root = root
+    cfg.manifold.phases = cfg.phase.phases = cfg.sampler.phases
+    cfg.manifold.latent = cfg.sampler.latent
+    cfg.phase.channels = joints * 3
+    cfg.phase.fps = cfg.sampler.fps = cfg.fps
+    return cfg
+
+
+@dataclass
+class PreparedData:
+    cache: MotionCache
+    train: MotionTensors
+    val: MotionTensors
+    data_dir: Path
+
+
+def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> PreparedData:
+    cache = load_motion_cache(data_dir, fps=cfg.fps, profile=cfg.profile, progress=progress)
+    split = cache.make_split(cfg.ratios, cfg.holdout_styles)
+    if not split.train or not split.val:
+        raise ValueError(f"the data in {data_dir} gives an empty train or validation split: {split.sizes()}")
+    skeleton = mean_skeleton(cache, split.train)
+    train = MotionTensors.from_cache(cache, split.train, skeleton, augment=cfg.augment, seed=cfg.seed, progress=progress)
+    val = MotionTensors.from_cache(cache, split.val, skeleton, augment=False, progress=progress)
+    fit_to_skeleton(cfg, skeleton.num_joints, skeleton.roles.root)
+    return PreparedData(cache, train, val, data_dir)
+
+
+def _save_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    save_file({k: v.detach().contiguous() for k, v in module.state_dict().items()}, str(folder / "weights.safetensors"))
+    (folder / "config.json").write_text(json.dumps(config, indent=1))
+
+
+def _load_weights(module: torch.nn.Module, folder: Path, stage: str) -> None:
+    path = folder / "weights.safetensors"
+    if not path.is_file():
+        raise FileNotFoundError(f"stage {stage!r} has no weights in {folder}: train it first (rsmt train {stage})")
+    module.load_state_dict(load_file(str(path)), strict=True)
+
+
+def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...], out: Path | None,
+        progress: bool = True, command: str | None = None) -> Bundle | None:
+    """Run the given stages (in recipe order) and write the bundle when the sampler is done."""
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    timings_path = run_dir / "timings.json"
+    timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
+    began = time.monotonic()
+    data = prepare_data(cfg, data_dir, progress)
+    timings["data_s"] = round(time.monotonic() - began, 1)
+    (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
+    data.train.skeleton.save(run_dir / "skeleton.json")
+
+    pae = PeriodicAutoencoder(cfg.phase)
+    if "phase" in stages:
+        t0 = time.monotonic()
+        pae, result = train_phase(data.train, data.val, cfg.phase, cfg.phase_stage, run_dir / "phase", progress)
+        if not result.finished:
+            return None
+        _save_weights(pae, run_dir / "phase", cfg.phase.to_dict())
+        timings["phase_s"] = round(time.monotonic() - t0, 1)
+    else:
+        _load_weights(pae, run_dir / "phase", "phase")
+    pae.eval()
+    t0 = time.monotonic()
+    label_tensors(pae, data.train, progress)
+    label_tensors(pae, data.val, progress)
+    timings["labels_s"] = round(time.monotonic() - t0, 1)
+    (run_dir / "phase_summary.json").write_text(json.dumps(phase_summary(data.train), indent=1))
+
+    manifold = MotionManifold(cfg.manifold)
+    if "manifold" in stages:
+        t0 = time.monotonic()
+        manifold, result = train_manifold(data.train, data.val, cfg.manifold, cfg.manifold_stage, run_dir / "manifold", progress)
+        if not result.finished:
+            return None
+        _save_weights(manifold.decoder, run_dir / "manifold", cfg.manifold.to_dict())
+        timings["manifold_s"] = round(time.monotonic() - t0, 1)
+    elif "sampler" in stages:
+        _load_weights(manifold.decoder, run_dir / "manifold", "manifold")
+
+    bundle = None
+    if "sampler" in stages:
+        t0 = time.monotonic()
+        sampler = TransitionSampler(cfg.sampler, manifold.decoder)
+        sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress)
+        if not result.finished:
+            return None
+        timings["sampler_s"] = round(time.monotonic() - t0, 1)
+        meta = BundleMeta(
+            name=cfg.name,
+            training_data=f"{data_dir.name}: {len(data.cache.takes)} takes, styles {', '.join(data.cache.styles)}; "
+                          f"train split {data.train.num_takes} takes incl. augmentation",
+            training_command=command or " ".join(sys.argv),
+            training_time_s=timings,
+        )
+        bundle = Bundle(data.train.skeleton, sampler, cfg.manifold, cfg.phase, pae, meta)
+        if out is not None:
+            bundle.save(out)
+            (out / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
+    timings_path.write_text(json.dumps(timings, indent=1))
+    return bundle
