@@ -26,7 +26,7 @@ class SkeletonError(ValueError):
     """A rig that a profile cannot resolve, or an inconsistent skeleton."""
 
 
-def _plain(name: str) -> str:
+def plain_joint_name(name: str) -> str:
     """Joint names compare without a namespace prefix (``mixamorig:Hips``) and case-insensitively."""
     return name.rsplit(":", 1)[-1].strip().lower()
 
@@ -123,11 +123,11 @@ class SkeletonRoles:
 
 def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonRoles:
     """Resolve a profile against joint names; the error lists every joint it could not find."""
-    lookup = {_plain(n): i for i, n in enumerate(names)}
+    lookup = {plain_joint_name(n): i for i, n in enumerate(names)}
     missing: list[str] = []
 
     def idx(joint: str) -> int:
-        i = lookup.get(_plain(joint))
+        i = lookup.get(plain_joint_name(joint))
         if i is None:
             missing.append(joint)
             return -1
@@ -146,7 +146,7 @@ def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonR
             bare = name.rsplit(":", 1)[-1]
             if re.fullmatch(pattern, bare):
                 other = re.sub(pattern, repl, bare)
-                j = lookup.get(_plain(other))
+                j = lookup.get(plain_joint_name(other))
                 if j is None:
                     missing.append(f"{other} (mirror of {name})")
                 else:
@@ -216,9 +216,9 @@ class Skeleton:
 
     def index(self, name: str) -> int:
         """Index of a joint by name (namespace prefix and case ignored)."""
-        key = _plain(name)
+        key = plain_joint_name(name)
         for i, n in enumerate(self.names):
-            if _plain(n) == key:
+            if plain_joint_name(n) == key:
                 return i
         raise SkeletonError(f"no joint named {name!r} in this skeleton")
 
