@@ -48,7 +48,7 @@ class EncodedStyle:
     nbytes: int = 0
 
 
-@dataclass
+@dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
 class Character:
     """One transition in progress. The engine's batch owns its tensors while it is live."""
 
@@ -314,6 +314,7 @@ class CharacterBatch:
         assert self._state is not None
         return self._state.index(slice(i, i + 1))
 
+    @torch.inference_mode()
     def update_row(self, ch: Character, updates: dict[str, Tensor]) -> None:
         self._sync()
         i = self.members.index(ch)
@@ -325,6 +326,23 @@ class CharacterBatch:
         if ch in self._pending:
             self._pending.remove(ch)
             return
+        self._keep([m for m in self.members if m is not ch])
+
+    def detach(self, ch: Character) -> None:
+        """Take a live character out of the batch but keep its state on it, so :meth:`add` resumes it.
+
+        :meth:`remove` discards the state; this lets a scheduler pause one character (its client is
+        not reading, say) while the others keep stepping. Costs one restack, like ``remove``.
+        """
+        if ch in self._pending:
+            self._pending.remove(ch)
+            return
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None and self._yaw is not None and self._origin is not None
+        row = torch.tensor([i])
+        ch._row = self._state.index(row)  # a copy: later steps never write into it
+        ch._frame = CanonicalFrame(self._yaw[row], self._origin[row])
         self._keep([m for m in self.members if m is not ch])
 
     def drop_finished(self) -> list[Character]:

@@ -35,23 +35,15 @@ def _improper_procrustes(u: Tensor, v: Tensor) -> Tensor:
     return w @ torch.diag(d) @ zt
 
 
-def _axis_rotation(axis: Tensor, angle: float) -> Tensor:
-    k = torch.tensor(
-        [[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]], dtype=axis.dtype
-    )
-    eye = torch.eye(3, dtype=axis.dtype)
+def _axis_rotation(k: Tensor, angle: float) -> Tensor:
+    """Rodrigues: the rotation by ``angle`` about the unit axis whose cross-product matrix is ``k``."""
+    eye = torch.eye(3, dtype=k.dtype)
     return eye + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
 
 
-def _single_axis_reflection(u: Tensor, v: Tensor, prefer: Tensor) -> Tensor:
-    """An improper orthogonal matrix taking direction ``u`` to ``v``.
-
-    One bone leaves a one-parameter family (a twist about the bone). Keep the parent's mirror
-    convention ``prefer`` where the family comes closest to it; where every member is equally
-    far (the limb's axes are oriented unlike its parent's), take the member closest to ``-I``,
-    the convention of rigs whose left and right limb axes are mirrored ("behaviour" mirroring,
-    as in the Bandai-Namco rig, where identical local rotations make mirrored poses).
-    """
+def _family(u: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
+    """Improper orthogonal matrices taking direction ``u`` to ``v`` form ``h @ Rot(u, phi)``:
+    returns ``h`` and the cross-product matrix ``k`` of the unit ``u``."""
     u = u / u.norm()
     v = v / v.norm()
     n = u - v
@@ -62,19 +54,65 @@ def _single_axis_reflection(u: Tensor, v: Tensor, prefer: Tensor) -> Tensor:
         n = torch.linalg.cross(u, other)
     n = n / n.norm()
     h = torch.eye(3, dtype=u.dtype) - 2.0 * torch.outer(n, n)  # a reflection with h @ u == v
-    # The family is h @ Rot(u, phi); tr(A^T C) = const + b sin(phi) - c cos(phi) (Rodrigues).
     k = torch.tensor([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]], dtype=u.dtype)
-    for target in (prefer, -torch.eye(3, dtype=u.dtype)):
-        c_mat = h.T @ target
-        b = torch.trace(k.T @ c_mat)
-        c = torch.trace((k @ k).T @ c_mat)
-        if torch.hypot(b, c) > 1e-6:
-            return h @ _axis_rotation(u, float(torch.atan2(b, -c)))
+    return h, k
+
+
+def _best_in_family(h: Tensor, k: Tensor, b_mat: Tensor) -> Tensor | None:
+    """The member ``A = h Rot(phi)`` maximising ``tr(Rot(phi) b_mat)`` (closed form via Rodrigues),
+    or None when every member scores the same."""
+    b = torch.trace(k @ b_mat)
+    c = torch.trace(k @ k @ b_mat)
+    if torch.hypot(b, c) < 1e-6:
+        return None
+    phi = float(torch.atan2(b, -c))
+    return h @ _axis_rotation(k, phi)
+
+
+def _single_axis_reflection(u: Tensor, v: Tensor, prefer: Tensor, fit: Tensor | None) -> Tensor:
+    """An improper orthogonal matrix taking direction ``u`` to ``v``.
+
+    One bone leaves a one-parameter family ``A = h Rot(u, phi)`` (a twist about the bone), chosen
+    by the first criterion that tells members apart:
+
+    1. with reference motion, ``fit = R_j^T C`` where the mirrored mean local rotation is ``C @ A``
+       and ``R_j`` is the joint's own mean: the member making the two closest. Rigs whose rest
+       pose is not anatomical (Bandai-Namco's spine turns its lateral axis from y to z between
+       hips and chest) can only be read from motion;
+    2. the member closest to the parent's reflection ``prefer`` (a convention kept down a chain);
+    3. the member closest to ``-I``, the convention of rigs with mirrored limb axes ("behaviour"
+       mirroring, as in the Bandai-Namco limbs).
+    """
+    h, k = _family(u, v)
+    # Each criterion maximises tr(Rot(phi) B): for tr(X^T A) it is B = X^T h, for fit B = fit h.
+    targets = ([fit @ h] if fit is not None else []) + [prefer.T @ h, -h]
+    for b_mat in targets:
+        best = _best_in_family(h, k, b_mat)
+        if best is not None:
+            return best
     return h
 
 
-def mirror_reflections(skeleton: Skeleton) -> Tensor:
-    """Per-joint improper matrices ``A [J, 3, 3]`` (float64) used by :func:`mirror_global`."""
+def _mean_rotation(q: Tensor) -> Tensor:
+    """The rotation matrix nearest the chordal mean of rotations ``[N, 4]`` (float64)."""
+    u, _, vt = torch.linalg.svd(quat_to_matrix(q.double()).mean(0))
+    d = torch.ones(3, dtype=torch.float64)
+    d[2] = torch.det(u @ vt)
+    return u @ torch.diag(d) @ vt
+
+
+def mirror_reflections(skeleton: Skeleton, reference: Tensor | None = None) -> Tensor:
+    """Per-joint improper matrices ``A [J, 3, 3]`` (float64) used by :func:`mirror_global`.
+
+    Args:
+        skeleton: the rig.
+        reference: optional local rotations ``[N, J, 4]`` of typical motion (a few takes with as
+            much left as right in them), used to settle the twist of single-bone joints.
+    """
+    means = None
+    if reference is not None:
+        ref = reference.reshape(-1, skeleton.num_joints, 4)
+        means = [_mean_rotation(ref[:, j]) for j in range(skeleton.num_joints)]
     offsets = skeleton.offsets_tensor(torch.float64)
     mirror = skeleton.mirror
     parents = skeleton.parents
@@ -97,7 +135,10 @@ def mirror_reflections(skeleton: Skeleton) -> Tensor:
             if len(kids) >= 2 and torch.linalg.matrix_rank(u, atol=1e-3) >= 2:
                 a = _improper_procrustes(u, v)
             else:
-                a = _single_axis_reflection(u.sum(0), v.sum(0), prefer)
+                fit = None
+                if means is not None and parent_a is not None:
+                    fit = means[j].T @ parent_a.T @ means[mj]
+                a = _single_axis_reflection(u.sum(0), v.sum(0), prefer, fit)
         else:
             a = prefer.clone()
         if mj == j:
@@ -121,13 +162,17 @@ def mirror_global(
     return pos, matrix_to_quat(mats).to(rotations.dtype)
 
 
-def mirror_clip(clip: Clip) -> Clip:
-    """The clip mirrored left/right (a left turn becomes a right turn); twice gives it back."""
+def mirror_clip(clip: Clip, reflections: Tensor | None = None) -> Clip:
+    """The clip mirrored left/right (a left turn becomes a right turn); twice gives it back.
+
+    ``reflections`` from :func:`mirror_reflections` (with reference motion for rigs whose rest
+    pose is not anatomical); derived from the rest offsets alone when omitted.
+    """
     sk = clip.skeleton
     pos, rot = forward_kinematics(
         clip.rotations.double(), clip.root_positions.double(), sk.offsets_tensor(torch.float64), sk.parents
     )
-    mpos, mrot = mirror_global(pos, rot, sk)
+    mpos, mrot = mirror_global(pos, rot, sk, reflections)
     local = global_to_local_rotations(mrot, sk.parents)
     root = mpos[..., 0, :]  # the root lies on the midline, so it is its own counterpart
     return replace(

@@ -81,7 +81,9 @@ class MotionTensors:
         if not takes:
             raise ValueError("no takes to train on")
         skeleton = skeleton or mean_skeleton(cache, takes)
-        reflections = mirror_reflections(skeleton)
+        # Typical motion settles the mirror convention of single-bone joints (see model.mirror).
+        sample = list(takes)[:: max(1, len(takes) // 200)]
+        reflections = mirror_reflections(skeleton, torch.cat([cache.rotations(i)[::4] for i in sample]))
         gen = torch.Generator().manual_seed(seed)
         styles, contents = list(cache.styles), list(cache.contents)
         pos_parts, rot_parts, lens, sty, con, src, names = [], [], [], [], [], [], []
