@@ -60,6 +60,8 @@ class Character:
     slot: int = 0
     _row: SamplerState | None = field(default=None, repr=False)
     _frame: CanonicalFrame | None = field(default=None, repr=False)
+    # Inputs of the recurrent warm-up, run batched when the character joins a batch.
+    _init: tuple[PoseState, PoseState, int, Tensor] | None = field(default=None, repr=False)
 
     @property
     def remaining(self) -> int:
@@ -210,11 +212,24 @@ class Engine:
         if not deterministic:
             gen = torch.Generator().manual_seed(int(seed) if seed is not None else int(time.time_ns() % (2**62)))
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
-        with torch.inference_mode():
-            row = self.sampler.begin(cstate, tstate, torch.tensor([frames]), noise, style.context)
         ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames)
-        ch._row, ch._frame = row, frame
+        ch._init, ch._frame = (cstate, tstate, frames, noise), frame
         return ch
+
+    @torch.inference_mode()
+    def begin(self, characters: list[Character]) -> SamplerState:
+        """Warm the recurrent core of prepared characters on their contexts, all in one batch."""
+        inits = [c._init for c in characters]
+        if any(i is None for i in inits):
+            raise ValueError("character was not prepared by Engine.prepare, or has begun already")
+        ctx = _cat_pose([i[0] for i in inits])  # type: ignore[index]
+        tgt = _cat_pose([i[1] for i in inits])  # type: ignore[index]
+        frames = torch.tensor([i[2] for i in inits])  # type: ignore[index]
+        noise = torch.cat([i[3] for i in inits])  # type: ignore[index]
+        style = StyleContext.stack([c.style.context for c in characters])
+        for c in characters:
+            c._init = None
+        return self.sampler.begin(ctx, tgt, frames, noise, style)
 
     def _target_state(self, target: Clip, frame: CanonicalFrame) -> PoseState:
         tail = target.window(max(0, target.num_frames - 2), target.num_frames)
@@ -230,8 +245,9 @@ class Engine:
         """Change where and/or when a live character arrives, from its next frame on."""
         if frames is not None and not 1 <= frames <= self.config.max_transition:
             raise EngineError("validation_error", f"frames must be between 1 and {self.config.max_transition}; got {frames}")
-        row_state = batch.row_of(ch) if batch is not None else ch._row
-        assert row_state is not None and ch._frame is not None
+        if batch is None and ch._row is None:
+            ch._row = self.begin([ch])
+        assert ch._frame is not None
         if target is not None:
             tstate = self._target_state(self.conform(target, "target"), ch._frame)
             with torch.inference_mode():
@@ -264,6 +280,10 @@ class Engine:
         return [(torch.stack(rots[ch.id]), torch.stack(roots[ch.id])) for ch in characters]
 
 
+def _cat_pose(items: list[PoseState]) -> PoseState:
+    return PoseState(*(torch.cat([getattr(p, k) for p in items]) for k in ("rel", "vel", "rot", "root_xz")))
+
+
 class CharacterBatch:
     """Live characters whose states are stacked so one sampler step advances them all.
 
@@ -284,20 +304,26 @@ class CharacterBatch:
         return len(self.members) + len(self._pending)
 
     def add(self, ch: Character) -> None:
-        if ch._row is None:
+        if ch._row is None and ch._init is None:
             raise ValueError("character was not prepared by Engine.prepare")
         self._pending.append(ch)
 
     def _sync(self) -> None:
         if self._pending:
-            rows = ([self._state] if self._state is not None else []) + [c._row for c in self._pending]
-            frames = ([CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None else []) + [c._frame for c in self._pending]
+            fresh = [c for c in self._pending if c._row is None]
+            resumed = [c for c in self._pending if c._row is not None]
+            rows = [self._state] if self._state is not None else []
+            if fresh:
+                rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
+            rows += [c._row for c in resumed]  # type: ignore[misc]
+            joined = fresh + resumed
+            frames = ([CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None else []) + [c._frame for c in joined]
             self._state = SamplerState.stack(rows)  # type: ignore[arg-type]
             self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
             self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
-            for c in self._pending:
+            for c in joined:
                 c._row = None
-            self.members.extend(self._pending)
+            self.members.extend(joined)
             self._pending = []
             self._style_dirty = True
         if self._style_dirty and self.members:

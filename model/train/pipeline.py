@@ -130,6 +130,22 @@ def _load_weights(module: torch.nn.Module, folder: Path, stage: str) -> None:
     module.load_state_dict(load_file(str(path)), strict=True)
 
 
+def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progress: bool) -> None:
+    """Phase labels for every frame, reused from ``path`` when made by the same weights on the same frames."""
+    weights = torch.cat([p.detach().flatten() for p in pae.state_dict().values() if p.is_floating_point()])
+    key = f"{weights.double().sum().item():.12e}:{weights.numel()}:{len(tensors.positions)}:{tensors.positions.double().sum().item():.9e}"
+    if path.is_file():
+        stored = load_file(str(path))
+        if bytes(stored["key"].tolist()).decode() == key:
+            tensors.phase, tensors.amplitude, tensors.frequency = stored["phase"], stored["amplitude"], stored["frequency"]
+            return
+    label_tensors(pae, tensors, progress)
+    assert tensors.phase is not None and tensors.amplitude is not None and tensors.frequency is not None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_file({"phase": tensors.phase, "amplitude": tensors.amplitude, "frequency": tensors.frequency,
+               "key": torch.tensor(list(key.encode()), dtype=torch.uint8)}, str(path))
+
+
 def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...], out: Path | None,
         progress: bool = True, command: str | None = None) -> Bundle | None:
     """Run the given stages (in recipe order) and write the bundle when the sampler is done."""
@@ -156,8 +172,8 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
         _load_weights(pae, run_dir / "phase", "phase")
     pae.eval()
     t0 = time.monotonic()
-    label_tensors(pae, data.train, progress)
-    label_tensors(pae, data.val, progress)
+    for part, tensors in (("train", data.train), ("val", data.val)):
+        _labels(pae, tensors, run_dir / "phase" / f"labels_{part}.safetensors", progress)
     timings["labels_s"] = round(time.monotonic() - t0, 1)
     (run_dir / "phase_summary.json").write_text(json.dumps(phase_summary(data.train), indent=1))
 

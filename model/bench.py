@@ -1,0 +1,160 @@
+"""Speed bench: per-frame latency at batch 1, throughput across many characters, style encoding
+time and memory, for a bundle and for the paper-size network at random weights, with a machine
+probe so figures from different machines compare as ratios.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from model.bundle import Bundle
+from model.engine import CharacterBatch, Engine
+from model.manifold import ManifoldConfig
+from model.sampler import SamplerConfig
+from model.synthetic import synthetic_walk
+
+PAPER_SAMPLER = dict(width=512, rnn=1024, head=1024, style_channels=512, phases=10, latent=32)
+PAPER_MANIFOLD = dict(experts=8, hidden=512, gate_hidden=128, encoder_hidden=512, phases=10, latent=32)
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:  # not Linux
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def machine_probe(seconds: float = 1.0) -> dict[str, float]:
+    """A fixed fp32 matrix product (GFLOP/s) and a 64 MiB memory copy (GB/s) on this machine."""
+    a = torch.randn(512, 512)
+    b = torch.randn(512, 512)
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds / 2:
+        a @ b
+        n += 1
+    gflops = n * 2 * 512**3 / (time.perf_counter() - t0) / 1e9
+    src = torch.empty(16 * 2**20)  # 64 MiB of float32
+    dst = torch.empty_like(src)
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds / 2:
+        dst.copy_(src)
+        n += 1
+    gbps = n * 2 * src.numel() * 4 / (time.perf_counter() - t0) / 1e9
+    return {"matmul_gflops": round(gflops, 1), "memcpy_gbps": round(gbps, 1)}
+
+
+@dataclass
+class BenchResult:
+    name: str
+    parameters_per_frame: int
+    latency_ms: dict[str, float] = field(default_factory=dict)
+    throughput: dict[int, float] = field(default_factory=dict)
+    style_encode_ms: float = 0.0
+    rss_mb: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "parameters_per_frame": self.parameters_per_frame, "latency_ms": self.latency_ms,
+                "throughput_char_frames_per_s": {str(k): v for k, v in self.throughput.items()},
+                "style_encode_ms": self.style_encode_ms, "rss_mb": self.rss_mb}
+
+
+def per_frame_parameters(bundle: Bundle) -> int:
+    """Weights read for every generated frame (the style encoder and target encoder run once)."""
+    once = ("style_encoder.", "phase_estimator.", "target_encoder.", "film1.", "film2.", "attn1.key", "attn1.value",
+            "attn2.key", "attn2.value")
+    return sum(p.numel() for n, p in bundle.sampler.named_parameters() if not n.startswith(once))
+
+
+def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8, 32, 128, 512),
+                 latency_frames: int = 300, budget_s: float = 6.0) -> BenchResult:
+    """Measure one engine; each throughput point runs for at most ``budget_s / len(batch_sizes)``."""
+    c = engine.config
+    walk = synthetic_walk(frames=160, turn_deg_s=15.0)
+    style_clip = walk.window(20, 20 + min(120, c.style_frames_max))
+    res = BenchResult(name, per_frame_parameters(engine.bundle))
+    times = []
+    for i in range(5):
+        engine.styles.delete(engine.style_id(style_clip))
+        t0 = time.perf_counter()
+        style, _ = engine.encode_style(style_clip)
+        times.append((time.perf_counter() - t0) * 1000)
+    res.style_encode_ms = round(statistics.median(times), 3)
+    frames = c.max_transition
+    context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
+
+    def fresh(n: int) -> CharacterBatch:
+        batch = CharacterBatch(engine)
+        for i in range(n):
+            batch.add(engine.prepare(context, target, frames, style, seed=i))
+        return batch
+
+    # Latency: one character, each step timed; new transitions start when one ends.
+    step_ms: list[float] = []
+    batch = fresh(1)
+    batch.step()  # warm
+    while len(step_ms) < latency_frames:
+        if not len(batch):
+            batch = fresh(1)
+        t0 = time.perf_counter()
+        batch.step()
+        step_ms.append((time.perf_counter() - t0) * 1000)
+        batch.drop_finished()
+    step_ms.sort()
+    res.latency_ms = {"median": round(statistics.median(step_ms), 3), "p99": round(step_ms[int(0.99 * (len(step_ms) - 1))], 3),
+                      "mean": round(statistics.fmean(step_ms), 3)}
+    per_point = budget_s / len(batch_sizes)
+    for n in batch_sizes:
+        batch = fresh(n)
+        batch.step()
+        steps, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < per_point and steps < frames - 1:
+            batch.step()
+            steps += 1
+        elapsed = time.perf_counter() - t0
+        res.throughput[n] = round(n * steps / elapsed, 1) if steps else 0.0
+    res.rss_mb = round(_rss_mb(), 1)
+    return res
+
+
+def paper_size_engine(reference: Bundle) -> Engine:
+    """The paper's network sizes on the reference bundle's skeleton, random weights."""
+    j = reference.skeleton.num_joints
+    sampler = SamplerConfig(joints=j, root=reference.skeleton.roles.root, **PAPER_SAMPLER)
+    manifold = ManifoldConfig(joints=j, root=reference.skeleton.roles.root, **PAPER_MANIFOLD)
+    return Engine(Bundle.create(reference.skeleton, sampler, manifold))
+
+
+def machine_description() -> dict[str, str | int]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count() or 0, "torch": torch.__version__, "threads": torch.get_num_threads(),
+            "python": platform.python_version()}
+
+
+def format_table(results: list[BenchResult], probe: dict[str, float]) -> str:
+    sizes = sorted({n for r in results for n in r.throughput})
+    head = ["model", "params/frame", "batch-1 median ms", "p99 ms", "style encode ms", "RSS MB"] + [f"{n} chars (char-frames/s)" for n in sizes]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        row = [r.name, f"{r.parameters_per_frame / 1e6:.2f} M", f"{r.latency_ms['median']:.3f}", f"{r.latency_ms['p99']:.3f}",
+               f"{r.style_encode_ms:.2f}", f"{r.rss_mb:.0f}"] + [f"{r.throughput.get(n, 0):,.0f}" for n in sizes]
+        lines.append("| " + " | ".join(row) + " |")
+    lines.append("")
+    lines.append(f"Machine probe: {probe['matmul_gflops']} GFLOP/s (512x512 fp32 matmul), {probe['memcpy_gbps']} GB/s (64 MiB copy).")
+    return "\n".join(lines)

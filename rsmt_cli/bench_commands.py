@@ -1,0 +1,46 @@
+"""The ``rsmt bench`` command: speed of a bundle beside the paper-size network, as a table and JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("bench", help="per-frame latency, throughput, style encoding time, memory",
+                              description="Benchmark a bundle and the paper-size network (random weights) on this machine.")
+    p.add_argument("--model", type=Path, help="bundle folder (default: the bundled default model)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+    p.add_argument("--batch-sizes", default="1,8,32,128,512", help="concurrent characters to measure (comma-separated)")
+    p.add_argument("--budget", type=float, default=8.0, metavar="S", help="seconds of throughput runs per model (default 8)")
+    p.add_argument("--no-paper", action="store_true", help="skip the paper-size network")
+    p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON here")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    import torch
+
+    from model.bench import bench_engine, format_table, machine_description, machine_probe, paper_size_engine
+    from model.bundle import DEFAULT_BUNDLE, Bundle
+    from model.engine import Engine
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    began = time.monotonic()
+    sizes = tuple(int(x) for x in args.batch_sizes.split(",") if x.strip())
+    path = args.model or DEFAULT_BUNDLE
+    bundle = Bundle.load(path)
+    probe = machine_probe()
+    results = [bench_engine(Engine(bundle), f"{bundle.meta.name} ({path.name})", sizes, budget_s=args.budget)]
+    if not args.no_paper:
+        results.append(bench_engine(paper_size_engine(bundle), "paper-size, random weights", sizes, budget_s=args.budget))
+    print(format_table(results, probe))
+    report = {"machine": machine_description(), "probe": probe, "results": [r.to_dict() for r in results],
+              "seconds": round(time.monotonic() - began, 1)}
+    print(f"\nfinished in {report['seconds']} s")
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1))
+    return 0

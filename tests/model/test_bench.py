@@ -1,0 +1,25 @@
+"""The speed bench runs and reports every figure (numbers are machine-dependent, never asserted)."""
+
+from __future__ import annotations
+
+from model.bench import BenchResult, bench_engine, format_table, machine_probe, per_frame_parameters
+from model.bundle import Bundle
+from model.engine import Engine
+from model.manifold import ManifoldConfig
+from model.sampler import SamplerConfig
+from model.synthetic import synthetic_skeleton
+
+
+def test_bench_smoke():
+    cfg = SamplerConfig(joints=21, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=20)
+    man = ManifoldConfig(joints=21, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man)
+    res = bench_engine(Engine(bundle), "tiny", batch_sizes=(1, 4), latency_frames=30, budget_s=0.5)
+    assert isinstance(res, BenchResult)
+    assert res.latency_ms["median"] > 0 and res.latency_ms["p99"] >= res.latency_ms["median"]
+    assert set(res.throughput) == {1, 4} and all(v > 0 for v in res.throughput.values())
+    assert res.style_encode_ms > 0 and res.rss_mb > 0
+    assert 0 < per_frame_parameters(bundle) < sum(p.numel() for p in bundle.sampler.parameters())
+    probe = machine_probe(seconds=0.2)
+    table = format_table([res], probe)
+    assert "| tiny |" in table and "GFLOP/s" in table
