@@ -7,10 +7,10 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from rsmt_cli import data_commands
+from rsmt_cli import bench_commands, data_commands, train_commands
 
 # Each command group module exposes ``register(subparsers)``; later groups are appended here.
-GROUPS = [data_commands]
+GROUPS = [data_commands, train_commands, bench_commands]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,237 @@
+"""The ``rsmt data`` command group: ``rsmt data inspect`` reports what a folder of BVH takes holds."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from model.skeleton import SkeletonError, SkeletonProfile, detect_roles
+from model.splits import DEFAULT_RATIOS, SPLITS, parse_ratios, split_takes
+from model.takes import Problem, Take, TakeIndex, describe_layout, index_takes, read_bvh_header, relative_path
+
+log = logging.getLogger(__name__)
+
+MAX_PROBLEMS_SHOWN = 20
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``rsmt data ...`` to the top-level parser."""
+    data = subparsers.add_parser("data", help="inspect and preprocess motion data",
+                                 description="Inspect and preprocess folders of BVH takes.")
+    sub = data.add_subparsers(dest="data_command", required=True, metavar="SUBCOMMAND")
+    inspect = sub.add_parser(
+        "inspect", help="takes, frames and minutes per style and content, split sizes and problems",
+        description=(
+            "Index a folder of BVH takes (labels from a manifest, a 100STYLE Frame_Cuts.csv, or "
+            "Bandai-Namco file names, in that order of preference) and print takes, frames and minutes per "
+            "style and per content, a style x content table (the longer label list runs down the rows), "
+            "the train/val/test split sizes and every file that was skipped. Frames are read from the BVH "
+            "headers at each file's own rate; --cache parses every file into the preprocessed cache "
+            "instead and reports its frames."),
+    )
+    inspect.add_argument("folder", type=Path, metavar="DIR", help="folder of BVH takes (searched recursively)")
+    inspect.add_argument("--manifest", type=Path, metavar="CSV",
+                         help="CSV with columns file, style, content[, start, stop]; paths relative to it")
+    inspect.add_argument("--profile", metavar="P",
+                         help="skeleton profile: a built-in name (bandai-namco, 100style) or a JSON file; "
+                              "default: the first built-in that fits each file")
+    inspect.add_argument("--ratios", type=parse_ratios, default=DEFAULT_RATIOS, metavar="TRAIN,VAL,TEST",
+                         help="split ratios (default 0.8,0.1,0.1)")
+    inspect.add_argument("--holdout-style", action="append", default=[], metavar="STYLE",
+                         help="hold a style out of the split entirely (repeatable)")
+    inspect.add_argument("--cache", action="store_true",
+                         help="build (or reuse) the preprocessed motion cache and report its frames and problems")
+    inspect.add_argument("--fps", type=float, default=30.0, help="frame rate of the cache (with --cache; default 30)")
+    inspect.add_argument("--json", action="store_true", help="print machine-readable JSON instead of tables")
+    inspect.set_defaults(func=inspect_command)
+
+
+# ---------------------------------------------------------------------------------- gathering
+def _probe_headers(index: TakeIndex, profile: SkeletonProfile | None) -> tuple[list[tuple[Take, int, float]], list[Problem]]:
+    """Frames and fps of each take from its BVH header, checking that the rig resolves."""
+    rows: list[tuple[Take, int, float]] = []
+    problems: list[Problem] = []
+    rig_ok: dict[tuple[str, ...], str | None] = {}
+    for take in index.takes:
+        rel = relative_path(take.path, index.root)
+        try:
+            header = read_bvh_header(take.path)
+        except (OSError, ValueError) as exc:
+            problems.append(Problem(rel, "unreadable", str(exc)))
+            continue
+        if header.joints not in rig_ok:  # datasets share a handful of rigs: resolve each once
+            try:
+                detect_roles(header.joints, profile)
+                rig_ok[header.joints] = None
+            except SkeletonError as exc:
+                rig_ok[header.joints] = str(exc)
+        if rig_ok[header.joints] is not None:
+            problems.append(Problem(rel, "rig", rig_ok[header.joints]))
+            continue
+        frames = header.frames
+        if take.start is not None or take.stop is not None:
+            lo, hi = take.start or 0, header.frames if take.stop is None else min(take.stop, header.frames)
+            if hi <= lo:
+                problems.append(Problem(rel, "bad-cut", f"cut [{take.start}, {take.stop}) leaves no frames of {header.frames}"))
+                continue
+            frames = hi - lo
+        rows.append((take, frames, header.fps))
+    return rows, problems
+
+
+def _tally(rows: Sequence[tuple[Take, int, float]]) -> dict[str, float]:
+    return {
+        "takes": len(rows),
+        "frames": sum(f for _, f, _ in rows),
+        "minutes": round(sum(f / fps for _, f, fps in rows) / 60.0, 2),
+    }
+
+
+def inspect_data(
+    folder: Path,
+    manifest: Path | None = None,
+    profile: str | None = None,
+    ratios: Sequence[float] = DEFAULT_RATIOS,
+    holdout_styles: Sequence[str] = (),
+    use_cache: bool = False,
+    fps: float = 30.0,
+) -> dict[str, Any]:
+    """The report that ``rsmt data inspect`` prints, as a JSON-ready dict."""
+    index = index_takes(folder, manifest)
+    prof = None if profile is None else SkeletonProfile.load(profile)
+    cache_folder = None
+    if use_cache:
+        from model.motion_cache import load_motion_cache  # torch-heavy; only needed with --cache
+
+        cache = load_motion_cache(folder, fps=fps, profile=prof, manifest=manifest)
+        rows = [(t, n, cache.fps) for t, n in zip(cache.takes, cache.frame_counts)]
+        problems = list(cache.problems)
+        cache_folder = str(cache.folder)
+    else:
+        rows, probe_problems = _probe_headers(index, prof)
+        problems = index.problems + probe_problems
+    takes = [t for t, _, _ in rows]
+    styles = sorted({t.style for t in takes})
+    contents = sorted({t.content for t in takes})
+    split = split_takes(takes, ratios, holdout_styles)
+    split_names = [*SPLITS, "holdout"] if split.holdout_styles else list(SPLITS)
+    return {
+        "folder": str(index.root),
+        "layout": index.layout,
+        "labels": describe_layout(index),
+        "frames_from": "cache" if use_cache else "headers",
+        "cache": cache_folder,
+        "fps": sorted({round(f, 3) for _, _, f in rows}),  # the rates frames are counted at
+        "total": _tally(rows),
+        "styles": styles,
+        "contents": contents,
+        "per_style": {s: _tally([r for r in rows if r[0].style == s]) for s in styles},
+        "per_content": {c: _tally([r for r in rows if r[0].content == c]) for c in contents},
+        "table": {
+            s: {c: {k: v for k, v in _tally([r for r in rows if r[0].style == s and r[0].content == c]).items()
+                    if k != "minutes"} for c in contents}
+            for s in styles
+        },
+        "split": {
+            "ratios": list(split.ratios),
+            "holdout_styles": list(split.holdout_styles),
+            **{name: _tally([rows[i] for i in split[name]]) for name in split_names},
+        },
+        "problems": [asdict(p) for p in problems],
+    }
+
+
+# ---------------------------------------------------------------------------------- printing
+def _table(header: Sequence[str], body: Sequence[Sequence[str]], left: int = 1) -> list[str]:
+    """Text table: the first ``left`` columns flush left, the rest flush right."""
+    widths = [max(len(str(r[i])) for r in [header, *body]) for i in range(len(header))]
+    lines = []
+    for r in [header, *body]:
+        cells = [str(c).ljust(w) if i < left else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths))]
+        lines.append("  ".join(cells).rstrip())
+    return lines
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The human-readable form of :func:`inspect_data`'s report."""
+    total = report["total"]
+    styles, contents = report["styles"], report["contents"]
+    out = [
+        f"Data folder: {report['folder']}",
+        f"Layout:      {report['labels']}",
+        f"Takes:       {total['takes']} takes, {total['frames']:,} frames, {total['minutes']:.1f} min; "
+        f"{len(styles)} styles x {len(contents)} contents",
+    ]
+    rates = ", ".join(f"{f:g}" for f in report["fps"]) or "-"
+    if report["frames_from"] == "cache":
+        out.append(f"Frames:      preprocessed at {rates} fps (cache {report['cache']})")
+    else:
+        out.append(f"Frames:      from the BVH headers, at the files' own rate ({rates} fps); minutes at that rate")
+
+    if styles:
+        # The longer label list runs down the rows so the table stays narrow (100STYLE: 100 styles).
+        by_style = len(styles) > len(contents)
+        rows_l, cols_l = (styles, contents) if by_style else (contents, styles)
+        corner = "style \\ content" if by_style else "content \\ style"
+
+        def cell(r: str, c: str) -> dict[str, int]:
+            return report["table"][r][c] if by_style else report["table"][c][r]
+
+        def sums(label: str, along_rows: bool) -> dict[str, float]:
+            key = ("per_style" if by_style else "per_content") if along_rows else ("per_content" if by_style else "per_style")
+            return report[key][label]
+
+        body = []
+        for r in rows_l:
+            t = sums(r, True)
+            body.append([r, *(f"{cell(r, c)['takes']}/{cell(r, c)['frames']:,}" for c in cols_l),
+                         f"{t['takes']}/{t['frames']:,}", f"{t['minutes']:.1f}"])
+        body.append(["total", *(f"{sums(c, False)['takes']}/{sums(c, False)['frames']:,}" for c in cols_l),
+                     f"{total['takes']}/{total['frames']:,}", f"{total['minutes']:.1f}"])
+        body.append(["minutes", *(f"{sums(c, False)['minutes']:.1f}" for c in cols_l), f"{total['minutes']:.1f}", ""])
+        out += ["", "Takes/frames per style and content (cell = takes/frames):"]
+        out += _table([corner, *cols_l, "total", "minutes"], body)
+
+        for title, key in (("style", "per_style"), ("content", "per_content")):
+            out += ["", f"Per {title}:"]
+            out += _table([title, "takes", "frames", "minutes"],
+                          [[k, v["takes"], f"{v['frames']:,}", f"{v['minutes']:.1f}"] for k, v in report[key].items()])
+
+    split = report["split"]
+    ratios = "/".join(f"{r:g}" for r in split["ratios"])
+    held = f"; held out: {', '.join(split['holdout_styles'])}" if split["holdout_styles"] else ""
+    out += ["", f"Split by take (ratios {ratios}, stratified by style x content, hash of the take id{held}):"]
+    names = [n for n in (*SPLITS, "holdout") if n in split]
+    out += _table(["split", "takes", "frames", "minutes"],
+                  [[n, split[n]["takes"], f"{split[n]['frames']:,}", f"{split[n]['minutes']:.1f}"] for n in names])
+
+    problems = report["problems"]
+    if not problems:
+        out += ["", "Problems: none"]
+    else:
+        kinds = Counter(p["kind"] for p in problems)
+        out += ["", f"Problems: {len(problems)} file(s) skipped ("
+                + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items())) + ")"]
+        out += [f"  {Problem(**p)}" for p in problems[:MAX_PROBLEMS_SHOWN]]
+        if len(problems) > MAX_PROBLEMS_SHOWN:
+            out.append(f"  ... and {len(problems) - MAX_PROBLEMS_SHOWN} more (--json lists them all)")
+    return "\n".join(out)
+
+
+def inspect_command(args: argparse.Namespace) -> int:
+    report = inspect_data(args.folder, args.manifest, args.profile, args.ratios, args.holdout_style,
+                          use_cache=args.cache, fps=args.fps)
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print(format_report(report))
+    if report["total"]["takes"] == 0:
+        log.error("no usable takes under %s", args.folder)
+        return 1
+    return 0
