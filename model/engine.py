@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from model.arrival import ArrivalCorrector, ArrivalState
 from model.bundle import Bundle
 from model.clip import Clip
 from model.features import CanonicalFrame, local_frame_features
@@ -60,6 +61,9 @@ class Character:
     slot: int = 0
     _row: SamplerState | None = field(default=None, repr=False)
     _frame: CanonicalFrame | None = field(default=None, repr=False)
+    # Exact arrival (see model.arrival): its per-character state and the target pose in world space.
+    arrival: ArrivalState | None = None
+    _target_pose: tuple[Tensor, Tensor] | None = field(default=None, repr=False)
     # Inputs of the recurrent warm-up, run batched when the character joins a batch.
     _init: tuple[PoseState, PoseState, int, Tensor] | None = field(default=None, repr=False)
 
@@ -101,6 +105,7 @@ class Engine:
         self.config = bundle.config
         self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
         self._offsets = self.skeleton.offsets_tensor()
+        self.arrival = ArrivalCorrector(self.skeleton)
         self._ids = itertools.count()
 
     # ------------------------------------------------------------------ description
@@ -191,8 +196,12 @@ class Engine:
 
     # ------------------------------------------------------------------ transitions
     def prepare(self, context: Clip, target: Clip, frames: int, style: EncodedStyle, seed: int | None = None,
-                deterministic: bool = False, character_id: str | None = None) -> Character:
-        """Validate a transition request and build its (unbatched) initial state."""
+                deterministic: bool = False, character_id: str | None = None, exact_arrival: bool = False) -> Character:
+        """Validate a transition request and build its (unbatched) initial state.
+
+        With ``exact_arrival`` the last frames are bent so the arrival frame equals the target pose
+        exactly (:mod:`model.arrival`); otherwise the network's own arrival is returned.
+        """
         c = self.config
         if not 1 <= frames <= c.max_transition:
             raise EngineError("too_many_frames" if frames > c.max_transition else "validation_error",
@@ -214,6 +223,9 @@ class Engine:
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
         ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames)
         ch._init, ch._frame = (cstate, tstate, frames, noise), frame
+        if exact_arrival:
+            ch.arrival = ArrivalState()
+            ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
         return ch
 
     @torch.inference_mode()
@@ -249,7 +261,10 @@ class Engine:
             ch._row = self.begin([ch])
         assert ch._frame is not None
         if target is not None:
-            tstate = self._target_state(self.conform(target, "target"), ch._frame)
+            target = self.conform(target, "target")
+            if ch.arrival is not None:
+                ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
+            tstate = self._target_state(target, ch._frame)
             with torch.inference_mode():
                 emb = self.sampler.target_encoder(tstate.vector())
             updates = {"target_vec": tstate.vector(), "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
@@ -404,6 +419,17 @@ class CharacterBatch:
         grot = frame.rotations_from(sixd_to_quat(pose.rot))
         root = frame.positions_from(pose.positions()[:, self.engine.skeleton.roles.root])
         local = global_to_local_rotations(grot, self.engine.skeleton.parents)
+        exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
+        if exact:
+            idx = torch.tensor(exact)
+            chars = [self.members[i] for i in exact]
+            t_rot = torch.stack([c._target_pose[0] for c in chars])  # type: ignore[index]
+            t_root = torch.stack([c._target_pose[1] for c in chars])  # type: ignore[index]
+            remaining = torch.tensor([c.remaining - 1 for c in chars])
+            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining,
+                                                              [c.arrival for c in chars])  # type: ignore[misc]
+            local, root = local.clone(), root.clone()
+            local[idx], root[idx] = fixed_rot, fixed_root
         seq = []
         for m in self.members:
             seq.append(m.seq)

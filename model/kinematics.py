@@ -79,3 +79,46 @@ def bone_offsets_from_positions(
     delta = global_positions - global_positions.index_select(-2, idx)
     offsets = quat_rotate(quat_conjugate(global_rotations.index_select(-2, idx)), delta)
     return torch.cat([torch.zeros_like(offsets[..., :1, :]), offsets[..., 1:, :]], dim=-2)
+
+
+def two_bone_ik(
+    root_pos: Tensor, mid_pos: Tensor, end_pos: Tensor, root_rot: Tensor, mid_rot: Tensor, target: Tensor, eps: float = 1e-4
+) -> tuple[Tensor, Tensor]:
+    """Analytic two-bone IK (hip-knee-ankle): new world rotations of the root and middle joints.
+
+    The chain bends in its current plane and then turns about the root so the end reaches
+    ``target``; unreachable targets are approached as far as the bone lengths allow.
+
+    Args:
+        root_pos, mid_pos, end_pos: ``[..., 3]`` world positions of the three joints.
+        root_rot, mid_rot: ``[..., 4]`` world rotations of the first two.
+        target: ``[..., 3]`` where the end joint should go.
+
+    Returns:
+        ``(root_rot', mid_rot')`` world rotations; the end joint's world rotation is unchanged
+        if the caller keeps it (recompute its local rotation from ``mid_rot'``).
+    """
+    from model.rotations import axis_angle_to_quat, quat_mul  # local import keeps the module header small
+
+    def unit(v: Tensor) -> Tensor:
+        return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+
+    def angle(u: Tensor, v: Tensor) -> Tensor:
+        return torch.acos((unit(u) * unit(v)).sum(-1).clamp(-1.0, 1.0))
+
+    l1 = (mid_pos - root_pos).norm(dim=-1)
+    l2 = (end_pos - mid_pos).norm(dim=-1)
+    d = (target - root_pos).norm(dim=-1).clamp((l1 - l2).abs() + eps, l1 + l2 - eps)
+    ac_ab_0 = angle(end_pos - root_pos, mid_pos - root_pos)
+    ba_bc_0 = angle(root_pos - mid_pos, end_pos - mid_pos)
+    ac_at_0 = angle(end_pos - root_pos, target - root_pos)
+    ac_ab_1 = torch.acos(((l2 * l2 - l1 * l1 - d * d) / (-2 * l1 * d)).clamp(-1.0, 1.0))
+    ba_bc_1 = torch.acos(((d * d - l1 * l1 - l2 * l2) / (-2 * l1 * l2)).clamp(-1.0, 1.0))
+    bend_axis = unit(torch.linalg.cross(end_pos - root_pos, mid_pos - root_pos))
+    turn_axis = unit(torch.linalg.cross(end_pos - root_pos, target - root_pos))
+    r0 = axis_angle_to_quat(bend_axis, ac_ab_1 - ac_ab_0)
+    r1 = axis_angle_to_quat(bend_axis, ba_bc_1 - ba_bc_0)
+    r2 = axis_angle_to_quat(turn_axis, ac_at_0)
+    # A straight chain has no bend plane; it needs no bend either, so drop the NaN-free zero axis.
+    turn = quat_mul(r2, r0)
+    return quat_mul(turn, root_rot), quat_mul(turn, quat_mul(r1, mid_rot))

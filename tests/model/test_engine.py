@@ -158,3 +158,16 @@ def test_info_describes_the_model(engine):
     assert info["fps"] == 30.0 and info["context_frames"] == 10
     assert [j["name"] for j in info["skeleton"]["joints"]][0] == "Hips"
     assert info["skeleton"]["units"] == "cm" and info["skeleton"]["up_axis"] == "y"
+
+
+def test_exact_arrival_lands_on_the_target(engine, walk):
+    from model.rotations import quat_angle
+
+    style, _ = engine.encode_style(walk.window(30, 150))
+    target = walk.window(40, 42)
+    plain = engine.generate([engine.prepare(walk.window(0, 10), target, 20, style, deterministic=True)])[0]
+    exact = engine.generate([engine.prepare(walk.window(0, 10), target, 20, style, deterministic=True, exact_arrival=True)])[0]
+    assert quat_angle(exact[0][-1], target.rotations[-1]).max() < 1e-3
+    assert torch.allclose(exact[1][-1], target.root_positions[-1], atol=1e-3)
+    assert not torch.allclose(plain[1][-1], target.root_positions[-1], atol=1e-1)  # random weights miss it
+    assert torch.allclose(exact[0][:5], plain[0][:5])  # frames before the window are untouched
