@@ -83,9 +83,18 @@ class MotionTensors:
         skeleton = skeleton or mean_skeleton(cache, takes)
         # Typical motion settles the mirror convention of single-bone joints (see model.mirror).
         sample = list(takes)[:: max(1, len(takes) // 200)]
-        reflections = mirror_reflections(skeleton, torch.cat([cache.rotations(i)[::4] for i in sample]))
+        reference = torch.cat([cache.rotations(i)[::4] for i in sample])
+        items = [(cache.clip(i), cache.style_id(i), cache.takes[i].content) for i in takes]
+        return cls.from_clips(items, list(cache.styles), skeleton, reference, augment, seed, progress)
+
+    @classmethod
+    def from_clips(cls, items: Sequence[tuple[Clip, int, str]], styles: list[str], skeleton: Skeleton,
+                   reference: Tensor | None = None, augment: bool = True, seed: int = 0,
+                   progress: bool = True) -> MotionTensors:
+        """From ``(clip, style id, content)`` triples; ``reference`` local rotations settle mirroring."""
+        reflections = mirror_reflections(skeleton, reference)
         gen = torch.Generator().manual_seed(seed)
-        styles, contents = list(cache.styles), list(cache.contents)
+        contents: list[str] = []
         pos_parts, rot_parts, lens, sty, con, src, names = [], [], [], [], [], [], []
 
         def add(clip: Clip, style: int, content: str, source: str) -> None:
@@ -103,9 +112,7 @@ class MotionTensors:
             src.append(source)
             names.append(f"{source}:{clip.name}")
 
-        for i in tqdm(takes, desc="takes", disable=not progress, leave=False):
-            clip = cache.clip(i)
-            style, content = cache.style_id(i), cache.takes[i].content
+        for clip, style, content in tqdm(items, desc="takes", disable=not progress, leave=False):
             add(clip, style, content, "orig")
             if augment:
                 add(clip, style, _mirror_content(content), "mirror")
@@ -115,7 +122,7 @@ class MotionTensors:
         lens_t = torch.tensor(lens)
         starts = torch.cumsum(lens_t, 0) - lens_t
         return cls(skeleton, torch.cat(pos_parts), torch.cat(rot_parts), starts, lens_t, torch.tensor(sty),
-                   torch.tensor(con), styles, contents, src, names)
+                   torch.tensor(con), list(styles), contents, src, names)
 
     @property
     def num_takes(self) -> int:

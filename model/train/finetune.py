@@ -1,0 +1,96 @@
+"""Few-shot styles: adapt a trained bundle to a style it never saw from a few clips.
+
+Only the style encoder and the linear layers of the FiLM and attention blocks learn (the paper's
+recipe); everything that carries motion knowledge (encoders, recurrent core, head, manifold)
+stays frozen, so a few clips cannot make the model forget how to move.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from model.bundle import Bundle
+from model.clip import Clip
+from model.features import local_frame_features
+from model.train.batches import make_batch
+from model.train.loop import LoopConfig, LoopResult, step_generator, train_loop
+from model.train.motion_tensors import MotionTensors
+from model.train.phase_stage import label_tensors
+from model.train.sampler_stage import SamplerStageConfig, StylePairs, transition_losses
+
+TRAINABLE_PREFIXES = ("style_encoder.", "film1.", "film2.", "attn1.", "attn2.")
+
+
+@dataclass
+class FinetuneConfig:
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=300, epoch_iterations=50, lr=3e-4, warmup=20,
+                                                                lr_final=3e-5))
+    batch: int = 16
+    max_transition: int = 40
+    style_frames: int = 120
+    augment: bool = True
+
+
+def trainable_parameters(bundle: Bundle) -> list[tuple[str, torch.nn.Parameter]]:
+    return [(n, p) for n, p in bundle.sampler.named_parameters() if n.startswith(TRAINABLE_PREFIXES)]
+
+
+def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: FinetuneConfig, folder: Path,
+                   progress: bool = True) -> tuple[Bundle, LoopResult]:
+    """A copy of ``bundle`` adapted to the style of ``clips`` (already on the bundle's rig, model fps)."""
+    if bundle.phase_model is None:
+        raise ValueError("this bundle has no phase model, which fine-tuning needs to label the clips")
+    c = bundle.config
+    shortest = min(clip.num_frames for clip in clips)
+    style_frames = min(cfg.style_frames, shortest)
+    transition = min(cfg.max_transition, shortest - c.context)
+    if transition < 5 or style_frames < c.style_frames_min:
+        raise ValueError(f"the clips are too short: each needs at least {c.context + 5} frames at {c.fps:g} fps "
+                         f"(the shortest has {shortest})")
+    tuned = copy.deepcopy(bundle)
+    reference = torch.cat([clip.rotations for clip in clips])
+    tensors = MotionTensors.from_clips([(clip, 0, "clip") for clip in clips], [style_name], bundle.skeleton, reference,
+                                       augment=cfg.augment, seed=cfg.loop.seed, progress=progress)
+    label_tensors(tuned.phase_model, tensors, progress)
+    sampler = tuned.sampler
+    params = trainable_parameters(tuned)
+    for n, p in sampler.named_parameters():
+        p.requires_grad_(n.startswith(TRAINABLE_PREFIXES))
+    stage = SamplerStageConfig(batch=cfg.batch, max_transition=transition, style_frames=style_frames,
+                               validation_transition=min(transition, 30))
+    pairs = StylePairs(tensors, c.context + transition, style_frames, step=2)
+    val_gen = torch.Generator().manual_seed(cfg.loop.seed + 1)
+    val_sets = [pairs.sample(8, val_gen) for _ in range(2)]
+
+    def run_losses(starts, owners, style_starts, length, gen, training):
+        batch = make_batch(tensors, starts, owners, c.context + length, c.context - 1)
+        pos, rot = tensors.gather(style_starts, style_frames)
+        feats = local_frame_features(pos, rot, tensors.skeleton)
+        return transition_losses(sampler, tensors, batch, feats, length, stage, gen, training)
+
+    def step(i: int) -> dict[str, float]:
+        gen = step_generator(cfg.loop.seed, i)
+        length = int(torch.randint(5, transition + 1, (1,), generator=gen))
+        starts, owners, style_starts = pairs.sample(cfg.batch, gen)
+        out = run_losses(starts, owners, style_starts, length, gen, True)
+        total = out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + 0.05 * out["foot"]
+        total.backward()
+        return {k: out[k].item() for k in ("pos", "fk_error_cm")}
+
+    def validate() -> dict[str, float]:
+        vals = [run_losses(*v, stage.validation_transition, None, False) for v in val_sets]
+        return {k: sum(v[k].item() for v in vals) / len(vals) for k in ("fk_error_cm", "last_fk_error_cm")}
+
+    result = train_loop("finetune", folder, sampler, params, cfg.loop, step, validate, progress)
+    sampler.eval()
+    for p in sampler.parameters():
+        p.requires_grad_(False)
+    tuned.meta = copy.deepcopy(bundle.meta)
+    tuned.meta.name = f"{bundle.meta.name}+{style_name}"
+    tuned.meta.notes = (f"{bundle.meta.notes} Fine-tuned on {len(clips)} clip(s) of style {style_name!r} "
+                        f"(style encoder and FiLM/attention linears only; {cfg.loop.iterations} steps).").strip()
+    return tuned, result
