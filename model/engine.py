@@ -114,6 +114,13 @@ class Engine:
         return self.bundle.meta.name
 
     @property
+    def max_frames(self) -> int:
+        """Longest transition accepted: twice the training horizon. Beyond the horizon the
+        time-to-arrival code saturates (as RSMT's does), so the model walks on as if far from the
+        target until the remaining frames fall inside what it was trained on."""
+        return 2 * self.config.max_transition
+
+    @property
     def version(self) -> str:
         return self.bundle.version
 
@@ -126,7 +133,7 @@ class Engine:
             "version": self.version,
             "fps": c.fps,
             "context_frames": c.context,
-            "max_transition_frames": c.max_transition,
+            "max_transition_frames": self.max_frames,
             "style_clip_frames": {"min": c.style_frames_min, "max": c.style_frames_max},
             "skeleton": {
                 "joints": [{"name": n, "parent": p, "offset": list(o)} for n, p, o in zip(sk.names, sk.parents, sk.offsets)],
@@ -203,9 +210,9 @@ class Engine:
         exactly (:mod:`model.arrival`); otherwise the network's own arrival is returned.
         """
         c = self.config
-        if not 1 <= frames <= c.max_transition:
-            raise EngineError("too_many_frames" if frames > c.max_transition else "validation_error",
-                              f"frames must be between 1 and {c.max_transition}; got {frames}")
+        if not 1 <= frames <= self.max_frames:
+            raise EngineError("too_many_frames" if frames > self.max_frames else "validation_error",
+                              f"frames must be between 1 and {self.max_frames}; got {frames}")
         context = self.conform(context, "context")
         target = self.conform(target, "target")
         if context.num_frames < c.context:
@@ -255,8 +262,8 @@ class Engine:
     def retarget(self, ch: Character, batch: CharacterBatch | None = None, target: Clip | None = None,
                  frames: int | None = None) -> None:
         """Change where and/or when a live character arrives, from its next frame on."""
-        if frames is not None and not 1 <= frames <= self.config.max_transition:
-            raise EngineError("validation_error", f"frames must be between 1 and {self.config.max_transition}; got {frames}")
+        if frames is not None and not 1 <= frames <= self.max_frames:
+            raise EngineError("validation_error", f"frames must be between 1 and {self.max_frames}; got {frames}")
         if batch is None and ch._row is None:
             ch._row = self.begin([ch])
         assert ch._frame is not None

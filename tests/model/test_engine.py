@@ -89,7 +89,7 @@ def test_bad_requests(engine, walk):
         engine.prepare(walk.window(0, 5), walk.window(40, 42), 10, style)
     assert err.value.code == "too_few_frames"
     with pytest.raises(EngineError) as err:
-        engine.prepare(walk.window(0, 10), walk.window(40, 42), 41, style)
+        engine.prepare(walk.window(0, 10), walk.window(40, 42), engine.max_frames + 1, style)
     assert err.value.code == "too_many_frames"
     with pytest.raises(EngineError) as err:
         engine.encode_style(walk.window(0, 5))
