@@ -1,1 +1,1 @@
-"""The HTTP/WebSocket service (FastAPI + uvicorn) built on :mod:`model`. Not written yet: see issue 5."""
+"""The HTTP/WebSocket service (FastAPI + uvicorn) built on :mod:`model`: ``service.app.create_app``; docs/service.md."""

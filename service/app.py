@@ -1,0 +1,46 @@
+"""The FastAPI application: ``create_app(settings=None)``, served with ``uvicorn --factory service.app:create_app``.
+
+Importing this module builds nothing; the models are loaded and warmed by the lifespan
+(:mod:`service.lifecycle`).
+"""
+
+from __future__ import annotations
+
+from fastapi import FastAPI
+
+from service.body_limit import BodyLimitMiddleware
+from service.connection import RawSendMiddleware
+from service.errors import install_error_handlers
+from service.lifecycle import lifespan
+from service.logconfig import ensure_service_logging
+from service.metrics import Metrics, MetricsMiddleware
+from service.ratelimit import RateLimiter
+from service.routes import health, metrics, models, stream, styles, transition, viewer
+from service.settings import Settings, get_settings
+from service.state import ServiceState
+
+DESCRIPTION = """Real-time stylized motion transitions (RSMT, SIGGRAPH 2023).
+
+HTTP for model information, style registration and whole transitions; WebSocket `/v1/stream` for
+frame-by-frame streaming of many characters (wire details: docs/protocol.md). Every error is
+`{"error": {"code", "message"}}`.
+"""
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app; ``settings`` default to the ``RSMT_*`` environment."""
+    settings = settings or get_settings()
+    ensure_service_logging(settings.log_level, settings.log_format)
+    app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan)
+    app.state.service = ServiceState(settings=settings, metrics=Metrics(),
+                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst))
+    app.dependency_overrides[get_settings] = lambda: settings
+    install_error_handlers(app)
+    # Added last = outermost: metrics see every request, including 413s.
+    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(RawSendMiddleware)
+    app.add_middleware(MetricsMiddleware, metrics=app.state.service.metrics)
+    for module in (health, models, styles, transition, stream, metrics):
+        app.include_router(module.router)
+    viewer.install(app)  # the web viewer: /viewer/ and its /v1/viewer helpers
+    return app

@@ -1,0 +1,69 @@
+"""API keys: ``X-API-Key`` or ``Authorization: Bearer`` on HTTP; the same or ``?token=`` on the WebSocket handshake.
+
+Keys are off unless ``RSMT_API_KEYS`` lists some. Comparison is constant-time. The per-key rate
+limit is applied here too, so every protected route gets both from one dependency.
+"""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Mapping
+from typing import Annotated
+
+from fastapi import Depends, Request
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
+
+from service.errors import ServiceError
+from service.ratelimit import retry_after_header
+
+_api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="an API key (when keys are on)")
+_bearer = HTTPBearer(auto_error=False, description="the same API key as a bearer token")
+
+
+def key_from(headers: Mapping[str, str], query: Mapping[str, str] | None = None) -> str | None:
+    """The presented key: ``X-API-Key``, else a bearer token, else (WebSocket only) ``?token=``."""
+    key = headers.get("x-api-key")
+    if key:
+        return key
+    auth = headers.get("authorization", "")
+    scheme, _, token = auth.partition(" ")
+    if scheme.lower() == "bearer" and token.strip():
+        return token.strip()
+    if query is not None and query.get("token"):
+        return query["token"]
+    return None
+
+
+def is_valid(key: str | None, keys: list[str]) -> bool:
+    if key is None:
+        return False
+    presented = key.encode()
+    ok = False
+    for k in keys:  # no early exit: the time taken does not reveal which key matched
+        ok |= hmac.compare_digest(presented, k.encode())
+    return ok
+
+
+def check_access(state, key: str | None, client: str) -> None:
+    """Raise ``unauthorized`` or ``rate_limited`` (with Retry-After) for a request from ``client``."""
+    settings = state.settings
+    if settings.auth_enabled and not is_valid(key, settings.api_keys):
+        what = "no API key" if key is None else "an unknown API key"
+        raise ServiceError("unauthorized", f"{what} was presented: send it as `X-API-Key: KEY` or "
+                                           "`Authorization: Bearer KEY` (WebSocket: also `?token=KEY`)",
+                           headers={"WWW-Authenticate": "Bearer"})
+    wait = state.limiter.take(key if settings.auth_enabled else client)
+    if wait > 0:
+        raise ServiceError("rate_limited", f"rate limit of {settings.rate_limit_per_s:g} requests/s "
+                                           f"(burst {settings.rate_limit_burst}) exceeded; retry in {wait:.2f} s",
+                           headers=retry_after_header(wait))
+
+
+async def require_access(
+    request: Request,
+    _key: Annotated[str | None, Depends(_api_key_header)],
+    _bearer_credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> None:
+    """Route dependency: API key (when keys are on) and the per-key rate limit."""
+    client = request.client.host if request.client else "unknown"
+    check_access(request.app.state.service, key_from(request.headers), client)

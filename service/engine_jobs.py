@@ -1,0 +1,112 @@
+"""The engine work behind each request, as plain blocking functions run on a model's work threads:
+register a style, generate a transition, prepare a streamed character.
+
+Each converts payloads, calls the engine and maps :class:`EngineError` to the contract's codes.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from typing import Any
+
+from model.engine import Character, EncodedStyle, EngineError
+from service.errors import ServiceError
+from service.motion import frames_bvh, frames_json, motion_to_clip
+from service.registry import LoadedModel
+from service.schemas import BvhMotion, PoseMotion, StartMessage, TransitionRequest
+
+
+def _engine_error(exc: EngineError) -> ServiceError:
+    return ServiceError(exc.code if exc.code in ("skeleton_mismatch", "too_few_frames", "too_many_frames") else
+                        "validation_error", str(exc))
+
+
+def lookup_style(model: LoadedModel, style_id: str) -> EncodedStyle:
+    style = model.engine.styles.get(style_id)
+    if style is None:
+        raise ServiceError("unknown_style", f"no style {style_id!r} for model {model.name!r}: register the clip with "
+                                            "POST /v1/styles (ids are content hashes, so re-registering gives the same "
+                                            "id; cached styles may be evicted)")
+    return style
+
+
+def encode_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> tuple[EncodedStyle, bool]:
+    clip = motion_to_clip(motion, model.engine, model.limits, "style")
+    try:
+        return model.engine.encode_style(clip, name)
+    except EngineError as exc:
+        raise _engine_error(exc) from exc
+
+
+def resolve_style(model: LoadedModel, style_id: str | None, motion: BvhMotion | PoseMotion | None) -> EncodedStyle:
+    if style_id is not None:
+        return lookup_style(model, style_id)
+    assert motion is not None
+    return encode_style(model, motion, "inline")[0]
+
+
+def style_info(model: LoadedModel, style: EncodedStyle, cached: bool) -> dict[str, Any]:
+    return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "cached": cached, "model": model.name}
+
+
+def register_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
+    style, cached = encode_style(model, motion, name)
+    return style_info(model, style, cached)
+
+
+def new_seed() -> int:
+    return secrets.randbits(62)
+
+
+def run_transition(model: LoadedModel, req: TransitionRequest, queued_at: float) -> dict[str, Any]:
+    """Generate a whole transition alone (batch of one, so a seed always gives the same frames).
+
+    Returns the response body; ``timing_ms.total`` is left for the caller, which sees the whole request.
+    """
+    start = time.perf_counter()
+    engine = model.engine
+    model.check_frames(req.frames)
+    context = motion_to_clip(req.context, engine, model.limits, "context")
+    target = motion_to_clip(req.target, engine, model.limits, "target")
+    style = resolve_style(model, req.style_id, req.style)
+    parsed = time.perf_counter()
+    seed = req.seed if req.seed is not None else new_seed()
+    try:
+        ch = engine.prepare(context, target, req.frames, style, seed=seed, deterministic=req.deterministic,
+                            exact_arrival=req.exact_arrival)
+    except EngineError as exc:
+        raise _engine_error(exc) from exc
+    rotations, roots = engine.generate([ch])[0]
+    generated = time.perf_counter()
+    body: dict[str, Any] = {"fps": engine.config.fps, "model": model.name, "style_id": style.style_id, "seed": seed,
+                            "deterministic": req.deterministic}
+    if req.output == "bvh":
+        body["bvh"] = frames_bvh(rotations, roots, engine.skeleton, engine.config.fps)
+    else:
+        body["frames"] = frames_json(rotations, roots)
+    engine_ms = (generated - parsed) * 1e3
+    body["timing_ms"] = {
+        "total": 0.0,  # filled by the route, which also sees the wait for this thread
+        "engine": round(engine_ms, 3),
+        "per_frame": round(engine_ms / req.frames, 4),
+        "queue": round((start - queued_at) * 1e3, 3),
+        "parse": round((parsed - start) * 1e3, 3),
+    }
+    return body
+
+
+def prepare_character(model: LoadedModel, msg: StartMessage, character_id: str) -> tuple[Character, EncodedStyle, int]:
+    """Build a streamed character's initial state (the scheduler steps it from then on)."""
+    engine = model.engine
+    model.check_frames(msg.frames)
+    context = motion_to_clip(msg.context, engine, model.limits, "context")
+    target = motion_to_clip(msg.target, engine, model.limits, "target")
+    style = resolve_style(model, msg.style_id, msg.style)
+    seed = msg.seed if msg.seed is not None else new_seed()
+    try:
+        ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
+                            character_id=character_id, exact_arrival=msg.exact_arrival)
+    except EngineError as exc:
+        raise _engine_error(exc) from exc
+    return ch, style, seed

@@ -1,0 +1,126 @@
+"""The error envelope ``{"error": {"code", "message"}}``, its HTTP statuses, and the handlers that produce it."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import orjson
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError, WebSocketRequestValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.responses import Response
+
+log = logging.getLogger(__name__)
+
+# Every machine code of docs/protocol.md, with its HTTP status.
+STATUS: dict[str, int] = {
+    "invalid_json": 400,
+    "validation_error": 422,
+    "bad_motion": 422,
+    "skeleton_mismatch": 422,
+    "too_few_frames": 422,
+    "too_many_frames": 422,
+    "payload_too_large": 413,
+    "unknown_style": 404,
+    "unknown_model": 404,
+    "unknown_character": 404,
+    "character_exists": 409,
+    "too_many_characters": 429,
+    "rate_limited": 429,
+    "unauthorized": 401,
+    "not_ready": 503,
+    "shutting_down": 503,
+    "internal": 500,
+    # HTTP-only codes for requests that reach no route.
+    "not_found": 404,
+    "method_not_allowed": 405,
+    "unsupported_media_type": 415,
+}
+
+
+class ServiceError(Exception):
+    """An error with a contract code; HTTP handlers turn it into the envelope, WebSockets into an ``error`` message."""
+
+    def __init__(self, code: str, message: str, headers: dict[str, str] | None = None) -> None:
+        super().__init__(message)
+        if code not in STATUS:
+            raise ValueError(f"unknown error code {code!r}")
+        self.code = code
+        self.message = message
+        self.headers = headers or {}
+
+    @property
+    def status(self) -> int:
+        return STATUS[self.code]
+
+
+def envelope(code: str, message: str) -> dict[str, Any]:
+    return {"error": {"code": code, "message": message}}
+
+
+def error_response(code: str, message: str, headers: dict[str, str] | None = None) -> Response:
+    return Response(orjson.dumps(envelope(code, message)), status_code=STATUS[code], headers=headers,
+                    media_type="application/json")
+
+
+def _count(request: Request, code: str) -> None:
+    state = getattr(request.app.state, "service", None)
+    metrics = getattr(state, "metrics", None)
+    if metrics is not None:
+        metrics.errors.labels(code=code).inc()
+
+
+def describe_validation(errors: list[dict[str, Any]], limit: int = 5) -> str:
+    """One readable line per pydantic error: ``body.frames: Input should be greater than or equal to 1``."""
+    parts = []
+    for err in errors[:limit]:
+        loc = ".".join(str(p) for p in err.get("loc", ()) if p not in ("body",)) or "body"
+        parts.append(f"{loc}: {err.get('msg', 'invalid')}")
+    more = len(errors) - limit
+    if more > 0:
+        parts.append(f"... and {more} more")
+    return "; ".join(parts)
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Every error, including FastAPI's own validation and routing errors, leaves in the envelope."""
+
+    @app.exception_handler(ServiceError)
+    async def _service_error(request: Request, exc: ServiceError) -> Response:
+        _count(request, exc.code)
+        return error_response(exc.code, exc.message, exc.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> Response:
+        errors = list(exc.errors())
+        # A body that is not JSON at all is a 400; a JSON body of the wrong shape is a 422.
+        invalid = [e for e in errors if e.get("type") == "json_invalid"]
+        if invalid:
+            detail = (invalid[0].get("ctx") or {}).get("error") or invalid[0].get("msg", "")
+            code, message = "invalid_json", f"the request body is not valid JSON: {detail}"
+        else:
+            code, message = "validation_error", describe_validation(errors)
+        _count(request, code)
+        return error_response(code, message)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> Response:
+        code = {404: "not_found", 405: "method_not_allowed", 413: "payload_too_large", 415: "unsupported_media_type",
+                400: "invalid_json", 401: "unauthorized", 429: "rate_limited", 503: "not_ready"}.get(exc.status_code)
+        if code is None:
+            code = "validation_error" if 400 <= exc.status_code < 500 else "internal"
+        _count(request, code)
+        response = error_response(code, str(exc.detail), getattr(exc, "headers", None))
+        response.status_code = exc.status_code
+        return response
+
+    @app.exception_handler(WebSocketRequestValidationError)
+    async def _ws_validation(websocket: Any, exc: WebSocketRequestValidationError) -> None:  # pragma: no cover
+        await websocket.close(code=1008, reason=describe_validation(list(exc.errors()))[:120])
+
+    @app.exception_handler(Exception)
+    async def _internal(request: Request, exc: Exception) -> Response:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        _count(request, "internal")
+        return error_response("internal", "internal error; the server log has the details")

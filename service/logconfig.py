@@ -1,0 +1,76 @@
+"""Structured logging: one JSON object per line (or plain text), quiet (warnings) by default."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+
+_STANDARD = set(logging.makeLogRecord({}).__dict__) | {"message", "asctime", "color_message"}
+
+
+class JsonFormatter(logging.Formatter):
+    """``{"ts", "level", "logger", "msg", ...extra fields}``; exceptions go in ``"exc"``."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        out = {
+            "ts": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created)) + f".{int(record.msecs):03d}Z",
+            "level": record.levelname.lower(),
+            "logger": record.name,
+            "msg": record.getMessage(),
+        }
+        for key, value in record.__dict__.items():
+            if key not in _STANDARD and not key.startswith("_"):
+                out[key] = value
+        if record.exc_info:
+            out["exc"] = self.formatException(record.exc_info)
+        return json.dumps(out, default=str)
+
+
+def log_config(level: str = "warning", fmt: str = "json") -> dict:
+    """A ``logging.config.dictConfig`` for the service and uvicorn (pass it as uvicorn's ``log_config``)."""
+    formatter = {"()": JsonFormatter} if fmt == "json" else {"format": "%(asctime)s %(levelname)s %(name)s %(message)s"}
+    handler = {"class": "logging.StreamHandler", "formatter": "default", "stream": "ext://sys.stderr"}
+    lvl = level.upper()
+    return {
+        "version": 1,
+        "disable_existing_loggers": False,
+        "formatters": {"default": formatter},
+        "handlers": {"default": handler},
+        "loggers": {
+            "service": {"handlers": ["default"], "level": lvl, "propagate": False},
+            "model": {"handlers": ["default"], "level": lvl, "propagate": False},
+            "uvicorn": {"handlers": ["default"], "level": lvl, "propagate": False},
+            "uvicorn.error": {"level": lvl},
+            "uvicorn.access": {"handlers": ["default"], "level": lvl, "propagate": False},
+        },
+    }
+
+
+def configure_logging(level: str = "warning", fmt: str = "json") -> None:
+    import logging.config
+
+    logging.config.dictConfig(log_config(level, fmt))
+
+
+def ensure_service_logging(level: str = "warning", fmt: str = "json") -> None:
+    """Give the ``service`` and ``model`` loggers the structured handler when nothing configured them
+    (``uvicorn --factory`` configures only its own loggers; ``rsmt serve`` configures all).
+
+    When the root logger already has handlers (an embedding application, or pytest's capture), the
+    host's logging setup wins and nothing is changed: stopping propagation there would hide the
+    ``model`` logs from it.
+    """
+    if logging.getLogger().handlers:
+        return
+    formatter: logging.Formatter = JsonFormatter() if fmt == "json" else logging.Formatter(
+        "%(asctime)s %(levelname)s %(name)s %(message)s")
+    for name in ("service", "model"):
+        logger = logging.getLogger(name)
+        if logger.handlers:
+            continue
+        handler = logging.StreamHandler()
+        handler.setFormatter(formatter)
+        logger.addHandler(handler)
+        logger.setLevel(level.upper())
+        logger.propagate = False

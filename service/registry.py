@@ -1,0 +1,150 @@
+"""Loaded models: finding bundles on disk, one :class:`Engine` per bundle, and the threads that run it.
+
+Each model gets two executors: ``work`` (``request_threads`` threads) for HTTP requests and stream
+setup (parsing, style encoding, ``prepare``, ``generate``), and ``step``, a single thread that owns
+the scheduler's batches. Engine calls never run on the event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import torch
+
+from model.bundle import Bundle, BundleError
+from model.engine import Engine
+from service.errors import ServiceError
+from service.metrics import Metrics
+from service.motion import MotionLimits
+from service.scheduler import Scheduler
+from service.settings import Settings
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+
+class NoModelError(RuntimeError):
+    """No bundle where the settings point; the message says how to get one."""
+
+
+def find_bundles(path: Path) -> list[Path]:
+    """``path`` itself when it is a bundle, else its subdirectories that are bundles (sorted)."""
+    path = Path(path)
+    hint = ("train one with `rsmt train all --data DIR --out BUNDLE_DIR` (or write a random-weight one for a smoke "
+            "test), then serve it with `rsmt serve --models BUNDLE_DIR` or RSMT_MODELS=BUNDLE_DIR; a directory of "
+            "bundle directories serves them all")
+    if (path / "config.json").is_file():
+        return [path]
+    if not path.is_dir():
+        raise NoModelError(f"no model bundle at {path}: the path does not exist. To get one, {hint}")
+    found = sorted(p for p in path.iterdir() if (p / "config.json").is_file())
+    if not found:
+        raise NoModelError(f"no model bundle at {path}: it holds no config.json and no bundle subdirectories. To get one, {hint}")
+    return found
+
+
+@dataclass(eq=False)
+class LoadedModel:
+    """One served model: its engine, threads, scheduler and effective limits."""
+
+    name: str
+    path: Path
+    engine: Engine
+    work: ThreadPoolExecutor
+    step: ThreadPoolExecutor
+    max_transition: int
+    limits: MotionLimits
+    scheduler: Scheduler | None = None
+    warmup: dict[str, Any] = field(default_factory=dict)
+
+    def info(self) -> dict[str, Any]:
+        info = self.engine.info()
+        info["name"] = self.name
+        info["max_transition_frames"] = self.max_transition
+        return info
+
+    async def run(self, fn: Callable[..., T], *args: Any) -> T:
+        """Run ``fn(*args)`` on this model's work threads."""
+        return await asyncio.get_running_loop().run_in_executor(self.work, fn, *args)
+
+    def check_frames(self, frames: int) -> None:
+        if frames > self.max_transition:
+            raise ServiceError("too_many_frames", f"frames must be between 1 and {self.max_transition} for model "
+                                                  f"{self.name!r}; got {frames}")
+
+
+class Registry:
+    """The models of this process, by name, with a default."""
+
+    def __init__(self, models: list[LoadedModel], default: str | None = None) -> None:
+        if not models:
+            raise NoModelError("no models loaded")
+        self.models = {m.name: m for m in models}
+        if default is not None and default not in self.models:
+            raise NoModelError(f"default model {default!r} is not among the loaded models: {', '.join(self.models)}")
+        self.default = default or sorted(self.models)[0]
+
+    def get(self, name: str | None = None) -> LoadedModel:
+        if name is None:
+            return self.models[self.default]
+        model = self.models.get(name)
+        if model is None:
+            raise ServiceError("unknown_model", f"no model named {name!r}; loaded: {', '.join(sorted(self.models))} "
+                                                "(GET /v1/models)")
+        return model
+
+    def __iter__(self):
+        return iter(self.models.values())
+
+    def live_characters(self) -> int:
+        return sum(m.scheduler.live for m in self if m.scheduler is not None)
+
+    def start_schedulers(self, metrics: Metrics | None) -> None:
+        for m in self:
+            m.scheduler = Scheduler(m.engine, m.step, metrics, m.name)
+            m.scheduler.start()
+
+    async def stop(self) -> None:
+        for m in self:
+            if m.scheduler is not None:
+                await m.scheduler.stop()
+        for m in self:
+            m.work.shutdown(wait=False, cancel_futures=True)
+            m.step.shutdown(wait=False, cancel_futures=True)
+
+
+def load_registry(settings: Settings) -> Registry:
+    """Load every bundle the settings point at (blocking: call it from a thread)."""
+    assert settings.models is not None
+    paths = find_bundles(settings.models)
+    models: list[LoadedModel] = []
+    names: set[str] = set()
+    for path in paths:
+        try:
+            bundle = Bundle.load(path)
+        except BundleError as exc:
+            raise NoModelError(f"cannot load the model bundle {path}: {exc}") from exc
+        engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
+                        cache_bytes=settings.style_cache_bytes)
+        name = engine.name if engine.name not in names else path.name
+        if name in names:
+            raise NoModelError(f"two bundles are named {name!r}; rename one directory")
+        names.add(name)
+        cap = settings.max_transition_frames
+        max_transition = min(engine.max_frames, cap) if cap else engine.max_frames
+        limits = MotionLimits(settings.max_clip_frames, settings.quaternion_tolerance, settings.max_abs_position)
+        # torch's thread count is per OS thread once that thread has run an op: set it in each worker.
+        init = dict(initializer=torch.set_num_threads, initargs=(settings.threads,)) if settings.threads else {}
+        models.append(LoadedModel(
+            name=name, path=path, engine=engine, max_transition=max_transition, limits=limits,
+            work=ThreadPoolExecutor(settings.request_threads, thread_name_prefix=f"work-{name}", **init),
+            step=ThreadPoolExecutor(1, thread_name_prefix=f"step-{name}", **init),
+        ))
+        log.info("loaded model", extra={"model": name, "path": str(path), "version": engine.version})
+    return Registry(models, settings.default_model)

@@ -1,0 +1,37 @@
+"""``POST /v1/transition``: a whole transition in one response, generated off the event loop."""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, Depends, Response
+
+from service.auth import require_access
+from service.deps import RegistryDep, StateDep
+from service.engine_jobs import run_transition
+from service.motion import dumps
+from service.schemas import (
+    ERROR_RESPONSES,
+    TransitionBvh,
+    TransitionJson,
+    TransitionRequest,
+)
+
+router = APIRouter(prefix="/v1", tags=["transitions"], dependencies=[Depends(require_access)],
+                   responses={k: ERROR_RESPONSES[k] for k in (400, 401, 404, 413, 422, 429, 503)})
+
+
+@router.post(
+    "/transition",
+    response_model=TransitionJson | TransitionBvh,
+    summary="generate `frames` frames from the context to the target in a style",
+    description="Same input and seed give the same frames. `output: bvh` returns BVH text of exactly `frames` "
+                "frames. The engine runs on the model's worker thread, so other requests keep flowing.",
+)
+async def transition(body: TransitionRequest, registry: RegistryDep, state: StateDep) -> Response:
+    arrived = time.perf_counter()
+    model = registry.get(body.model)
+    result = await model.run(run_transition, model, body, arrived)
+    result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)
+    state.metrics.transition_frames.labels(model.name).inc(body.frames)
+    return Response(dumps(result), media_type="application/json")

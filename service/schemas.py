@@ -1,0 +1,276 @@
+"""Request and response bodies of the contract (HTTP and WebSocket), with their validation and examples.
+
+Shapes that depend on the loaded model (joint count, frame limits) are checked when a Motion is
+converted (:mod:`service.motion`); here sit the limits that hold for any model.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
+
+# Hard ceilings for any model; the configured limits (service.settings) are usually lower.
+MAX_FRAMES_ANY = 100_000
+MAX_JOINTS_ANY = 1_000
+SEED_MAX = 2**63 - 1
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Quat = Annotated[list[float], Field(min_length=4, max_length=4, description="x, y, z, w")]
+CharacterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
+StyleId = Annotated[str, Field(min_length=1, max_length=128)]
+ModelName = Annotated[str, Field(min_length=1, max_length=128)]
+RequestId = Annotated[str | int | None, Field(None, description="echoed in any error this message causes")]
+
+_EXAMPLE_BVH = """HIERARCHY
+ROOT Hips
+{
+\tOFFSET 0 0 0
+\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+\tJOINT Spine
+\t{
+\t\tOFFSET 0 10 0
+\t\tCHANNELS 3 Zrotation Xrotation Yrotation
+\t\tEnd Site
+\t\t{
+\t\t\tOFFSET 0 10 0
+\t\t}
+\t}
+}
+MOTION
+Frames: 2
+Frame Time: 0.0333333
+0 92 0 0 0 0 0 0 0
+0 92 4 0 0 0 0 0 0
+"""
+
+
+class BvhMotion(BaseModel):
+    """Motion as BVH text: joints are matched to the model's skeleton by name, any channel order, any frame time."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"bvh": _EXAMPLE_BVH}]})
+
+    bvh: str = Field(min_length=1, description="BVH text (HIERARCHY ... MOTION ...)")
+
+
+class PoseMotion(BaseModel):
+    """Motion as arrays: root positions and local x,y,z,w quaternions, joints in the order of ``skeleton.joints``."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"root_positions": [[0.0, 92.0, 0.0]], "rotations": [[[0.0, 0.0, 0.0, 1.0]]],
+                                          "joints": ["Hips"]}]},
+    )
+
+    root_positions: list[Vec3] = Field(min_length=1, max_length=MAX_FRAMES_ANY, description="[frames][3], model units")
+    rotations: list[Annotated[list[Quat], Field(min_length=1, max_length=MAX_JOINTS_ANY)]] = Field(
+        min_length=1, max_length=MAX_FRAMES_ANY, description="[frames][joints][4] local unit quaternions x,y,z,w"
+    )
+    joints: list[Annotated[str, Field(min_length=1, max_length=256)]] | None = Field(
+        None, max_length=MAX_JOINTS_ANY, description="joint names of the rotation columns, when not the model's order"
+    )
+    fps: float | None = Field(None, gt=0, le=1000, description="frame rate of these frames (default: the model's fps)")
+
+
+Motion = Annotated[BvhMotion | PoseMotion, Field(description="BVH text or JSON poses")]
+
+
+class _StyleChoice(BaseModel):
+    style_id: StyleId | None = Field(None, description="an id from POST /v1/styles")
+    style: Motion | None = Field(None, description="a style clip, encoded (and cached) on the fly")
+
+    @model_validator(mode="after")
+    def _one_style(self) -> Any:
+        if (self.style_id is None) == (self.style is None):
+            raise ValueError("give exactly one of style_id or style")
+        return self
+
+
+# ---------------------------------------------------------------------- model description
+class FrameRange(BaseModel):
+    min: int
+    max: int
+
+
+class JointInfo(BaseModel):
+    name: str
+    parent: int
+    offset: list[float]
+
+
+class SkeletonInfo(BaseModel):
+    joints: list[JointInfo]
+    units: str
+    up_axis: str
+    handedness: str
+
+
+class ModelInfo(BaseModel):
+    """``GET /v1/model``: what a client needs to build requests and read frames."""
+
+    name: str
+    version: str
+    fps: float
+    context_frames: int
+    max_transition_frames: int
+    style_clip_frames: FrameRange
+    skeleton: SkeletonInfo
+    training_data: str
+    license: str
+
+
+class ModelList(BaseModel):
+    default: str
+    models: list[ModelInfo]
+
+
+# ---------------------------------------------------------------------- styles
+class StyleCreate(BaseModel):
+    """``POST /v1/styles``."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"name": "proud", "motion": {"bvh": _EXAMPLE_BVH}}]})
+
+    name: str = Field(min_length=1, max_length=200)
+    motion: Motion
+    model: ModelName | None = Field(None, description="model to encode for (default: the default model)")
+
+
+class StyleInfo(BaseModel):
+    style_id: str = Field(description="content hash of clip + skeleton + model version; any replica recomputes it")
+    name: str
+    frames: int = Field(description="frames of the clip at the model's fps")
+    cached: bool = Field(description="true when this clip was already registered (nothing was encoded)")
+    model: str
+
+
+class StyleList(BaseModel):
+    styles: list[StyleInfo]
+
+
+# ---------------------------------------------------------------------- transitions
+class Pose(BaseModel):
+    root_position: list[float] = Field(description="[x, y, z] world position of the root joint")
+    rotations: list[list[float]] = Field(description="[joints][x, y, z, w] local rotations")
+
+
+class Timing(BaseModel):
+    total: float = Field(description="ms from request arrival to response")
+    engine: float = Field(description="ms in the engine (prepare + generate)")
+    per_frame: float = Field(description="engine ms per generated frame")
+    queue: float = Field(description="ms waiting for the model's worker")
+    parse: float = Field(description="ms converting the Motion payloads")
+
+
+class TransitionRequest(_StyleChoice):
+    """``POST /v1/transition``."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"context": {"bvh": "..."}, "target": {"bvh": "..."}, "frames": 30,
+                                          "style_id": "sty_0123456789abcdef01234567", "seed": 7,
+                                          "deterministic": False, "output": "json"}]},
+    )
+
+    context: Motion = Field(description=">= context_frames frames; the last one is the current pose")
+    target: Motion = Field(description="the last frame is the target pose; a frame before it gives its velocity")
+    frames: int = Field(ge=1, le=MAX_FRAMES_ANY, description="frames to generate; the last is the arrival frame")
+    seed: int | None = Field(None, ge=0, le=SEED_MAX, description="sampling seed (default: random)")
+    deterministic: bool = Field(False, description="no sampling noise")
+    exact_arrival: bool = Field(False, description="bend the last frames so the arrival frame equals the target pose")
+    output: Literal["json", "bvh"] = "json"
+    model: ModelName | None = None
+
+
+class TransitionJson(BaseModel):
+    frames: list[Pose]
+    fps: float
+    model: str
+    style_id: str
+    timing_ms: Timing
+
+
+class TransitionBvh(BaseModel):
+    bvh: str = Field(description="BVH text of exactly `frames` frames at the model's fps")
+    fps: float
+    model: str
+    style_id: str
+    timing_ms: Timing
+
+
+# ---------------------------------------------------------------------- health
+class Health(BaseModel):
+    status: str
+    models: list[str] = []
+
+
+class ErrorBody(BaseModel):
+    code: str
+    message: str
+
+
+class ErrorEnvelope(BaseModel):
+    error: ErrorBody
+
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorEnvelope, "description": text}
+    for status, text in (
+        (400, "invalid JSON"), (401, "missing or wrong API key"), (404, "unknown model or style"),
+        (413, "payload too large"), (422, "invalid request or motion"), (429, "rate limited"),
+        (503, "not ready or shutting down"),
+    )
+}
+
+
+# ---------------------------------------------------------------------- WebSocket client messages
+class _WsMessage(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    request_id: RequestId = None
+
+
+class StartMessage(_WsMessage, _StyleChoice):
+    type: Literal["start"]
+    character: CharacterId | None = None
+    context: Motion
+    target: Motion
+    frames: int = Field(ge=1, le=MAX_FRAMES_ANY)
+    seed: int | None = Field(None, ge=0, le=SEED_MAX)
+    deterministic: bool = False
+    exact_arrival: bool = False
+    pace: Literal["realtime", "asap"] = "realtime"
+    model: ModelName | None = None
+
+
+class RetargetMessage(_WsMessage):
+    type: Literal["retarget"]
+    character: CharacterId
+    target: Motion | None = None
+    frames: int | None = Field(None, ge=1, le=MAX_FRAMES_ANY)
+
+    @model_validator(mode="after")
+    def _something(self) -> RetargetMessage:
+        if self.target is None and self.frames is None:
+            raise ValueError("retarget needs a target and/or frames")
+        return self
+
+
+class StyleMessage(_WsMessage, _StyleChoice):
+    type: Literal["style"]
+    character: CharacterId
+
+
+class CancelMessage(_WsMessage):
+    type: Literal["cancel"]
+    character: CharacterId
+
+
+class PingMessage(_WsMessage):
+    type: Literal["ping"]
+    id: str | int | float | None = None
+
+
+ClientMessage = Annotated[
+    StartMessage | RetargetMessage | StyleMessage | CancelMessage | PingMessage, Field(discriminator="type")
+]
+CLIENT_MESSAGE = TypeAdapter(ClientMessage)
+CLIENT_TYPES = ("start", "retarget", "style", "cancel", "ping")

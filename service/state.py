@@ -1,0 +1,42 @@
+"""What the lifespan puts on ``app.state.service``: settings, models, metrics, readiness, open connections."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from service.metrics import Metrics
+from service.ratelimit import RateLimiter
+from service.settings import Settings
+
+if TYPE_CHECKING:
+    from service.connection import Connection
+    from service.registry import Registry
+
+
+class Phase(enum.Enum):
+    STARTING = "starting"  # models loaded or loading, warm-up running
+    READY = "ready"
+    STOPPING = "stopping"  # readiness 503, WebSockets closed, draining
+    FAILED = "failed"  # warm-up failed: never ready (the process exits when it runs under uvicorn)
+
+
+@dataclass(eq=False)
+class ServiceState:
+    settings: Settings
+    metrics: Metrics
+    limiter: RateLimiter
+    registry: Registry | None = None
+    phase: Phase = Phase.STARTING
+    connections: set[Connection] = field(default_factory=set)
+    reserved_characters: int = 0  # starts being prepared, counted against max_characters
+    failure: str = ""
+
+    @property
+    def ready(self) -> bool:
+        return self.phase is Phase.READY and self.registry is not None
+
+    @property
+    def stopping(self) -> bool:
+        return self.phase is Phase.STOPPING

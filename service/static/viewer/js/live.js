@@ -1,0 +1,184 @@
+// Live mode: one character streamed over /v1/stream (binary frames) walks to where the ground is clicked.
+// A click while it walks sends `retarget` with a target made from its current pose, turned to face the
+// click and moved there; a click after it arrived starts a new transition from its last poses. The style
+// picker sends `style` on the fly. The HUD shows how late frames arrive against the server's clock.
+
+import { appendPose, facingYaw, forwardKinematics, motionPayload, placeMotion, sliceMotion } from "./math.js";
+import { $, status } from "./ui.js";
+import { LiveStream } from "./transport.js";
+
+const HISTORY = 60;        // frames kept: the next start's context and the trail
+const TRAIL = 240;
+const MIN_FRAMES = 15;     // shortest walk to a click, so even a near click gets a visible transition
+const COLOR = "#4da3ff", DEST = "#e45f8f";
+
+export class LiveMode {
+  constructor(app) {
+    this.app = app;
+    this.stream = null;
+    this.character = null; // id of the live character, null when none walks
+    this.slot = null;
+    this.history = null;   // recent poses (a motion): the current pose is the last
+    this.positions = null; // world positions of the current pose
+    this.trail = [];
+    this.dest = null;
+    this.seq = 0;
+    this.stats = this.freshStats();
+    this.starts = 0;
+    this.els = { style: $("live-style"), speed: $("live-speed"), start: $("live-start"), stop: $("live-stop"), hud: $("hud") };
+    this.els.start.addEventListener("click", () => this.guard(() => this.goTo(null)));
+    this.els.stop.addEventListener("click", () => this.stop());
+    this.els.style.addEventListener("change", () => this.guard(() => this.switchStyle()));
+  }
+
+  freshStats() {
+    return { frames: 0, arrivals: [], lateness: [], t0: null, arrived0: null, lastLateness: null, retargets: 0, styleChanges: 0 };
+  }
+
+  async guard(fn) {
+    try { await fn(); } catch (err) { status(err.message, "error"); this.app.errors.push(err.message); }
+  }
+
+  activate() {
+    this.app.controls.onPlace = null;
+    this.app.controls.setPlacing(false);
+    this.app.controls.onClick = (p) => this.guard(() => this.goTo(p));
+    this.els.hud.hidden = false;
+    $("legend").innerHTML = `<span style="color:${COLOR}">live character</span><span style="color:${DEST}">destination</span>`;
+    if (!this.history) this.resetHistory();
+  }
+
+  deactivate() { this.els.hud.hidden = true; }
+
+  resetHistory() {
+    // The first context: the opening frames of the current take (a walk), so the character starts moving.
+    const take = this.app.take.motion, n = Math.min(take.frames, Math.max(this.app.model.context_frames, 2));
+    this.history = sliceMotion(take, 0, n);
+    this.updatePose();
+  }
+
+  updatePose() {
+    const m = this.history, f = m.frames - 1;
+    this.positions = forwardKinematics(this.app.skeleton, Array.from(m.roots.subarray(f * 3, f * 3 + 3)), m.rots.subarray(f * m.joints * 4));
+  }
+
+  async connect() {
+    if (this.stream && this.stream.open) return;
+    this.stream = new LiveStream(this.app.api, {
+      onFrame: (fr) => this.onFrame(fr),
+      onMessage: (msg) => this.onMessage(msg),
+      onClose: (code, reason) => {
+        this.character = null;
+        clearInterval(this.pinger);
+        this.els.stop.disabled = true;
+        if (code !== 1000 || reason !== "viewer closed the stream") status(`stream closed (${code}${reason ? ": " + reason : ""}); click to reconnect`);
+      },
+    });
+    await this.stream.connect();
+    // Pings give the round trip; they also keep an idle connection (no live character) from timing out.
+    this.pinger = setInterval(() => this.stream.open && this.stream.ping(), 2000);
+    this.stream.ping();
+  }
+
+  // Walk to `point` (null: 2.5 m ahead of where the character faces).
+  async goTo(point) {
+    await this.connect();
+    const m = this.history, f = m.frames - 1, sk = this.app.skeleton;
+    const here = [m.roots[f * 3], 0, m.roots[f * 3 + 2]];
+    const facing = facingYaw(sk, this.positions, Array.from(m.rots.subarray(f * m.joints * 4, f * m.joints * 4 + 4)));
+    if (!point) point = [here[0] + 250 * Math.sin(facing), 0, here[2] + 250 * Math.cos(facing)];
+    const dist = Math.hypot(point[0] - here[0], point[2] - here[2]);
+    const yaw = dist > 1 ? Math.atan2(point[0] - here[0], point[2] - here[2]) : facing; // a click on the spot keeps the facing
+    const speed = Math.max(30, Number(this.els.speed.value) || 130);
+    const frames = Math.round(Math.min(this.app.model.max_transition_frames, Math.max(MIN_FRAMES, (dist / speed) * this.app.model.fps)));
+    // The target: the current pose (and the one before it, for velocity) turned to face the click, moved there.
+    const target = motionPayload(placeMotion(sk, sliceMotion(m, m.frames - 2, m.frames), point, yaw));
+    this.dest = { point, yaw };
+    if (this.character) {
+      this.stream.send({ type: "retarget", character: this.character, target, frames });
+      this.stats.retargets += 1;
+      status(`retargeted: ${(dist / 100).toFixed(1)} m in ${frames} frames`);
+      return;
+    }
+    const ctx = this.app.model.context_frames;
+    const styleId = await this.app.styles.resolve(this.els.style.value);
+    const id = `walker-${++this.starts}`;
+    this.stream.send({ type: "start", character: id, context: motionPayload(m, m.frames - ctx, m.frames), target, frames,
+                       style_id: styleId, pace: "realtime" });
+    this.character = id;
+    this.slot = null;
+    status(`walking ${(dist / 100).toFixed(1)} m in ${frames} frames…`);
+  }
+
+  async switchStyle() {
+    if (!this.character) return;
+    const styleId = await this.app.styles.resolve(this.els.style.value);
+    this.stream.send({ type: "style", character: this.character, style_id: styleId });
+  }
+
+  stop() {
+    if (this.character && this.stream && this.stream.open) this.stream.send({ type: "cancel", character: this.character });
+    if (this.stream) this.stream.close();
+    this.character = null;
+  }
+
+  onMessage(msg) {
+    if (msg.type === "started" && msg.character === this.character) {
+      this.slot = msg.slot;
+      this.stats.t0 = null; // the server's t restarts with every character
+      this.els.stop.disabled = false;
+    } else if (msg.type === "end" && msg.character === this.character) {
+      this.character = null;
+      this.els.stop.disabled = true;
+      status(msg.reason === "arrived" ? "arrived: click the ground to walk again" : "cancelled", "ok");
+    } else if (msg.type === "style_changed") {
+      this.stats.styleChanges += 1;
+      status(`style switched from frame ${msg.from_seq}`, "ok");
+    } else if (msg.type === "error") {
+      if (msg.character && msg.character === this.character) this.character = null;
+      status(`${msg.code}: ${msg.message}`, "error");
+      this.app.errors.push(`${msg.code}: ${msg.message}`);
+    }
+  }
+
+  onFrame(fr) {
+    if (fr.slot !== this.slot) return; // a frame of a character already replaced
+    const s = this.stats;
+    // Lateness: arrival against the server's schedule, both measured from this character's first frame.
+    if (s.t0 === null) { s.t0 = fr.t; s.arrived0 = fr.arrived; }
+    const late = fr.arrived - s.arrived0 - (fr.t - s.t0) * 1000;
+    s.lastLateness = late;
+    s.lateness.push(late); if (s.lateness.length > 90) s.lateness.shift();
+    s.arrivals.push(fr.arrived); while (s.arrivals.length && s.arrivals[0] < fr.arrived - 1000) s.arrivals.shift();
+    s.frames += 1;
+    this.seq = fr.seq;
+    this.remaining = fr.remaining;
+    this.history = appendPose(this.history, fr.root, fr.rots, HISTORY);
+    this.updatePose();
+    this.trail.push([fr.root[0], 0.3, fr.root[2]]); if (this.trail.length > TRAIL) this.trail.shift();
+  }
+
+  info() {
+    const s = this.stats, sorted = [...s.lateness].sort((a, b) => a - b);
+    return {
+      connected: !!(this.stream && this.stream.open), character: this.character, frames: s.frames, seq: this.seq,
+      remaining: this.remaining ?? null, fps: s.arrivals.length, latenessMs: s.lastLateness,
+      latenessP50Ms: sorted.length ? sorted[Math.floor(sorted.length / 2)] : null, rttMs: this.stream ? this.stream.rttMs : null,
+      retargets: s.retargets, styleChanges: s.styleChanges,
+    };
+  }
+
+  scene(renderFps) {
+    const i = this.info(), f = (v, d = 1) => (v === null || v === undefined ? "–" : v.toFixed(d));
+    this.els.hud.textContent = `${i.character ? "walking" : i.connected ? "standing" : "not connected"}` +
+      `\nframes ${i.frames} (seq ${i.seq}, ${i.remaining ?? "–"} left)\nstream ${i.fps} fps · render ${f(renderFps, 0)} fps` +
+      `\nlatency: arrival − server t ${f(i.latenessMs)} ms (p50 ${f(i.latenessP50Ms)}), vs frame 0\nping round trip ${f(i.rttMs)} ms`;
+    const sk = this.app.skeleton, scene = { skeletons: [], markers: [], trails: [{ points: this.trail, color: COLOR }] };
+    if (this.positions) {
+      scene.skeletons.push({ parents: sk.parents, side: sk.side, positions: this.positions, color: COLOR, label: i.character ? "streaming" : null });
+      this.app.camera.follow(this.positions, 0.05);
+    }
+    if (this.dest) scene.markers.push({ point: this.dest.point, yaw: this.dest.yaw, color: DEST });
+    return scene;
+  }
+}

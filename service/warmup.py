@@ -1,0 +1,99 @@
+"""Warm-up before readiness: run every code path and batch shape a model serves once, on the threads that serve it.
+
+Shapes warmed (per model):
+
+* style encoding at the shortest and longest accepted style clip (the encoder's convolutions);
+* ``prepare`` (context warm-up of the recurrent core, batch 1), seeded and deterministic;
+* ``generate`` of a short transition (the ``POST /v1/transition`` path, batch 1), JSON and BVH output;
+* the scheduler's batched ``step`` at 1, 2, 4, ... up to ``warmup_max_batch`` characters, on the step thread.
+
+CPU PyTorch in eager mode compiles nothing per shape; what the first calls pay is one-off
+allocation and kernel selection (tens of ms). Measured first-versus-second step at batch sizes
+never seen before are equal within noise, so powers of two cover the shapes in between.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+import torch
+
+from model.clip import Clip
+from model.engine import Character, CharacterBatch, Engine
+from model.style_cache import CacheStats
+from service.motion import dumps, frames_bvh, frames_json
+from service.registry import LoadedModel
+
+
+def rest_clip(engine: Engine, frames: int) -> Clip:
+    """The rest pose walking forward along +Z at 1 m/s (in cm; any plausible motion will do)."""
+    sk = engine.skeleton
+    rot = torch.zeros(frames, sk.num_joints, 4)
+    rot[..., 3] = 1.0
+    root = torch.zeros(frames, 3)
+    root[:, 1] = 90.0
+    root[:, 2] = torch.arange(frames) * (100.0 / engine.config.fps)
+    return Clip(sk, rot, root, engine.config.fps, "warm-up")
+
+
+def _warm_requests(model: LoadedModel) -> tuple[dict[str, float], Character]:
+    engine = model.engine
+    c = engine.config
+    out: dict[str, float] = {}
+    started = time.perf_counter()
+    ids = []
+    for frames in sorted({c.style_frames_min, c.style_frames_max}):
+        style, _ = engine.encode_style(rest_clip(engine, frames), "warm-up")
+        ids.append(style.style_id)
+    out["encode_style_ms"] = (time.perf_counter() - started) * 1e3
+    context = rest_clip(engine, c.context)
+    target = rest_clip(engine, 2)
+    started = time.perf_counter()
+    ch = engine.prepare(context, target, min(10, model.max_transition), style, deterministic=True)
+    engine.prepare(context, target, min(10, model.max_transition), style, seed=1)
+    out["prepare_ms"] = (time.perf_counter() - started) * 1e3 / 2
+    started = time.perf_counter()
+    rot, root = engine.generate([engine.prepare(context, target, min(10, model.max_transition), style, seed=2)])[0]
+    dumps({"frames": frames_json(rot, root)})
+    frames_bvh(rot, root, engine.skeleton, c.fps)
+    out["generate_ms"] = (time.perf_counter() - started) * 1e3
+    for sid in ids:
+        engine.styles.delete(sid)
+    engine.styles.stats = CacheStats()
+    return out, ch
+
+
+def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict[str, float]:
+    engine = model.engine
+    out: dict[str, float] = {}
+    n = 1
+    while True:
+        batch = CharacterBatch(engine)
+        for i in range(n):
+            # Replicas of one prepared character (its deferred warm-up inputs or its state are shared, never mutated).
+            ch = Character(id=f"warm{i}", style=template.style, frames_total=template.frames_total)
+            ch._row, ch._init, ch._frame = template._row, template._init, template._frame
+            batch.add(ch)
+        started = time.perf_counter()
+        batch.step()
+        first = time.perf_counter() - started
+        started = time.perf_counter()
+        batch.step()
+        out[f"step_{n}_ms"] = round((time.perf_counter() - started) * 1e3, 3)
+        out[f"first_step_{n}_ms"] = round(first * 1e3, 3)
+        if n >= max_batch:
+            return out
+        n = min(2 * n, max_batch)
+
+
+async def warm_up(model: LoadedModel, max_batch: int) -> dict[str, Any]:
+    """Warm one model on its own threads; returns the timings (also kept on ``model.warmup``)."""
+    loop = asyncio.get_running_loop()
+    started = time.perf_counter()
+    timings, template = await loop.run_in_executor(model.work, _warm_requests, model)
+    timings.update(await loop.run_in_executor(model.step, _warm_steps, model, template, max_batch))
+    timings["total_ms"] = round((time.perf_counter() - started) * 1e3, 1)
+    model.warmup = timings
+    return timings

@@ -1,0 +1,70 @@
+"""``rsmt serve`` as the container runs it: readiness, SIGTERM (503, WebSockets closed 1001, bounded exit),
+and a clear failure when there is no model."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import httpx
+from websockets.exceptions import ConnectionClosed
+
+from tests.service.server import Server
+from tests.service.wsclient import Ws
+
+
+def test_rsmt_serve_sigterm(bundle_dir):
+    # Exactly the container's command, on a free loopback port; the model comes from RSMT_MODELS.
+    srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"],
+                 env={"RSMT_SHUTDOWN_DRAIN_S": "1.5", "RSMT_SHUTDOWN_GRACE_S": "3"})
+    srv.start()
+    try:
+        assert srv.ready() == 200
+        ws = Ws(srv.ws)
+        closed: dict = {}
+
+        def wait_close() -> None:
+            try:
+                while True:
+                    ws.conn.recv(30)
+            except ConnectionClosed as exc:
+                closed["code"] = exc.rcvd.code if exc.rcvd else None
+                closed["at"] = time.monotonic()
+
+        reader = threading.Thread(target=wait_close)
+        reader.start()
+        sent = time.monotonic()
+        srv.proc.send_signal(signal.SIGTERM)
+        seen = None
+        while time.monotonic() - sent < 1.2:  # readiness turns 503 while the drain lets LBs notice
+            try:
+                seen = httpx.get(srv.url + "/v1/health/ready", timeout=1).status_code
+            except httpx.HTTPError:
+                seen = "down"
+            if seen != 200:
+                break
+            time.sleep(0.05)
+        assert seen == 503, seen
+        assert httpx.get(srv.url + "/v1/health/live", timeout=1).status_code == 200
+        reader.join(10)
+        assert closed.get("code") == 1001 and closed["at"] - sent < 1.0
+        code = srv.proc.wait(timeout=1.5 + 3 + 3)
+        assert time.monotonic() - sent < 1.5 + 3 + 3
+        assert code in (0, -signal.SIGTERM), code
+    finally:
+        srv.stop()
+
+
+def test_no_model_fails_at_startup_with_a_hint(tmp_path):
+    out = subprocess.run(["rsmt", "serve", "--port", "0", "--models", str(tmp_path / "none")], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 2
+    assert "no model bundle" in out.stderr and "rsmt train" in out.stderr and "--models" in out.stderr
+    env = {**os.environ, "RSMT_MODELS": str(tmp_path)}  # an empty directory, under plain uvicorn
+    out = subprocess.run([sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--port", "0"],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode != 0 and "no model bundle" in out.stderr
