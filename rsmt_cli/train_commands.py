@@ -17,7 +17,7 @@ PRESET_DIR = Path(__file__).resolve().parent.parent / "model" / "train" / "confi
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    train = subparsers.add_parser("train", help="train the RSMT model (phase, manifold, sampler, all)",
+    train = subparsers.add_parser("train", help="train the RSMT model (phase, manifold, sampler, all) or the style classifier",
                                   description="Train the model's stages on a folder of BVH takes.")
     sub = train.add_subparsers(dest="train_command", required=True, metavar="STAGE")
     for stage, text in (
@@ -37,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         p.set_defaults(func=_run, stage=stage)
+    from rsmt_cli import classifier_commands
+
+    classifier_commands.register(sub)
 
 
 def load_config(args: argparse.Namespace):

@@ -1,0 +1,211 @@
+"""Run methods on the evaluation cases of a split and collect every score into one report (a JSON-ready dict).
+
+Order of work: reference statistics from the training split; the cases of the chosen split
+(:mod:`model.evaluation.cases`); then for each method and each variant, the deterministic
+transitions (noise off) with the same-style clip, scored (:mod:`model.evaluation.scoring`); on
+the 40-frame gap also the cross-style clip, and with a classifier the style accuracy and FMD
+(:mod:`model.evaluation.style_scores`); for methods that can sample, diversity on a bounded,
+evenly spread subset of the cases (``diversity_samples`` transitions each, noise on).
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import torch
+from tqdm import tqdm
+
+from model import metrics
+from model.evaluation.cases import (CASE_STEP, CONTEXT, GAP_VARIANTS, SPAN, STYLE_CLIP_FRAMES, VARIANTS, CaseSet,
+                                    Variant, build_cases, stable_hash)
+from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
+from model.evaluation.reference import ReferenceStats, reference_stats
+from model.evaluation.scoring import ground_truth_transitions, score, to_canonical
+from model.evaluation.style_scores import StyleScorer, matched_reference
+from model.motion_cache import MotionCache
+from model.style_classifier import StyleClassifier
+
+Tensor = torch.Tensor
+log = logging.getLogger(__name__)
+
+FORMAT = "rsmt-eval/1"
+STYLE_GAP = 40
+GT_NAME = "ground truth"
+
+
+@dataclass
+class EvalSettings:
+    """What to evaluate: the split, a case limit, the seed of the noisy samples and the diversity subset."""
+
+    split: str = "test"
+    limit: int | None = None
+    seed: int = 0
+    diversity_cases: int = 32
+    diversity_samples: int = 10
+    render_cases: int = 4
+
+
+@dataclass
+class EvalRun:
+    """The report plus what the renderer needs: canonical positions of a few cases per method."""
+
+    report: dict[str, Any]
+    cases: CaseSet
+    render_index: list[int] = field(default_factory=list)
+    render: dict[str, dict[str, Tensor]] = field(default_factory=dict)  # method -> variant -> [R, N+1, J, 3]
+    stats: ReferenceStats | None = None
+
+
+def _spread(n: int, k: int) -> list[int]:
+    if k <= 0:
+        return []
+    if k >= n:
+        return list(range(n))
+    return [(i * n) // k for i in range(k)]
+
+
+def _render_cases(cases: CaseSet, k: int) -> list[int]:
+    """Up to ``k`` cases with different (style, content), evenly spread."""
+    seen, picked = set(), []
+    for i in _spread(len(cases), max(k * 8, k)):
+        key = (cases.cases[i].style, cases.cases[i].content)
+        if key not in seen:
+            seen.add(key)
+            picked.append(i)
+    return sorted(picked[:: max(1, len(picked) // k)][:k]) if picked else []
+
+
+def evaluate(
+    cache: MotionCache,
+    methods: list[Method],
+    settings: EvalSettings,
+    classifier: StyleClassifier | None = None,
+    classifier_path: str | None = None,
+    progress: bool = True,
+    stats: ReferenceStats | None = None,
+) -> EvalRun:
+    """Evaluate ``methods`` on the cases of ``settings.split`` of ``cache``; see the module docstring."""
+    began = time.perf_counter()
+    split = cache.split
+    takes = split[settings.split]
+    if stats is None:
+        stats = reference_stats(cache, split.train, progress=progress)
+    case_list = build_cases(cache, takes, settings.limit)
+    cases = CaseSet.load(cache, case_list)
+    scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
+    styles = [c.style for c in cases.cases]
+    cross_styles = [c.cross_style for c in cases.cases]
+    render_index = _render_cases(cases, settings.render_cases)
+    run = EvalRun(report={}, cases=cases, render_index=render_index, stats=stats)
+
+    # Ground truth: foot skate and what the classifier makes of real transitions.
+    gt_rows: dict[str, dict[str, Any]] = {}
+    gt_features: Tensor | None = None
+    run.render[GT_NAME] = {}
+    for v in GAP_VARIANTS:
+        gt = ground_truth_transitions(cases, v)
+        row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
+                               "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground))}
+        if scorer is not None and v.gap == STYLE_GAP:
+            logits, gt_features = scorer.classify(gt)
+            row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
+            # The noise floor of FMD at this many cases: ground truth against ground truth of other cases.
+            row["fmd_split_half"] = scorer.fmd(gt_features[0::2], gt_features[1::2])
+        gt_rows[v.name] = row
+        run.render[GT_NAME][v.name] = gt.positions[render_index]
+
+    method_reports: dict[str, Any] = {}
+    names: list[str] = []
+    for method in methods:
+        name = method.name
+        while name in names or name == GT_NAME:
+            name += "'"
+        names.append(name)
+        t0 = time.perf_counter()
+        rows: dict[str, Any] = {}
+        run.render[name] = {}
+        for v in tqdm(VARIANTS, desc=name, unit="variant", disable=not progress, leave=False, file=sys.stderr):
+            try:
+                rot, root = method.generate(cases, Request(v), progress)
+            except Unavailable as exc:
+                rows[v.name] = {"unavailable": str(exc)}
+                continue
+            out = to_canonical(cases, rot, root)
+            row: dict[str, Any] = score(cases, v, out, stats)
+            run.render[name][v.name] = out.positions[render_index]
+            if scorer is not None and v.gap == STYLE_GAP:
+                logits, feats = scorer.classify(out)
+                row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
+                if v.has_ground_truth:
+                    assert gt_features is not None
+                    row["fmd"] = scorer.fmd(feats, gt_features)
+                    if method.uses_style:
+                        rot_x, root_x = method.generate(cases, Request(v, cross_style=True), progress)
+                        logits_x, feats_x = scorer.classify(to_canonical(cases, rot_x, root_x))
+                    else:  # the output does not depend on the style clip
+                        logits_x, feats_x = logits, feats
+                    row["style_accuracy_cross"] = scorer.accuracy(logits_x, scorer.labels(cross_styles))
+                    ref, kept = matched_reference(gt_features, styles, cross_styles)
+                    row["fmd_cross"] = scorer.fmd(feats_x[kept], ref)
+            if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
+                    and settings.diversity_cases > 0):
+                row.update(_diversity(method, cases, v, settings, progress))
+            rows[v.name] = row
+        method_reports[name] = {**method.describe(), "name": name, "seconds": round(time.perf_counter() - t0, 2),
+                                "variants": rows}
+
+    if render_index and not any(isinstance(m, BaselineMethod) and m.name == "interp" for m in methods):
+        # The contact sheet always shows interpolation beside the model and the ground truth.
+        interp, sub = BaselineMethod("interp"), cases.subset(render_index)
+        run.render["interp"] = {v.name: to_canonical(sub, *interp.generate(sub, Request(v))).positions for v in VARIANTS}
+
+    run.report = {
+        "format": FORMAT,
+        "data": str(cache.data_root),
+        "cache": cache.key,
+        "split": settings.split,
+        "settings": asdict(settings),
+        "cases": len(cases),
+        "takes": len({c.take for c in cases.cases}),
+        "case_ids": [c.id for c in cases.cases],
+        "styles": sorted(set(styles)),
+        "protocol": {
+            "context_frames": CONTEXT, "case_frames": SPAN, "case_step": CASE_STEP,
+            "canonical_frame": "last context frame (window frame 9)",
+            "style_clip_frames": STYLE_CLIP_FRAMES,
+            "style_pairing": "same style, another take of the split (120+ frames first, same content first), "
+                             "hash-ranked; cross: a hash-chosen other style, same ranking",
+        },
+        "variants": [{"name": v.name, "label": v.label, "gap": v.gap, "frames": v.frames, "d": v.d, "dt": v.dt,
+                      "ground_truth": v.has_ground_truth} for v in VARIANTS],
+        "reference": {"takes": stats.takes, "windows": stats.windows,
+                      "feet": [cases.skeleton.names[j] for j in stats.feet],
+                      "ground_cm": [round(x, 3) for x in stats.ground.tolist()]},
+        "classifier": None if classifier is None else {
+            "path": classifier_path, "styles": classifier.styles, "inputs": classifier.config.inputs,
+            "window": classifier.config.window},
+        "ground_truth": gt_rows,
+        "methods": method_reports,
+        "seconds": round(time.perf_counter() - began, 2),
+    }
+    return run
+
+
+def _diversity(method: Method, cases: CaseSet, v: Variant, settings: EvalSettings, progress: bool) -> dict[str, Any]:
+    """Mean pairwise distance (cm) between ``diversity_samples`` noisy transitions per case, on a case subset."""
+    index = _spread(len(cases), settings.diversity_cases)
+    sub = cases.subset(index)
+    samples = []
+    for k in range(settings.diversity_samples):
+        seeds = [stable_hash(settings.seed, c.id, v.name, k) % (2**31) for c in sub.cases]
+        try:
+            rot, root = method.generate(sub, Request(v, seeds=seeds), progress)
+        except Unavailable:
+            return {}
+        samples.append(to_canonical(sub, rot, root).generated_positions)
+    return {"diversity_cm": float(metrics.diversity(torch.stack(samples))), "diversity_cases": len(sub),
+            "diversity_samples": settings.diversity_samples}

@@ -1,0 +1,92 @@
+"""Scores of one method's transitions on one variant of every case (definitions in :mod:`model.metrics`).
+
+All positions and rotations are taken into the canonical frame of each case's last context
+frame before scoring. With ground truth (unchanged controls):
+
+* ``l2p``: standardised global positions (training-split :class:`~model.metrics.PositionStats`),
+  mean over cases and generated frames of the per-frame L2 norm; unitless;
+* ``l2q``: global quaternions, same averaging;
+* ``npss`` and ``npss_x100``: NPSS on global quaternions of the generated frames (LaFAN1 code's
+  real-part spectrum), pooled over all cases;
+* ``mpjpe_cm``: mean joint position error;
+* ``foot_skate`` / ``foot_skate_gt``: cm/frame (horizontal foot speed weighted by
+  ``clamp(2 - 2^(h/H), 0, 1)``, ``H = 2.5`` cm above each foot joint's training ground level)
+  over the last context frame followed by the generated frames, for the method and for the
+  ground truth of the same cases.
+
+Always: ``last_frame_cm`` (mean joint distance of the last generated frame to the target pose,
+after any target shift), ``last_frame_l2p`` (the same in standardised units, the paper's
+"L2 norm of global position of the last frame") and ``foot_skate``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from model import metrics
+from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
+from model.evaluation.reference import ReferenceStats
+
+Tensor = torch.Tensor
+
+
+@dataclass
+class Transitions:
+    """Generated frames of every case in the canonical frame, with the last context frame in front.
+
+    Attributes:
+        positions: ``[B, N + 1, J, 3]`` (frame 0 is the last context frame).
+        rotations: ``[B, N + 1, J, 4]`` global quaternions.
+    """
+
+    positions: Tensor
+    rotations: Tensor
+
+    @property
+    def generated_positions(self) -> Tensor:
+        return self.positions[:, 1:]
+
+    @property
+    def generated_rotations(self) -> Tensor:
+        return self.rotations[:, 1:]
+
+
+def to_canonical(cases: CaseSet, local_rotations: Tensor, roots: Tensor) -> Transitions:
+    """FK a method's output (world local rotations and roots) on each case's rig, prepend frame 9, canonicalise."""
+    pos, rot = cases.forward(local_rotations, roots)
+    pos = torch.cat([cases.positions[:, LAST_CONTEXT:LAST_CONTEXT + 1], pos], dim=1)
+    rot = torch.cat([cases.global_rotations[:, LAST_CONTEXT:LAST_CONTEXT + 1], rot], dim=1)
+    return Transitions(cases.frame.positions_to(pos), cases.frame.rotations_to(rot))
+
+
+def ground_truth_transitions(cases: CaseSet, v: Variant) -> Transitions:
+    sl = slice(LAST_CONTEXT, LAST_CONTEXT + v.gap + 1)
+    return Transitions(cases.canonical_positions[:, sl], cases.canonical_rotations[:, sl])
+
+
+def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> dict[str, float]:
+    """Scores of ``out`` on variant ``v`` (see the module docstring)."""
+    pred_pos = out.generated_positions
+    target = cases.frame.positions_to(cases.target_positions(v).unsqueeze(1))  # [B, 1, J, 3]
+    result = {
+        "cases": len(cases),
+        "frames": v.frames,
+        "last_frame_cm": float(metrics.last_frame_error_cm(pred_pos, target)),
+        "last_frame_l2p": float(metrics.l2p(pred_pos[:, -1:], target, ref.positions)),
+        "foot_skate": float(metrics.foot_skate(out.positions, ref.feet, ref.ground)),
+    }
+    if v.has_ground_truth:
+        gt = ground_truth_transitions(cases, v)
+        gt_pos, gt_rot = gt.generated_positions, gt.generated_rotations
+        npss = float(metrics.npss(out.generated_rotations, gt_rot))
+        result.update({
+            "l2p": float(metrics.l2p(pred_pos, gt_pos, ref.positions)),
+            "l2q": float(metrics.l2q(out.generated_rotations, gt_rot)),
+            "npss": npss,
+            "npss_x100": 100.0 * npss,
+            "mpjpe_cm": float(metrics.mean_joint_error_cm(pred_pos, gt_pos)),
+            "foot_skate_gt": float(metrics.foot_skate(gt.positions, ref.feet, ref.ground)),
+        })
+    return result

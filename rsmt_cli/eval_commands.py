@@ -1,0 +1,125 @@
+"""The ``rsmt eval`` command: score model bundles and baselines side by side on fixed cases of a split."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+from pathlib import Path
+
+from model.data_dir import find_data_dir
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "eval", help="evaluate bundles and baselines (L2P, L2Q, NPSS, foot skate, style, diversity)",
+        description=(
+            "Run each --model on the same deterministic cases of a split (10 context frames; gaps of 10, 20 and "
+            "40 frames; on the 40 gap the target moved by d = 2 and d = -1 and the duration scaled by dt = 0.5 "
+            "and 2) and print Markdown tables side by side. Scores are taken in the canonical frame of the last "
+            "context frame; L2P is standardised with training-split statistics. With --out, also writes "
+            "report.json, report.md, PNG plots and a contact sheet of a few transitions."))
+    p.add_argument("--model", action="append", required=True, metavar="BUNDLE|interp|zerovel|gt",
+                   help="a model bundle folder, or a baseline: interp, zerovel (gt: the ground truth, a sanity "
+                        "check); repeat to compare")
+    p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
+    p.add_argument("--split", default="test", choices=["train", "val", "test"], help="split to evaluate (default test)")
+    p.add_argument("--classifier", type=Path, metavar="DIR",
+                   help="style classifier folder (rsmt train classifier) for style accuracy and FMD")
+    p.add_argument("--out", type=Path, metavar="DIR", help="folder for report.json, report.md and the pictures")
+    p.add_argument("--limit", type=int, metavar="N", help="evaluate at most N cases, spread evenly over the split")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noisy samples for diversity (default 0)")
+    p.add_argument("--diversity-cases", type=int, default=32, metavar="N",
+                   help="cases used for diversity, spread evenly (default 32; 0 skips diversity)")
+    p.add_argument("--diversity-samples", type=int, default=10, metavar="N",
+                   help="noisy transitions per case for diversity (default 10)")
+    p.add_argument("--render-cases", type=int, default=4, metavar="N", help="cases on the contact sheet (default 4)")
+    p.add_argument("--batch", type=int, default=128, help="transitions generated together by a bundle (default 128)")
+    p.add_argument("--exact-arrival", action="store_true",
+                   help="run bundles with the engine's exact-arrival option (the last frames bend onto the target)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+    p.add_argument("--json", action="store_true", help="print the JSON report instead of the Markdown tables")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=eval_command)
+
+
+def eval_command(args: argparse.Namespace) -> int:
+    import torch
+
+    from model.evaluation import EvalSettings, evaluate, resolve_method
+    from model.evaluation.report import markdown
+    from model.motion_cache import load_motion_cache
+    from model.style_classifier import StyleClassifier
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.limit is not None and args.limit < 1:
+        raise ValueError("--limit must be at least 1")
+    data = args.data or find_data_dir()
+    if data is None:
+        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    methods = [resolve_method(spec, args.batch, args.exact_arrival) for spec in args.model]
+    classifier = StyleClassifier.load(args.classifier) if args.classifier else None
+    cache = load_motion_cache(Path(data), progress=not args.quiet)
+    settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
+                            diversity_samples=args.diversity_samples, render_cases=args.render_cases)
+    run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
+                   progress=not args.quiet)
+    command = _command(args)
+    run.report["command"] = command
+    text = markdown(run.report, command)
+    if args.out:
+        write_outputs(run, args.out, text)
+    print(json.dumps(run.report, indent=1) if args.json else text)
+    return 0
+
+
+def _command(args: argparse.Namespace) -> str:
+    """The command line that reproduces this run (from the parsed arguments)."""
+    parts = ["rsmt", "eval"]
+    for m in args.model:
+        parts += ["--model", str(m)]
+    parts += ["--data", str(args.data or find_data_dir()), "--split", args.split]
+    if args.classifier:
+        parts += ["--classifier", str(args.classifier)]
+    if args.out:
+        parts += ["--out", str(args.out)]
+    if args.limit is not None:
+        parts += ["--limit", str(args.limit)]
+    parts += ["--seed", str(args.seed)]
+    if args.exact_arrival:
+        parts.append("--exact-arrival")
+    for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),
+                                 ("--diversity-samples", args.diversity_samples, 10)):
+        if value != default:
+            parts += [flag, str(value)]
+    return " ".join(shlex.quote(p) for p in parts)
+
+
+def write_outputs(run, folder: Path, text: str) -> list[Path]:
+    """report.json, report.md, reference_stats.json, metrics_over_gap.png, controls.png and contact sheets
+    (contact_sheet.png: the 40-frame gap; contact_sheet_d-1.png: its target moved behind, d = -1)."""
+    from model.evaluation.cases import variant
+    from model.evaluation.plots import contact_sheet, plot_controls, plot_gap_metrics
+    from model.evaluation.report import write_report
+
+    folder = Path(folder)
+    paths = write_report(folder, run.report, text)
+    if run.stats is not None:
+        stats = folder / "reference_stats.json"
+        stats.write_text(json.dumps(run.stats.to_dict()))
+        paths.append(stats)
+    paths.append(plot_gap_metrics(run.report, folder / "metrics_over_gap.png"))
+    paths.append(plot_controls(run.report, folder / "controls.png"))
+    cases = run.cases
+    idx = run.render_index
+    if idx:
+        labels = [f"{c.style}, {c.content}\n{Path(c.id.split('@')[0]).name} @ {c.start}"
+                  for c in (cases.cases[i] for i in idx)]
+        for name, file in (("gap40", "contact_sheet.png"), ("gap40-d-1", "contact_sheet_d-1.png")):
+            v = variant(name)
+            targets = cases.frame.positions_to(cases.target_positions(v).unsqueeze(1))[idx, 0]
+            sheet = contact_sheet(run.render, targets, labels, cases.skeleton, folder / file, variant=name)
+            if sheet is not None:
+                paths.append(sheet)
+    return paths
