@@ -1,0 +1,29 @@
+"""Python client of the RSMT motion transition service (HTTP and WebSocket ``/v1/stream``).
+
+    from rsmt_client import Client, StreamClient
+
+    with Client("http://127.0.0.1:8000") as c:
+        style = c.register_style("proud.bvh")["style_id"]
+        poses = c.transition("context.bvh", "target.bvh", frames=40, style_id=style, seed=7)
+        poses.save_bvh("out.bvh", c.model())          # or poses.root_positions / poses.rotations
+
+    with StreamClient("http://127.0.0.1:8000", encoding="binary") as s:
+        hero = s.start("context.bvh", "target.bvh", 40, style_id=style)
+        for_hero = s.collect(hero)                     # frames as numpy arrays, then the end message
+
+Everything is in the model's units and axes (``GET /v1/model``: cm, Y up, right-handed,
+quaternions x, y, z, w). See clients/python/README.md.
+"""
+
+from rsmt_client._retry import NO_RETRY, RetryPolicy, parse_retry_after
+from rsmt_client.errors import RsmtError
+from rsmt_client.http import DEFAULT_URL, AsyncClient, Client
+from rsmt_client.motion import Poses, load_bvh_poses, motion_payload, poses_to_bvh, read_bvh
+from rsmt_client.stream import AsyncStreamClient, Frame, FrameLayout, StreamClient, StreamResult, stream_url
+
+__all__ = [
+    "DEFAULT_URL", "NO_RETRY", "AsyncClient", "AsyncStreamClient", "Client", "Frame", "FrameLayout", "Poses",
+    "RetryPolicy", "RsmtError", "StreamClient", "StreamResult", "load_bvh_poses", "motion_payload",
+    "parse_retry_after", "poses_to_bvh", "read_bvh", "stream_url",
+]
+__version__ = "0.1.0"

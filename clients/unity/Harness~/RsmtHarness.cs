@@ -1,0 +1,402 @@
+// Console harness of the Unity core (no UnityEngine), built with Mono's mcs by tests/clients/test_unity_core.py:
+//
+//   mcs -out:RsmtHarness.exe -r:System.Net.Http.dll Runtime/Core/*.cs Harness~/RsmtHarness.cs
+//   mono RsmtHarness.exe selftest
+//   mono RsmtHarness.exe run --url http://127.0.0.1:8000 [--api-key K] --context a.bvh --target b.bvh --style s.bvh
+//        --frames 40 [--seed 7] [--deterministic] [--encoding binary|json] [--retarget c.bvh --retarget-after 5
+//        --retarget-frames 12] [--delay 0.1] --out result.json
+//
+// `run` registers the style over HTTP, connects, reads hello, streams one transition (pace asap) and records
+// every frame converted to Unity axes; with --retarget it streams a second one in real time, retargets it
+// mid-way, and plays it through the jitter buffer, recording what was shown.
+using System;
+using System.Collections.Generic;
+using System.Diagnostics;
+using System.Globalization;
+using System.IO;
+using System.Linq;
+using System.Text;
+using System.Threading;
+using Rsmt.Link;
+
+static class RsmtHarness
+{
+    static int checks, failures;
+
+    static void Check(bool condition, string what)
+    {
+        checks++;
+        if (!condition)
+        {
+            failures++;
+            Console.Error.WriteLine("FAILED: " + what);
+        }
+    }
+
+    static bool Near(double a, double b, double tol = 1e-9) { return Math.Abs(a - b) <= tol; }
+    static bool NearV(RsmtVec3 a, RsmtVec3 b, double tol = 1e-9) { return Near(a.X, b.X, tol) && Near(a.Y, b.Y, tol) && Near(a.Z, b.Z, tol); }
+    static bool NearQ(RsmtQuat a, RsmtQuat b, double tol = 1e-9)
+    {
+        return Near(a.X, b.X, tol) && Near(a.Y, b.Y, tol) && Near(a.Z, b.Z, tol) && Near(a.W, b.W, tol);
+    }
+
+    static string Hello(int joints, bool shuffled)
+    {
+        var sb = new StringBuilder("{\"type\":\"hello\",\"protocol\":1,\"encoding\":\"binary\",\"model\":{\"name\":\"m\",\"version\":\"v\",\"fps\":30.0,"
+            + "\"context_frames\":10,\"max_transition_frames\":60,\"skeleton\":{\"joints\":[");
+        for (int j = 0; j < joints; j++)
+            sb.Append(j > 0 ? "," : "").Append("{\"name\":\"J" + j + "\",\"parent\":" + (j - 1) + ",\"offset\":[1,2,3]}");
+        int rot = 4 * joints;
+        sb.Append("],\"units\":\"cm\",\"up_axis\":\"y\",\"handedness\":\"right\"}},\"frame_layout\":{\"encoding\":\"float32-le\",\"floats_per_frame\":" + (7 + rot) + ",\"fields\":[");
+        if (!shuffled)
+            sb.Append("{\"name\":\"slot\",\"offset\":0,\"count\":1},{\"name\":\"seq\",\"offset\":1,\"count\":1},{\"name\":\"t\",\"offset\":2,\"count\":1},"
+                + "{\"name\":\"root_position\",\"offset\":3,\"count\":3},{\"name\":\"rotations\",\"offset\":6,\"count\":" + rot + "},"
+                + "{\"name\":\"remaining\",\"offset\":" + (6 + rot) + ",\"count\":1}");
+        else  // another order: a client must read offsets from hello, not assume them
+            sb.Append("{\"name\":\"rotations\",\"offset\":0,\"count\":" + rot + "},{\"name\":\"root_position\",\"offset\":" + rot + ",\"count\":3},"
+                + "{\"name\":\"remaining\",\"offset\":" + (rot + 3) + ",\"count\":1},{\"name\":\"t\",\"offset\":" + (rot + 4) + ",\"count\":1},"
+                + "{\"name\":\"seq\",\"offset\":" + (rot + 5) + ",\"count\":1},{\"name\":\"slot\",\"offset\":" + (rot + 6) + ",\"count\":1}");
+        sb.Append("]},\"limits\":{\"max_characters\":64,\"send_queue_frames\":16,\"idle_timeout_s\":60,\"max_message_bytes\":65536}}");
+        return sb.ToString();
+    }
+
+    static byte[] Floats(float[] values)
+    {
+        var bytes = new byte[values.Length * 4];
+        for (int i = 0; i < values.Length; i++)
+        {
+            var b = BitConverter.GetBytes(values[i]);
+            if (!BitConverter.IsLittleEndian) Array.Reverse(b);
+            Array.Copy(b, 0, bytes, 4 * i, 4);
+        }
+        return bytes;
+    }
+
+    static RsmtFrame F(int seq, double x)
+    {
+        var p = new RsmtPose(1) { Root = new RsmtVec3(x, 0, 0) };
+        return new RsmtFrame { Seq = seq, T = (seq + 1) / 30.0, Pose = p };
+    }
+
+    static int SelfTest()
+    {
+        // JSON
+        var v = Json.Parse("{\"a\": [1, -2.5e2, true, false, null], \"s\": \"q\\\"\\\\\\n\\u00e9\"}");
+        Check(v.Get("a").Array.Count == 5 && Near(v.Get("a").Array[1].Number, -250), "json numbers");
+        Check(v.Get("a").Array[2].Bool && !v.Get("a").Array[3].Bool && v.Get("a").Array[4].IsNull, "json literals");
+        Check(v.GetString("s", "") == "q\"\\\n\u00e9", "json escapes");
+        foreach (var bad in new[] { "{\"a\": 1,}", "[1 2]", "\"open", "{} x", "01x", new string('[', 100) })
+        {
+            JsonValue ignored;
+            string error;
+            Check(!Json.TryParse(bad, out ignored, out error) && error != null, "json rejects " + bad.Substring(0, Math.Min(12, bad.Length)));
+        }
+        Check(Json.Quote("a\"b\\c\n\u0001") == "\"a\\\"b\\\\c\\n\\u0001\"", "json quote");
+        var saved = Thread.CurrentThread.CurrentCulture;
+        Thread.CurrentThread.CurrentCulture = new CultureInfo("de-DE");
+        Check(Json.Number(0.5) == "0.5" && Near(Json.Parse("[0.5]").Array[0].Number, 0.5), "json is culture-invariant");
+        Thread.CurrentThread.CurrentCulture = saved;
+
+        // Conversion, known values: x mirrored, centimetres to metres.
+        double cm = RsmtCoordinates.MetresPerUnit("cm");
+        Check(Near(cm, 0.01) && RsmtCoordinates.MetresPerUnit("furlong") == 0, "units");
+        Check(NearV(RsmtCoordinates.ModelToUnityPosition(new RsmtVec3(10, 20, 30), cm), new RsmtVec3(-0.1, 0.2, 0.3), 1e-12), "position (10,20,30)cm -> (-0.1,0.2,0.3)m");
+        Check(NearV(RsmtCoordinates.UnityToModelPosition(new RsmtVec3(-0.1, 0.2, 0.3), cm), new RsmtVec3(10, 20, 30), 1e-12), "position back");
+        double h = Math.Sqrt(0.5);
+        var yaw90 = new RsmtQuat(0, h, 0, h);  // model: +90 deg about up turns +Z (forward) to +X (the character's left)
+        Check(NearV(RsmtQuat.Rotate(yaw90, new RsmtVec3(0, 0, 1)), new RsmtVec3(1, 0, 0), 1e-12), "model yaw turns left");
+        var unityYaw = RsmtCoordinates.ModelToUnityRotation(yaw90);
+        Check(NearQ(unityYaw, new RsmtQuat(0, -h, 0, h), 1e-12), "rotation (0,s,0,s) -> (0,-s,0,s)");
+        // In Unity that is -90 deg about Y: forward (+Z) turns to -X, which is a +Z-facing character's left too.
+        Check(NearV(RsmtQuat.Rotate(unityYaw, new RsmtVec3(0, 0, 1)), new RsmtVec3(-1, 0, 0), 1e-12), "unity yaw turns left");
+        var rng = new Random(7);
+        Func<double> n = () => rng.NextDouble() * 2 - 1;
+        for (int i = 0; i < 200; i++)
+        {
+            var q = new RsmtQuat(n(), n(), n(), n()).Normalized();
+            var r = new RsmtQuat(n(), n(), n(), n()).Normalized();
+            var p = new RsmtVec3(n(), n(), n());
+            var lhs = RsmtCoordinates.ModelToUnityPosition(RsmtQuat.Rotate(q, p), 1);
+            var rhs = RsmtQuat.Rotate(RsmtCoordinates.ModelToUnityRotation(q), RsmtCoordinates.ModelToUnityPosition(p, 1));
+            Check(NearV(lhs, rhs, 1e-9), "M(q v) == q'(M v)");
+            Check(NearQ(RsmtCoordinates.ModelToUnityRotation(RsmtQuat.Multiply(q, r)),
+                        RsmtQuat.Multiply(RsmtCoordinates.ModelToUnityRotation(q), RsmtCoordinates.ModelToUnityRotation(r)), 1e-12), "(q r)' == q' r'");
+            Check(NearQ(RsmtCoordinates.UnityToModelRotation(RsmtCoordinates.ModelToUnityRotation(q)), q, 0), "rotation inverse");
+        }
+
+        // Protocol: hello, started, binary frames (standard and shuffled layouts), JSON frames, errors.
+        foreach (bool shuffled in new[] { false, true })
+        {
+            var s = new RsmtSession();
+            s.HandleText(Hello(2, shuffled));
+            Check(s.HasHello && s.Joints == 2 && s.Hello.Layout.FloatsPerFrame == 15 && s.Hello.MaxMessageBytes == 65536, "hello");
+            var started = s.HandleText("{\"type\":\"started\",\"character\":\"hero\",\"slot\":3,\"frames\":40,\"fps\":30.0,\"style_id\":\"sty\"}");
+            Check(started.Kind == RsmtMessageKind.Started && started.Frames == 40 && started.StyleId == "sty", "started");
+            float[] rots = { 0, 0, 0, 1, 0.5f, 0.5f, 0.5f, 0.5f };
+            float[] values = shuffled
+                ? rots.Concat(new float[] { 1.5f, 92.25f, -3f, 32, 8f / 30f, 7, 3 }).ToArray()
+                : new float[] { 3, 7, 8f / 30f, 1.5f, 92.25f, -3f }.Concat(rots).Concat(new float[] { 32 }).ToArray();
+            var bin = Floats(values);
+            var m = s.HandleBinary(bin, bin.Length);
+            Check(m.Kind == RsmtMessageKind.Frame && m.Frame.Character == "hero" && m.Frame.Seq == 7 && m.Frame.Remaining == 32, "binary frame fields" + (shuffled ? " (shuffled layout)" : ""));
+            Check(NearV(m.Frame.Pose.Root, new RsmtVec3(1.5, 92.25, -3)) && NearQ(m.Frame.Pose.Rotations[1], new RsmtQuat(0.5, 0.5, 0.5, 0.5)), "binary frame pose");
+            bool threw = false;
+            try { s.HandleBinary(bin, bin.Length - 4); } catch (RsmtProtocolException) { threw = true; }
+            Check(threw, "short binary frame refused");
+        }
+        // A character of another model (5 joints): its layout comes from started.floats_per_frame.
+        var ms = new RsmtSession();
+        ms.HandleText(Hello(2, false));
+        ms.HandleText("{\"type\":\"started\",\"character\":\"big\",\"slot\":9,\"frames\":3,\"fps\":30.0,\"floats_per_frame\":27}");
+        Check(ms.LayoutOf(9).Joints == 5 && ms.LayoutOf(9).Remaining == 26 && ms.LayoutOf(0).Joints == 2, "layout of another model");
+        var rots5 = new float[20];
+        for (int j = 0; j < 5; j++) rots5[4 * j + 3] = 1;
+        var big = Floats(new float[] { 9, 0, 1f / 30f, 0, 1, 2 }.Concat(rots5).Concat(new float[] { 2 }).ToArray());
+        var bm = ms.HandleBinary(big, big.Length);
+        Check(bm.Frame.Character == "big" && bm.Frame.Pose.Rotations.Length == 5 && bm.Frame.Remaining == 2, "binary frame of another model");
+        var jm = ms.HandleText("{\"type\":\"frame\",\"character\":\"big\",\"slot\":9,\"seq\":1,\"t\":0.06666667,\"remaining\":1,"
+            + "\"pose\":{\"root_position\":[0,1,2],\"rotations\":[[0,0,0,1],[0,0,0,1],[0,0,0,1],[0,0,0,1],[0,0,0,1]]}}");
+        Check(jm.Frame.Pose.Rotations.Length == 5, "json frame of another model");
+
+        var js = new RsmtSession();
+        js.HandleText(Hello(2, false));
+        var jf = js.HandleText("{\"type\":\"frame\",\"character\":\"a\",\"slot\":0,\"seq\":1,\"t\":0.06666667,\"remaining\":3,\"pose\":{\"root_position\":[1,2,3],\"rotations\":[[0,0,0,1],[0,1,0,0]]}}");
+        Check(jf.Kind == RsmtMessageKind.Frame && NearQ(jf.Frame.Pose.Rotations[1], new RsmtQuat(0, 1, 0, 0)) && jf.Frame.Remaining == 3, "json frame");
+        var err = js.HandleText("{\"type\":\"error\",\"code\":\"unknown_style\",\"message\":\"no\",\"character\":\"a\"}");
+        Check(err.Kind == RsmtMessageKind.Error && err.Code == "unknown_style", "error message");
+        bool before = false;
+        try { new RsmtSession().HandleText("{\"type\":\"frame\"}"); } catch (RsmtProtocolException) { before = true; }
+        Check(before, "hello must come first");
+
+        // Client messages parse back.
+        var start = Json.Parse(RsmtMessages.Start(new RsmtStartOptions
+        {
+            Character = "hero", ContextJson = RsmtMessages.BvhMotion("HIERARCHY\n\"x\"\t"), TargetJson = RsmtMessages.PoseMotion(new[] { new RsmtPose(2) }),
+            Frames = 40, StyleId = "sty", Seed = 12345678901234L, Deterministic = true, Pace = "asap", ExactArrival = true,
+        }));
+        Check(start.GetBool("exact_arrival", false), "start exact_arrival");
+        Check(start.GetString("type", "") == "start" && start.Get("context").GetString("bvh", "") == "HIERARCHY\n\"x\"\t", "start context");
+        Check(Near(start.GetNumber("seed", 0), 12345678901234.0) && start.GetBool("deterministic", false) && start.GetString("pace", "") == "asap", "start options");
+        Check(Near(start.Get("target").Get("rotations").Array[0].Array[1].Array[3].Number, 1), "pose motion");
+        var retarget = Json.Parse(RsmtMessages.Retarget("hero", null, 12));
+        Check(retarget.Get("target") == null && retarget.GetInt("frames", 0) == 12, "retarget frames only");
+
+        // Jitter buffer: steady playback behind the first arrival, interpolation, starvation, skipping, reset.
+        var jb = new RsmtJitterBuffer(0.1, 30);
+        RsmtPose pose;
+        Check(!jb.Sample(0, out pose), "empty buffer shows nothing");
+        jb.Push(F(0, 0), 1.0);
+        Check(!jb.Sample(1.05, out pose), "frame 0 not due before 1.1");
+        Check(jb.Sample(1.1001, out pose) && Near(pose.Root.X, 0), "frame 0 at 1.1");
+        jb.Push(F(1, 10), 1.12);
+        jb.Push(F(2, 20), 1.13);
+        Check(jb.Sample(1.1 + 0.5 / 30, out pose) && Near(pose.Root.X, 5, 1e-9), "interpolates halfway");
+        Check(jb.Sample(1.1 + 2.0 / 30 + 1e-6, out pose) && Near(pose.Root.X, 20, 1e-9) && jb.ShownSeq == 2 && jb.Underruns == 0, "frame 2");
+        Check(jb.Sample(1.1 + 4.0 / 30, out pose) && Near(pose.Root.X, 20) && jb.Underruns == 1, "starved: hold, one underrun");
+        jb.Push(F(3, 30), 1.5);
+        Check(jb.Sample(1.55, out pose) && Near(pose.Root.X, 20), "re-buffering holds");
+        Check(jb.Sample(1.6 + 1e-6, out pose) && Near(pose.Root.X, 30, 1e-9), "frame 3 plays delay after arrival");
+        for (int s = 4; s < 40; s++) jb.Push(F(s, 10 * s), 1.6 + (s - 3) / 30.0);
+        Check(jb.Sample(1.6 + 1.0 + 1e-6, out pose) && jb.ShownSeq == 33 && jb.Buffered <= 7, "late frames skipped, not replayed");
+        jb.MarkEnded();
+        Check(jb.Sample(7, out pose) && jb.ShownSeq == 39 && jb.Finished && jb.Underruns == 1, "ends on the last frame");
+        jb.Reset();
+        jb.Push(F(0, -1), 10);
+        Check(jb.Sample(10, out pose) && Near(pose.Root.X, 390), "new transition: old pose holds until due");
+        Check(jb.Sample(10.1001, out pose) && Near(pose.Root.X, -1), "new transition plays");
+
+        // Joint binding by name.
+        var bones = new Dictionary<string, string> { { "Hips", "Hips" }, { "Spine", "Spine" }, { "mixamorig:Head", "mixamorig:Head" }, { "Arm", "Arm" } };
+        Func<string, string> find = name => { string b; return bones.TryGetValue(name, out b) ? b : null; };
+        var missing = new List<string>();
+        var bound = RsmtJointBinding.Resolve(new[] { "Hips", "Spine", "Head", "UpperArm_L", "ns:Arm" },
+                                             new Dictionary<string, string> { { "Head", "mixamorig:Head" } }, true, find, missing);
+        Check(bound[0] == "Hips" && bound[1] == "Spine" && bound[2] == "mixamorig:Head" && bound[3] == null && bound[4] == "Arm", "binding");
+        Check(missing.Count == 1 && missing[0] == "UpperArm_L", "binding reports missing joints");
+
+        Console.WriteLine("{\"selftest\": {\"checks\": " + checks + ", \"failures\": " + failures + "}}");
+        return failures == 0 ? 0 : 1;
+    }
+
+    // ------------------------------------------------------------------ live run
+
+    static Dictionary<string, string> Args(string[] args)
+    {
+        var d = new Dictionary<string, string>();
+        for (int i = 1; i < args.Length; i++)
+        {
+            if (!args[i].StartsWith("--", StringComparison.Ordinal)) throw new ArgumentException("unexpected " + args[i]);
+            string key = args[i].Substring(2);
+            if (i + 1 < args.Length && !args[i + 1].StartsWith("--", StringComparison.Ordinal)) d[key] = args[++i];
+            else d[key] = "true";
+        }
+        return d;
+    }
+
+    static string Get(Dictionary<string, string> d, string key, string fallback = null)
+    {
+        string v;
+        if (d.TryGetValue(key, out v)) return v;
+        if (fallback == null) throw new ArgumentException("--" + key + " is required");
+        return fallback;
+    }
+
+    static string R(double x) { return x.ToString("R", CultureInfo.InvariantCulture); }
+
+    static string PoseJson(RsmtFrame f)
+    {
+        var sb = new StringBuilder();
+        sb.Append("{\"seq\":").Append(f.Seq).Append(",\"t\":").Append(R(f.T)).Append(",\"remaining\":").Append(f.Remaining);
+        sb.Append(",\"root\":[").Append(R(f.Pose.Root.X)).Append(',').Append(R(f.Pose.Root.Y)).Append(',').Append(R(f.Pose.Root.Z)).Append("],\"rotations\":[");
+        for (int j = 0; j < f.Pose.Rotations.Length; j++)
+        {
+            var q = f.Pose.Rotations[j];
+            sb.Append(j > 0 ? "," : "").Append('[').Append(R(q.X)).Append(',').Append(R(q.Y)).Append(',').Append(R(q.Z)).Append(',').Append(R(q.W)).Append(']');
+        }
+        return sb.Append("]}").ToString();
+    }
+
+    static void Pump(RsmtStreamClient client, Stopwatch clock, Func<bool> done, double timeoutSeconds, Action each = null)
+    {
+        double deadline = clock.Elapsed.TotalSeconds + timeoutSeconds;
+        while (!done())
+        {
+            if (clock.Elapsed.TotalSeconds > deadline) throw new TimeoutException("timed out waiting for the server");
+            if (client.CloseInfo != null)
+                throw new Exception("the stream closed: " + client.CloseInfo.CloseStatus + " " + client.CloseInfo.CloseReason);
+            if (client.Dispatch(clock.Elapsed.TotalSeconds) == 0) Thread.Sleep(2);
+            if (each != null) each();
+        }
+    }
+
+    static int Run(string[] argv)
+    {
+        var a = Args(argv);
+        string url = Get(a, "url"), apiKey = Get(a, "api-key", "");
+        string context = File.ReadAllText(Get(a, "context")), target = File.ReadAllText(Get(a, "target"));
+        string styleBvh = File.ReadAllText(Get(a, "style"));
+        int frames = int.Parse(Get(a, "frames"), CultureInfo.InvariantCulture);
+        long? seed = a.ContainsKey("seed") ? (long?)long.Parse(a["seed"], CultureInfo.InvariantCulture) : null;
+        bool deterministic = a.ContainsKey("deterministic");
+        bool binary = Get(a, "encoding", "json") == "binary";
+        double delay = double.Parse(Get(a, "delay", "0.1"), CultureInfo.InvariantCulture);
+        var clock = Stopwatch.StartNew();
+        var output = new StringBuilder("{");
+
+        // 1. Style registration over HTTP (retries 429/503).
+        RsmtStyleInfo style;
+        using (var http = new RsmtHttpClient(url, apiKey))
+        {
+            style = http.RegisterStyleAsync(styleBvh, "harness-style").Result;
+        }
+        output.Append("\"style_id\":").Append(Json.Quote(style.StyleId));
+
+        using (var client = new RsmtStreamClient(new ClientWebSocketTransport(), delay))
+        {
+            // 2. Hello.
+            client.ConnectAsync(url, apiKey, binary).Wait();
+            Pump(client, clock, () => client.Hello != null, 30);
+            var model = client.Hello.Model;
+            output.Append(",\"hello\":{\"joints\":").Append(model.Joints.Length).Append(",\"fps\":").Append(R(model.Fps))
+                  .Append(",\"units\":").Append(Json.Quote(model.Units)).Append(",\"encoding\":").Append(Json.Quote(client.Hello.Encoding))
+                  .Append(",\"metres_per_unit\":").Append(R(client.MetresPerUnit)).Append('}');
+
+            // 3. One transition, as fast as it is generated; every frame recorded in Unity axes.
+            var recorded = new List<RsmtFrame>();
+            RsmtMessage end = null, started = null;
+            var errors = new List<string>();
+            bool pong = false;
+            client.ErrorReceived += m => errors.Add(m.Code + ": " + m.Text);
+            client.MessageReceived += m =>
+            {
+                if (m.Kind == RsmtMessageKind.Pong) pong = true;
+                if (m.Character != "cs1") return;
+                if (m.Kind == RsmtMessageKind.Frame) recorded.Add(m.Frame);
+                else if (m.Kind == RsmtMessageKind.End) end = m;
+                else if (m.Kind == RsmtMessageKind.Started) started = m;
+            };
+            client.Start(new RsmtStartOptions
+            {
+                Character = "cs1", ContextJson = RsmtMessages.BvhMotion(context), TargetJson = RsmtMessages.BvhMotion(target),
+                Frames = frames, StyleId = style.StyleId, Seed = seed, Deterministic = deterministic, Pace = "asap",
+            });
+            Pump(client, clock, () => end != null || errors.Count > 0, 60);
+            if (errors.Count > 0) throw new Exception("server error: " + errors[0]);
+            client.Ping("harness");
+            Pump(client, clock, () => pong, 30);
+            output.Append(",\"started\":{\"slot\":").Append(started.Slot).Append(",\"frames\":").Append(started.Frames).Append('}');
+            output.Append(",\"end\":{\"reason\":").Append(Json.Quote(end.Reason)).Append(",\"frames\":").Append(end.Frames).Append('}');
+            output.Append(",\"pong\":").Append(pong ? "true" : "false");
+            output.Append(",\"frames\":[").Append(string.Join(",", recorded.Select(PoseJson))).Append(']');
+
+            // 4. Retarget mid-way, in real time, played through the jitter buffer.
+            if (a.ContainsKey("retarget"))
+            {
+                string newTarget = File.ReadAllText(a["retarget"]);
+                int after = int.Parse(Get(a, "retarget-after", "5"), CultureInfo.InvariantCulture);
+                int newFrames = int.Parse(Get(a, "retarget-frames", "0"), CultureInfo.InvariantCulture);
+                int received = 0, fromSeq = -1, shownLast = -1, samples = 0;
+                bool sent = false, monotonic = true;
+                RsmtMessage end2 = null;
+                client.MessageReceived += m =>
+                {
+                    if (m.Character != "cs2") return;
+                    if (m.Kind == RsmtMessageKind.Frame)
+                    {
+                        received++;
+                        if (!sent && m.Frame.Seq >= after)
+                        {
+                            client.Retarget("cs2", RsmtMessages.BvhMotion(newTarget), newFrames);
+                            sent = true;
+                        }
+                    }
+                    else if (m.Kind == RsmtMessageKind.Retargeted) fromSeq = m.FromSeq;
+                    else if (m.Kind == RsmtMessageKind.End) end2 = m;
+                };
+                client.Start(new RsmtStartOptions
+                {
+                    Character = "cs2", ContextJson = RsmtMessages.BvhMotion(context), TargetJson = RsmtMessages.BvhMotion(target),
+                    Frames = frames, StyleId = style.StyleId, Seed = seed, Deterministic = deterministic, Pace = "realtime",
+                });
+                var buffer = client.Buffer("cs2");
+                Action sample = () =>
+                {
+                    RsmtPose shown;
+                    if (client.TrySample("cs2", clock.Elapsed.TotalSeconds, out shown))
+                    {
+                        samples++;
+                        if (buffer.ShownSeq >= 0 && buffer.ShownSeq < shownLast) monotonic = false;
+                        if (buffer.ShownSeq >= 0) shownLast = buffer.ShownSeq;
+                    }
+                };
+                Pump(client, clock, () => (end2 != null && buffer.Finished) || errors.Count > 0, 60, sample);
+                if (errors.Count > 0) throw new Exception("server error: " + errors[0]);
+                output.Append(",\"retarget\":{\"from_seq\":").Append(fromSeq).Append(",\"received\":").Append(received)
+                      .Append(",\"end_frames\":").Append(end2.Frames).Append(",\"reason\":").Append(Json.Quote(end2.Reason))
+                      .Append(",\"shown_last\":").Append(shownLast).Append(",\"samples\":").Append(samples)
+                      .Append(",\"monotonic\":").Append(monotonic ? "true" : "false").Append(",\"underruns\":").Append(buffer.Underruns).Append('}');
+            }
+        }
+        output.Append('}');
+        File.WriteAllText(Get(a, "out"), output.ToString());
+        Console.WriteLine("{\"ok\": true, \"seconds\": " + R(clock.Elapsed.TotalSeconds) + "}");
+        return 0;
+    }
+
+    static int Main(string[] args)
+    {
+        Thread.CurrentThread.CurrentCulture = CultureInfo.InvariantCulture;
+        if (args.Length >= 1 && args[0] == "selftest") return SelfTest();
+        if (args.Length >= 1 && args[0] == "run")
+        {
+            try { return Run(args); }
+            catch (Exception e)
+            {
+                Console.Error.WriteLine("harness: " + e);
+                return 1;
+            }
+        }
+        Console.Error.WriteLine("usage: RsmtHarness.exe selftest | run --url URL --context A.bvh --target B.bvh --style S.bvh --frames N --out FILE [...]");
+        return 2;
+    }
+}

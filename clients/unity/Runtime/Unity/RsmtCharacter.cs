@@ -1,0 +1,126 @@
+// Drives one character's Transforms from an RSMT server. Messages are handled in Update and poses applied
+// in LateUpdate (after the Animator, so they win), both on the main thread; nothing touches Unity objects
+// from the socket thread.
+using System.Collections.Generic;
+using UnityEngine;
+
+namespace Rsmt.Link.Unity
+{
+    public sealed class RsmtCharacter : MonoBehaviour
+    {
+        [Header("Server")]
+        public string serverUrl = "http://127.0.0.1:8000";
+        public string apiKey = "";
+        public bool binaryFrames = true;
+
+        [Header("Character")]
+        public string characterId = "hero";
+        public RsmtJointMap jointMap;
+        [Tooltip("Top of the bone hierarchy (the Transforms named in the joint map are searched under it)")]
+        public Transform skeletonRoot;
+        [Tooltip("Seconds frames wait before they play: hides network and generation jitter")]
+        public float bufferDelay = 0.1f;
+        [Tooltip("Keep streaming while the window is unfocused (sets Application.runInBackground)")]
+        public bool runInBackground = true;
+
+        [Header("Style")]
+        [Tooltip("A BVH style clip registered at start (its id goes to styleId)")]
+        public TextAsset styleClip;
+        public string styleId;
+
+        RsmtStreamClient client;
+        Transform[] bones;
+        readonly Queue<System.Func<string>> pending = new Queue<System.Func<string>>();  // built when hello has come
+
+        public bool Ready { get { return client != null && client.Hello != null && bones != null; } }
+
+        async void Start()
+        {
+            if (runInBackground) Application.runInBackground = true;
+            client = new RsmtStreamClient(new ClientWebSocketTransport(), bufferDelay);
+            client.HelloReceived += OnHello;
+            client.ErrorReceived += m => Debug.LogWarning("RSMT " + m.Code + ": " + m.Text, this);
+            client.Closed += (code, reason) => Debug.LogWarning("RSMT stream closed " + code + " " + reason, this);
+            try
+            {
+                if (styleClip != null && string.IsNullOrEmpty(styleId))
+                {
+                    using (var http = new RsmtHttpClient(serverUrl, apiKey))
+                        styleId = (await http.RegisterStyleAsync(styleClip.text, styleClip.name)).StyleId;
+                }
+                await client.ConnectAsync(serverUrl, apiKey, binaryFrames);
+            }
+            catch (System.Exception e)
+            {
+                Debug.LogError("RSMT: cannot connect to " + serverUrl + ": " + e.Message, this);
+            }
+        }
+
+        void OnHello(RsmtHello hello)
+        {
+            var missing = new List<string>();
+            bones = jointMap != null
+                ? jointMap.Resolve(skeletonRoot, hello.Model.JointNames, missing)
+                : RsmtJointBinding.Resolve(hello.Model.JointNames, null, true, n => FindBone(n), missing);
+            if (missing.Count > 0) Debug.LogWarning("RSMT: no Transform for joint(s) " + string.Join(", ", missing.ToArray()), this);
+            while (pending.Count > 0) client.Send(pending.Dequeue()());
+        }
+
+        Transform FindBone(string name)
+        {
+            foreach (var t in skeletonRoot.GetComponentsInChildren<Transform>(true))
+                if (t.name == name) return t;
+            return null;
+        }
+
+        /// <summary>Start a transition from the context (>= context_frames frames) to the target's last frame.</summary>
+        public void StartTransition(string contextBvh, string targetBvh, int frames, long? seed = null, bool deterministic = false)
+        {
+            // Built when sent, so a style registered meanwhile (styleClip) is used.
+            System.Func<string> message = () => RsmtMessages.Start(new RsmtStartOptions
+            {
+                Character = characterId, ContextJson = RsmtMessages.BvhMotion(contextBvh), TargetJson = RsmtMessages.BvhMotion(targetBvh),
+                Frames = frames, StyleId = styleId, Seed = seed, Deterministic = deterministic,
+            });
+            if (Ready && !string.IsNullOrEmpty(styleId)) client.Send(message());
+            else pending.Enqueue(message);
+        }
+
+        /// <summary>A new target (and/or length, frames > 0) from the next frame on.</summary>
+        public void Retarget(string targetBvh, int frames = 0)
+        {
+            if (client != null) client.Retarget(characterId, targetBvh == null ? null : RsmtMessages.BvhMotion(targetBvh), frames);
+        }
+
+        public void Cancel()
+        {
+            if (client != null) client.Cancel(characterId);
+        }
+
+        void Update()
+        {
+            // At most 256 messages a frame: after a long stall the backlog drains over a few frames.
+            if (client != null) client.Dispatch(Time.realtimeSinceStartupAsDouble, 256);
+        }
+
+        void LateUpdate()
+        {
+            RsmtPose pose;
+            if (!Ready || !client.TrySample(characterId, Time.realtimeSinceStartupAsDouble, out pose)) return;
+            for (int j = 0; j < bones.Length && j < pose.Rotations.Length; j++)
+            {
+                if (bones[j] == null) continue;
+                var q = pose.Rotations[j];
+                bones[j].localRotation = new Quaternion((float)q.X, (float)q.Y, (float)q.Z, (float)q.W);
+            }
+            if (bones.Length > 0 && bones[0] != null)
+                bones[0].localPosition = new Vector3((float)pose.Root.X, (float)pose.Root.Y, (float)pose.Root.Z);
+        }
+
+        void OnDestroy()
+        {
+            if (client != null) client.Dispose();
+            client = null;
+        }
+    }
+}

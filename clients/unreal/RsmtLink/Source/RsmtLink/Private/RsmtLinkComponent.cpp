@@ -1,0 +1,363 @@
+#include "RsmtLinkComponent.h"
+
+#include "Features/IModularFeatures.h"
+#include "HttpModule.h"
+#include "ILiveLinkClient.h"
+#include "IWebSocket.h"
+#include "Interfaces/IHttpRequest.h"
+#include "Interfaces/IHttpResponse.h"
+#include "TimerManager.h"
+#include "WebSocketsModule.h"
+#include "Engine/World.h"
+
+#include "RsmtConvert.h"
+#include "RsmtJitterBuffer.h"
+#include "RsmtJson.h"
+#include "RsmtLiveLinkSource.h"
+#include "RsmtProtocol.h"
+#include "RsmtReassembler.h"
+
+DEFINE_LOG_CATEGORY_STATIC(LogRsmtLink, Log, All);
+
+namespace
+{
+std::string ToStd(const FString& S)
+{
+	const FTCHARToUTF8 Utf8(*S);
+	return std::string(Utf8.Get(), Utf8.Length());
+}
+
+FString FromStd(const std::string& S)
+{
+	return FString(UTF8_TO_TCHAR(S.c_str()));
+}
+
+FString StreamUrl(const FString& Base, bool bBinary)
+{
+	FString Url = Base;
+	Url.RemoveFromEnd(TEXT("/"));
+	if (Url.StartsWith(TEXT("https://")))
+	{
+		Url = TEXT("wss://") + Url.RightChop(8);
+	}
+	else if (Url.StartsWith(TEXT("http://")))
+	{
+		Url = TEXT("ws://") + Url.RightChop(7);
+	}
+	return Url + TEXT("/v1/stream?encoding=") + (bBinary ? TEXT("binary") : TEXT("json"));
+}
+}  // namespace
+
+URsmtLinkComponent::URsmtLinkComponent()
+{
+	PrimaryComponentTick.bCanEverTick = true;
+	PrimaryComponentTick.TickGroup = TG_PrePhysics;  // before the animation update reads Live Link
+}
+
+void URsmtLinkComponent::BeginPlay()
+{
+	Super::BeginPlay();
+	Connect();
+}
+
+void URsmtLinkComponent::EndPlay(const EEndPlayReason::Type EndPlayReason)
+{
+	Disconnect();
+	Super::EndPlay(EndPlayReason);
+}
+
+bool URsmtLinkComponent::IsConnected() const
+{
+	return Socket.IsValid() && Socket->IsConnected();
+}
+
+void URsmtLinkComponent::Connect()
+{
+	Disconnect();
+	Session = rsmt::Session();
+	Assembler.Reset();
+	Buffer = rsmt::JitterBuffer(BufferDelaySeconds);
+
+	IModularFeatures& Features = IModularFeatures::Get();
+	if (Features.IsModularFeatureAvailable(ILiveLinkClient::ModularFeatureName))
+	{
+		ILiveLinkClient& LiveLink = Features.GetModularFeature<ILiveLinkClient>(ILiveLinkClient::ModularFeatureName);
+		Source = MakeShared<FRsmtLiveLinkSource>(ServerUrl);
+		LiveLink.AddSource(Source);
+	}
+	else
+	{
+		UE_LOG(LogRsmtLink, Warning, TEXT("Live Link is not available: enable the Live Link plugin"));
+	}
+
+	FWebSocketsModule& WebSockets = FModuleManager::LoadModuleChecked<FWebSocketsModule>(TEXT("WebSockets"));
+	TMap<FString, FString> Headers;
+	if (!ApiKey.IsEmpty())
+	{
+		Headers.Add(TEXT("X-API-Key"), ApiKey);
+	}
+	Socket = WebSockets.CreateWebSocket(StreamUrl(ServerUrl, bBinaryFrames), TEXT(""), Headers);
+	Socket->OnConnected().AddUObject(this, &URsmtLinkComponent::HandleConnected);
+	Socket->OnConnectionError().AddUObject(this, &URsmtLinkComponent::HandleConnectionError);
+	Socket->OnClosed().AddUObject(this, &URsmtLinkComponent::HandleClosed);
+	// Only OnRawMessage is bound: it carries every message (text and binary) in arrival order, in pieces
+	// with BytesRemaining; RsmtCore reassembles and classifies them. (Binding OnMessage as well would
+	// deliver text twice on some platforms.)
+	Socket->OnRawMessage().AddUObject(this, &URsmtLinkComponent::HandleRawMessage);
+	Socket->Connect();
+}
+
+void URsmtLinkComponent::Disconnect()
+{
+	if (Socket.IsValid())
+	{
+		Socket->OnConnected().RemoveAll(this);
+		Socket->OnConnectionError().RemoveAll(this);
+		Socket->OnClosed().RemoveAll(this);
+		Socket->OnRawMessage().RemoveAll(this);
+		if (Socket->IsConnected())
+		{
+			Socket->Close(1000, TEXT("bye"));
+		}
+		Socket.Reset();
+	}
+	if (Source.IsValid() && IModularFeatures::Get().IsModularFeatureAvailable(ILiveLinkClient::ModularFeatureName))
+	{
+		IModularFeatures::Get().GetModularFeature<ILiveLinkClient>(ILiveLinkClient::ModularFeatureName).RemoveSource(Source);
+	}
+	Source.Reset();
+}
+
+void URsmtLinkComponent::HandleConnected()
+{
+	UE_LOG(LogRsmtLink, Log, TEXT("connected to %s"), *ServerUrl);
+}
+
+void URsmtLinkComponent::HandleConnectionError(const FString& Error)
+{
+	OnError.Broadcast(TEXT("connection"), Error);
+}
+
+void URsmtLinkComponent::HandleClosed(int32 StatusCode, const FString& Reason, bool bWasClean)
+{
+	// 1000: idle, 1001: server shutting down (reconnect), 1008: not reading fast enough, 1009: message too big.
+	OnError.Broadcast(TEXT("closed"), FString::Printf(TEXT("%d %s"), StatusCode, *Reason));
+}
+
+void URsmtLinkComponent::HandleRawMessage(const void* Data, SIZE_T Size, SIZE_T BytesRemaining)
+{
+	using FResult = rsmt::MessageAssembler::Result;
+	const FResult Result = Assembler.Feed(Data, static_cast<std::size_t>(Size), static_cast<std::size_t>(BytesRemaining));
+	if (Result == FResult::Partial)
+	{
+		return;
+	}
+	if (Result == FResult::TooLarge)
+	{
+		OnError.Broadcast(TEXT("protocol"), TEXT("a message over 1 MiB was dropped"));
+		return;
+	}
+	const std::vector<uint8>& Bytes = Assembler.Data();
+	rsmt::Message Message;
+	std::string Error;
+	const bool bText = rsmt::ClassifyMessage(Bytes.data(), Bytes.size()) == rsmt::PayloadKind::Text;
+	const bool bOk = bText ? Session.HandleText(reinterpret_cast<const char*>(Bytes.data()), Bytes.size(), Message, &Error)
+	                       : Session.HandleBinary(Bytes.data(), Bytes.size(), Message, &Error);
+	if (!bOk)
+	{
+		UE_LOG(LogRsmtLink, Warning, TEXT("bad message: %s"), *FromStd(Error));
+		return;
+	}
+	HandleMessage(Message);
+}
+
+void URsmtLinkComponent::HandleMessage(const rsmt::Message& Message)
+{
+	switch (Message.kind)
+	{
+	case rsmt::MessageKind::Hello:
+	{
+		const rsmt::ModelInfo& Model = Session.GetHello().model;
+		std::string Why;
+		if (!rsmt::CheckModelConventions(Model, &Why))
+		{
+			OnError.Broadcast(TEXT("protocol"), FromStd(Why));
+			return;
+		}
+		CmPerUnit = rsmt::CentimetresPerUnit(Model.units);
+		Buffer.SetFps(Model.fps);
+		TArray<FName> Names;
+		TArray<int32> Parents;
+		RestTransforms.Reset();
+		const std::vector<rsmt::Vec3> Offsets = rsmt::UnrealRestOffsets(Model);
+		for (size_t J = 0; J < Model.joints.size(); ++J)
+		{
+			Names.Add(FName(*FromStd(Model.joints[J].name)));
+			Parents.Add(Model.joints[J].parent);
+			RestTransforms.Add(FTransform(FQuat::Identity, FVector(Offsets[J].x, Offsets[J].y, Offsets[J].z)));
+		}
+		if (Source.IsValid())
+		{
+			Source->PushSkeleton(SubjectName, Names, Parents);
+		}
+		OnConnected.Broadcast();
+		if (!PendingStart.empty())
+		{
+			SendText(PendingStart);
+			PendingStart.clear();
+		}
+		break;
+	}
+	case rsmt::MessageKind::Started:
+		if (Message.character == ToStd(CharacterId))
+		{
+			Buffer.Reset();
+		}
+		break;
+	case rsmt::MessageKind::Frame:
+		if (Message.frame.character == ToStd(CharacterId))
+		{
+			rsmt::Frame Converted = Message.frame;
+			Converted.pose = rsmt::ModelToUnrealPose(Message.frame.pose, CmPerUnit);
+			Buffer.Push(Converted, FPlatformTime::Seconds());
+		}
+		break;
+	case rsmt::MessageKind::End:
+		if (Message.character == ToStd(CharacterId))
+		{
+			Buffer.MarkEnded();
+			OnTransitionEnded.Broadcast(FromStd(Message.reason), Message.frames);
+		}
+		break;
+	case rsmt::MessageKind::Error:
+		OnError.Broadcast(FromStd(Message.code), FromStd(Message.message));
+		break;
+	default:
+		break;
+	}
+}
+
+void URsmtLinkComponent::TickComponent(float DeltaTime, ELevelTick TickType, FActorComponentTickFunction* ThisTickFunction)
+{
+	Super::TickComponent(DeltaTime, TickType, ThisTickFunction);
+	if (!Source.IsValid() || RestTransforms.Num() == 0)
+	{
+		return;
+	}
+	rsmt::Pose Pose;
+	if (!Buffer.Sample(FPlatformTime::Seconds(), Pose) || Pose.rotations.size() != static_cast<size_t>(RestTransforms.Num()))
+	{
+		return;
+	}
+	TArray<FTransform> Transforms = RestTransforms;
+	for (int32 J = 0; J < Transforms.Num(); ++J)
+	{
+		const rsmt::Quat& Q = Pose.rotations[static_cast<size_t>(J)];
+		Transforms[J].SetRotation(FQuat(Q.x, Q.y, Q.z, Q.w));
+	}
+	Transforms[0].SetTranslation(FVector(Pose.root.x, Pose.root.y, Pose.root.z));
+	Source->PushPose(SubjectName, Transforms);
+}
+
+void URsmtLinkComponent::SendText(const std::string& Text)
+{
+	if (Socket.IsValid() && Socket->IsConnected())
+	{
+		Socket->Send(FromStd(Text));
+	}
+}
+
+void URsmtLinkComponent::StartTransition(const FString& ContextBvh, const FString& TargetBvh, int32 Frames, int32 Seed,
+	bool bDeterministic)
+{
+	rsmt::StartOptions Options;
+	Options.character = ToStd(CharacterId);
+	Options.contextJson = rsmt::BvhMotionJson(ToStd(ContextBvh));
+	Options.targetJson = rsmt::BvhMotionJson(ToStd(TargetBvh));
+	Options.frames = Frames;
+	Options.styleId = ToStd(StyleId);
+	Options.hasSeed = Seed >= 0;
+	Options.seed = static_cast<uint64>(FMath::Max(Seed, 0));
+	Options.deterministic = bDeterministic;
+	const std::string Text = rsmt::BuildStart(Options);
+	if (Session.HasHello())
+	{
+		SendText(Text);
+	}
+	else
+	{
+		PendingStart = Text;  // sent when hello arrives
+	}
+}
+
+void URsmtLinkComponent::Retarget(const FString& TargetBvh, int32 Frames)
+{
+	SendText(rsmt::BuildRetarget(ToStd(CharacterId), TargetBvh.IsEmpty() ? std::string() : rsmt::BvhMotionJson(ToStd(TargetBvh)),
+		Frames));
+}
+
+void URsmtLinkComponent::Cancel()
+{
+	SendText(rsmt::BuildCancel(ToStd(CharacterId)));
+}
+
+void URsmtLinkComponent::RegisterStyle(const FString& StyleBvh, const FString& Name)
+{
+	PostStyle("{\"name\":" + rsmt::JsonQuote(ToStd(Name)) + ",\"motion\":" + rsmt::BvhMotionJson(ToStd(StyleBvh)) + "}", 0);
+}
+
+void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt)
+{
+	TSharedRef<IHttpRequest, ESPMode::ThreadSafe> Request = FHttpModule::Get().CreateRequest();
+	FString Base = ServerUrl;
+	Base.RemoveFromEnd(TEXT("/"));
+	Request->SetURL(Base + TEXT("/v1/styles"));
+	Request->SetVerb(TEXT("POST"));
+	Request->SetHeader(TEXT("Content-Type"), TEXT("application/json"));
+	if (!ApiKey.IsEmpty())
+	{
+		Request->SetHeader(TEXT("X-API-Key"), ApiKey);
+	}
+	Request->SetContentAsString(FromStd(Body));
+	TWeakObjectPtr<URsmtLinkComponent> WeakThis(this);
+	Request->OnProcessRequestComplete().BindLambda(
+		[WeakThis, Body, Attempt](FHttpRequestPtr, FHttpResponsePtr Response, bool bConnected)
+		{
+			URsmtLinkComponent* This = WeakThis.Get();
+			if (This == nullptr)
+			{
+				return;
+			}
+			const int32 Status = (bConnected && Response.IsValid()) ? Response->GetResponseCode() : 0;
+			if ((Status == 429 || Status == 503) && Attempt < 4 && This->GetWorld() != nullptr)
+			{
+				// Honour Retry-After (seconds), else back off 0.5, 1, 2, 4 s.
+				float Wait = 0.5f * static_cast<float>(1 << Attempt);
+				const FString After = Response->GetHeader(TEXT("Retry-After"));
+				if (!After.IsEmpty() && After.IsNumeric())
+				{
+					Wait = FCString::Atof(*After);
+				}
+				FTimerHandle Handle;
+				This->GetWorld()->GetTimerManager().SetTimer(Handle,
+					FTimerDelegate::CreateWeakLambda(This, [This, Body, Attempt]() { This->PostStyle(Body, Attempt + 1); }),
+					FMath::Max(Wait, 0.01f), false);
+				return;
+			}
+			rsmt::JsonValue Json;
+			const std::string Text = Response.IsValid() ? ToStd(Response->GetContentAsString()) : std::string();
+			if (Status != 201 && Status != 200)
+			{
+				const bool bParsed = rsmt::ParseJson(Text, Json, nullptr) && Json.Find("error") != nullptr;
+				This->OnError.Broadcast(bParsed ? FromStd(Json.Find("error")->StringOr("code", "http_error")) : TEXT("http_error"),
+					bParsed ? FromStd(Json.Find("error")->StringOr("message", "")) : FString::Printf(TEXT("HTTP %d"), Status));
+				return;
+			}
+			if (rsmt::ParseJson(Text, Json, nullptr))
+			{
+				This->StyleId = FromStd(Json.StringOr("style_id", ""));
+				This->OnStyleRegistered.Broadcast(This->StyleId);
+			}
+		});
+	Request->ProcessRequest();
+}

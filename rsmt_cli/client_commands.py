@@ -1,0 +1,181 @@
+"""The ``rsmt client`` commands: talk to a running service with the Python client (``rsmt_client``).
+
+    rsmt client styles add clip.bvh [--name N]
+    rsmt client styles list
+    rsmt client transition --context a.bvh --target b.bvh --frames 40 --style ID -o out.bvh [--seed S]
+    rsmt client stream --context a.bvh --target b.bvh --frames 40 --style ID [--binary] [-o out.bvh]
+
+Every command takes ``--url`` (default http://127.0.0.1:8000, or $RSMT_URL) and ``--api-key``
+(or $RSMT_API_KEY). Results print as JSON lines on stdout; errors print the server's code and
+message on stderr and exit with 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--url", default=os.environ.get("RSMT_URL", "http://127.0.0.1:8000"),
+                        help="service base URL (default $RSMT_URL or http://127.0.0.1:8000)")
+    parser.add_argument("--api-key", default=os.environ.get("RSMT_API_KEY"),
+                        help="API key, sent as X-API-Key (default $RSMT_API_KEY)")
+    parser.add_argument("--retries", type=int, default=5,
+                        help="tries per request on 429/503/refused connections, with backoff (default 5; 1: none)")
+    parser.add_argument("--timeout", type=float, default=60.0, help="seconds per request (default 60)")
+
+
+def _motion_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--context", type=Path, required=True, metavar="BVH",
+                        help="the character's recent motion (at least the model's context_frames frames)")
+    parser.add_argument("--target", type=Path, required=True, metavar="BVH",
+                        help="the target: its last frame is the pose to arrive at")
+    parser.add_argument("--frames", type=int, required=True, help="frames to generate (the last one arrives)")
+    parser.add_argument("--style", required=True, metavar="ID|BVH",
+                        help="a style_id from `rsmt client styles add`, or a style clip .bvh (encoded on the fly)")
+    parser.add_argument("--seed", type=int, help="sampling seed (same inputs + seed give the same frames)")
+    parser.add_argument("--deterministic", action="store_true", help="no sampling noise")
+    parser.add_argument("--exact-arrival", action="store_true",
+                        help="bend the last frames so the arrival frame equals the target pose")
+    parser.add_argument("-o", "--out", type=Path, metavar="BVH", help="write the generated frames as BVH")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("client", help="use a running service (styles, transitions, streams)",
+                              description="Talk to a running RSMT service with the Python client.")
+    sub = p.add_subparsers(dest="client_command", required=True, metavar="SUBCOMMAND")
+
+    styles = sub.add_parser("styles", help="register and list style clips")
+    ssub = styles.add_subparsers(dest="styles_command", required=True, metavar="ACTION")
+    add = ssub.add_parser("add", help="register a style clip (BVH); prints its style_id")
+    add.add_argument("clip", type=Path, help="style clip .bvh")
+    add.add_argument("--name", help="display name (default: the file name)")
+    add.add_argument("--model", help="model to encode for (default: the server's default)")
+    _common(add)
+    add.set_defaults(func=_styles_add)
+    ls = ssub.add_parser("list", help="list the server's cached styles")
+    ls.add_argument("--json", action="store_true", help="one JSON object per line instead of a table")
+    _common(ls)
+    ls.set_defaults(func=_styles_list)
+
+    tr = sub.add_parser("transition", help="one whole transition over HTTP (POST /v1/transition)")
+    _motion_args(tr)
+    _common(tr)
+    tr.set_defaults(func=_transition)
+
+    st = sub.add_parser("stream", help="a transition streamed frame by frame over the WebSocket")
+    _motion_args(st)
+    st.add_argument("--binary", action="store_true", help="binary float32 frames instead of JSON")
+    st.add_argument("--pace", choices=["realtime", "asap"], default="realtime",
+                    help="realtime: frames at the model fps (default); asap: as fast as generated")
+    st.add_argument("--quiet", action="store_true", help="no line per frame")
+    _common(st)
+    st.set_defaults(func=_stream)
+
+
+def _retry(args: argparse.Namespace) -> Any:
+    from rsmt_client import RetryPolicy
+
+    return RetryPolicy(attempts=max(1, args.retries))
+
+
+def _client(args: argparse.Namespace) -> Any:
+    from rsmt_client import Client
+
+    return Client(args.url, api_key=args.api_key, timeout=args.timeout, retry=_retry(args))
+
+
+def _style_choice(value: str) -> dict[str, Any]:
+    from rsmt_client import read_bvh
+
+    path = Path(value)
+    if value.lower().endswith(".bvh") or path.is_file():
+        return {"style": {"bvh": read_bvh(path)}}
+    return {"style_id": value}
+
+
+def _print(obj: Any) -> None:
+    print(json.dumps(obj, separators=(", ", ": ")), flush=True)
+
+
+def _guard(fn):
+    def run(args: argparse.Namespace) -> int:
+        from rsmt_client import RsmtError
+
+        try:
+            return fn(args)
+        except RsmtError as exc:
+            print(f"rsmt client: {exc}", file=sys.stderr)
+            return 1
+    return run
+
+
+@_guard
+def _styles_add(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        _print(c.register_style(args.clip, name=args.name or args.clip.stem, model=args.model))
+    return 0
+
+
+@_guard
+def _styles_list(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        styles = c.styles()
+    if args.json:
+        for s in styles:
+            _print(s)
+        return 0
+    print(f"{'style_id':<40} {'frames':>6}  {'model':<16} name")
+    for s in styles:
+        print(f"{s['style_id']:<40} {s['frames']:>6}  {s.get('model', ''):<16} {s['name']}")
+    return 0
+
+
+@_guard
+def _transition(args: argparse.Namespace) -> int:
+    from rsmt_client import read_bvh
+
+    context, target = {"bvh": read_bvh(args.context)}, {"bvh": read_bvh(args.target)}
+    with _client(args) as c:
+        poses = c.transition(context, target, args.frames, seed=args.seed, deterministic=args.deterministic,
+                             exact_arrival=args.exact_arrival, **_style_choice(args.style))
+        summary: dict[str, Any] = {"frames": poses.num_frames, "fps": poses.fps, "style_id": poses.style_id,
+                                   "model": poses.model, "timing_ms": poses.timing_ms}
+        if args.out:
+            poses.save_bvh(args.out, c.model())
+            summary["out"] = str(args.out)
+        else:
+            summary["root_positions"] = poses.root_positions.tolist()
+    _print(summary)
+    return 0
+
+
+@_guard
+def _stream(args: argparse.Namespace) -> int:
+    from rsmt_client import StreamClient, read_bvh
+
+    context, target = {"bvh": read_bvh(args.context)}, {"bvh": read_bvh(args.target)}
+    style = _style_choice(args.style)
+
+    def show(_client: Any, f: Any) -> None:
+        if not args.quiet:
+            _print({"type": "frame", "seq": f.seq, "t": round(f.t, 6), "remaining": f.remaining,
+                    "root_position": [round(float(v), 4) for v in f.root_position]})
+
+    with StreamClient(args.url, api_key=args.api_key, encoding="binary" if args.binary else "json",
+                      retry=_retry(args), open_timeout=args.timeout) as s:
+        character = s.start(context, target, args.frames, seed=args.seed, deterministic=args.deterministic,
+                            pace=args.pace, exact_arrival=args.exact_arrival, **style)
+        result = s.collect(character, timeout=args.timeout + args.frames / float(s.model["fps"]), on_frame=show)
+        summary: dict[str, Any] = {"type": "end", "character": character, "frames": len(result.frames),
+                                   "reason": (result.end or {}).get("reason"), "encoding": s.encoding}
+        if args.out:
+            result.poses(s.joint_names).save_bvh(args.out, s.model)
+            summary["out"] = str(args.out)
+    _print(summary)
+    return 0

@@ -1,0 +1,71 @@
+"""The Unity package's engine-independent core, compiled with Mono's ``mcs``: unit checks (JSON, coordinate
+conversion against known values, binary frames with any layout, jitter buffer, joint binding), a type check
+of the MonoBehaviour and asset code against UnityEngine stubs, and a console harness against a live server
+(hello, style registration over HTTP, start, frames, retarget, ping). Skipped with a reason without Mono."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from rsmt_client import Client
+
+from tests.clients.helpers import API_KEY, FRAMES, SEED, UNITY, json_lines, mono_tools, run, run_harness, unity_to_model
+
+pytestmark = pytest.mark.timeout(600)
+
+
+def test_core_selftest(harness_exe):
+    proc = run_harness(harness_exe, "selftest")
+    assert proc.returncode == 0, proc.stderr
+    summary = json_lines(proc.stdout)[-1]["selftest"]
+    assert summary["failures"] == 0 and summary["checks"] > 500
+
+
+def test_monobehaviour_and_asset_code_type_check(tmp_path):
+    """Runtime/Unity and the sample compile against stand-ins of the UnityEngine types they use."""
+    mcs, _ = mono_tools()
+    stubs = UNITY.parents[1] / "tests" / "clients" / "unity_stubs" / "UnityEngine.cs"
+    sources = sorted(str(p) for p in (UNITY / "Runtime").rglob("*.cs")) + \
+        sorted(str(p) for p in (UNITY / "Samples~").rglob("*.cs")) + [str(stubs)]
+    run([mcs, "-nologo", "-target:library", "-warnaserror", "-r:System.Net.Http.dll", f"-out:{tmp_path / 'u.dll'}",
+         *sources], timeout=300)
+    # The core's assembly definition keeps UnityEngine out; the runtime one references the core.
+    core = json.loads((UNITY / "Runtime" / "Core" / "Rsmt.Link.Core.asmdef").read_text())
+    runtime = json.loads((UNITY / "Runtime" / "Rsmt.Link.asmdef").read_text())
+    assert core["noEngineReferences"] is True and runtime["references"] == ["Rsmt.Link.Core"]
+    assert all("using UnityEngine" not in p.read_text() for p in (UNITY / "Runtime" / "Core").glob("*.cs"))
+    package = json.loads((UNITY / "package.json").read_text())
+    assert package["name"] == "com.rsmt.link" and package["samples"][0]["path"] == "Samples~/BasicTransition"
+
+
+@pytest.mark.parametrize("encoding", ["json", "binary"])
+def test_harness_against_live_server(harness_exe, server, motions, tmp_path, encoding):
+    out = tmp_path / "result.json"
+    proc = run_harness(harness_exe, "run", "--url", server.url, "--api-key", API_KEY, "--context", str(motions["context"]),
+                       "--target", str(motions["target"]), "--style", str(motions["style"]), "--frames", str(FRAMES),
+                       "--seed", str(SEED), "--deterministic", "--encoding", encoding, "--retarget", str(motions["target2"]),
+                       "--retarget-after", "4", "--retarget-frames", "12", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(out.read_text())
+    assert r["hello"] == {"joints": 21, "fps": 30, "units": "cm", "encoding": encoding, "metres_per_unit": 0.01}
+    with Client(server.url, api_key=API_KEY) as c:
+        assert r["style_id"] == c.register_style(motions["style"])["style_id"]  # same clip, same content hash
+        http = c.transition(motions["context"], motions["target"], FRAMES, style_id=r["style_id"], seed=SEED,
+                            deterministic=True)
+    frames = r["frames"]
+    assert [f["seq"] for f in frames] == list(range(FRAMES)) and r["end"] == {"reason": "arrived", "frames": FRAMES}
+    assert r["pong"] is True and r["started"]["frames"] == FRAMES
+    # Unity axes and metres: x mirrored, /100; the inverse gives back the model's poses.
+    roots = np.array([f["root"] for f in frames])
+    rots = np.array([f["rotations"] for f in frames])
+    np.testing.assert_allclose(roots[:, 0], -http.root_positions[:, 0] / 100.0, atol=1e-6)
+    np.testing.assert_allclose(roots[:, 1:], http.root_positions[:, 1:] / 100.0, atol=1e-6)
+    m_roots, m_rots = unity_to_model(roots, rots, r["hello"]["metres_per_unit"])
+    np.testing.assert_allclose(m_roots, http.root_positions, atol=1e-4)
+    np.testing.assert_allclose(m_rots, http.rotations, atol=1e-4)
+    # Retarget mid-way: frames from `from_seq` on follow the new length; the jitter buffer played them in order.
+    rt = r["retarget"]
+    assert rt["from_seq"] > 4 and rt["end_frames"] == rt["from_seq"] + 12 == rt["received"] and rt["reason"] == "arrived"
+    assert rt["monotonic"] is True and rt["shown_last"] == rt["received"] - 1 and rt["samples"] > rt["received"]
