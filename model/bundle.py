@@ -91,12 +91,22 @@ class Bundle:
             out.update({f"phase.{k}": v.detach().contiguous() for k, v in self.phase_model.state_dict().items()})
         return out
 
-    def save(self, path: str | Path) -> Path:
-        """Write the bundle directory; returns it. The version is a hash of the weights."""
+    def save(self, path: str | Path, weights_dtype: str = "float32") -> Path:
+        """Write the bundle directory; returns it. The version is a hash of the weights.
+
+        ``weights_dtype="float16"`` halves the file (the shipped default model stays a few MB);
+        weights are widened back to float32 on load, so only their rounding changes: evaluate the
+        saved bundle, not the one in memory.
+        """
+        if weights_dtype not in ("float32", "float16"):
+            raise BundleError(f"weights_dtype must be float32 or float16, not {weights_dtype!r}")
         path = Path(path)
         path.mkdir(parents=True, exist_ok=True)
         weights = path / "weights.safetensors"
-        save_file(self.tensors(), str(weights), metadata={"format": FORMAT})
+        tensors = self.tensors()
+        if weights_dtype == "float16":
+            tensors = {k: v.half() if v.is_floating_point() else v for k, v in tensors.items()}
+        save_file(tensors, str(weights), metadata={"format": FORMAT, "weights_dtype": weights_dtype})
         self.version = _file_hash(weights)
         config = {
             "format": FORMAT,

@@ -158,3 +158,20 @@ def test_manifold_encoder():
     m = MotionManifold(TINY_MANIFOLD)
     mu, logvar = m.encoder(torch.randn(2, state_dim(J)), torch.randn(2, state_dim(J)))
     assert mu.shape == (2, 8) and logvar.shape == (2, 8)
+
+
+def test_half_precision_bundle_loads_as_float32(tmp_path):
+    bundle = Bundle.create(synthetic_skeleton(), TINY_SAMPLER, TINY_MANIFOLD, seed=4)
+    bundle.save(tmp_path / "full")
+    bundle.save(tmp_path / "half", weights_dtype="float16")
+    full = (tmp_path / "full" / "weights.safetensors").stat().st_size
+    half = (tmp_path / "half" / "weights.safetensors").stat().st_size
+    assert half < 0.6 * full
+    loaded = Bundle.load(tmp_path / "half")
+    p = next(loaded.sampler.parameters())
+    assert p.dtype == torch.float32
+    ref = dict(bundle.sampler.named_parameters())
+    for n, q in loaded.sampler.named_parameters():
+        assert torch.allclose(q, ref[n], atol=1e-3, rtol=1e-3)
+    with pytest.raises(BundleError):
+        bundle.save(tmp_path / "x", weights_dtype="int8")
