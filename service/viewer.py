@@ -27,7 +27,7 @@ from model.synthetic import SYNTHETIC_STYLES, synthetic_walk
 from service.errors import ServiceError
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
-from service.schemas import Motion, ModelName
+from service.schemas import ModelName, Motion
 
 
 @dataclass(frozen=True)

@@ -10,9 +10,10 @@ the static files carry no secrets and are served to anyone (the page asks for a 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, FastAPI, Path as PathParam, Query, Response
+from fastapi import APIRouter, Depends, FastAPI, Query, Response
+from fastapi import Path as PathParam
 from fastapi.staticfiles import StaticFiles
 
 from service.auth import require_access
@@ -62,10 +63,20 @@ async def clip(body: ClipRequest, registry: RegistryDep) -> Response:
     return Response(dumps(await m.run(uploaded_poses, m, body)), media_type="application/json")
 
 
+class _RevalidatedFiles(StaticFiles):
+    """Static files that browsers revalidate on every load (a cheap 304 by ETag): the modules import each
+    other, so a page must never mix files cached from an older version of the service with newer ones."""
+
+    def file_response(self, *args: Any, **kwargs: Any) -> Response:
+        response = super().file_response(*args, **kwargs)
+        response.headers["Cache-Control"] = "no-cache"
+        return response
+
+
 def install(app: FastAPI) -> None:
     """Add the helper routes and serve the page: ``/viewer`` redirects to ``/viewer/`` (index.html).
 
     A trailing-slash URL lets the page use relative links, so it also works behind a path prefix.
     """
     app.include_router(router)
-    app.mount("/viewer", StaticFiles(directory=STATIC_DIR, html=True), name="viewer")
+    app.mount("/viewer", _RevalidatedFiles(directory=STATIC_DIR, html=True), name="viewer")

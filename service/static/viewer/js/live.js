@@ -45,7 +45,7 @@ export class LiveMode {
     this.app.controls.onClick = (p) => this.guard(() => this.goTo(p));
     this.els.hud.hidden = false;
     $("legend").innerHTML = `<span style="color:${COLOR}">live character</span><span style="color:${DEST}">destination</span>`;
-    if (!this.history) this.resetHistory();
+    if (!this.history && this.app.take) this.resetHistory();
   }
 
   deactivate() { this.els.hud.hidden = true; }
@@ -59,7 +59,8 @@ export class LiveMode {
 
   updatePose() {
     const m = this.history, f = m.frames - 1;
-    this.positions = forwardKinematics(this.app.skeleton, Array.from(m.roots.subarray(f * 3, f * 3 + 3)), m.rots.subarray(f * m.joints * 4));
+    const root = Array.from(m.roots.subarray(f * 3, f * 3 + 3));
+    this.positions = forwardKinematics(this.app.skeleton, root, m.rots.subarray(f * m.joints * 4));
   }
 
   async connect() {
@@ -71,7 +72,9 @@ export class LiveMode {
         this.character = null;
         clearInterval(this.pinger);
         this.els.stop.disabled = true;
-        if (code !== 1000 || reason !== "viewer closed the stream") status(`stream closed (${code}${reason ? ": " + reason : ""}); click to reconnect`);
+        if (code !== 1000 || reason !== "viewer closed the stream") {
+          status(`stream closed (${code}${reason ? ": " + reason : ""}); click to reconnect`);
+        }
       },
     });
     await this.stream.connect();
@@ -82,15 +85,19 @@ export class LiveMode {
 
   // Walk to `point` (null: 2.5 m ahead of where the character faces).
   async goTo(point) {
+    if (!this.history) {
+      if (!this.app.take) throw new Error("load or upload a take first: its opening frames are where the character starts");
+      this.resetHistory();
+    }
     await this.connect();
     const m = this.history, f = m.frames - 1, sk = this.app.skeleton;
     const here = [m.roots[f * 3], 0, m.roots[f * 3 + 2]];
     const facing = facingYaw(sk, this.positions, Array.from(m.rots.subarray(f * m.joints * 4, f * m.joints * 4 + 4)));
     if (!point) point = [here[0] + 250 * Math.sin(facing), 0, here[2] + 250 * Math.cos(facing)];
     const dist = Math.hypot(point[0] - here[0], point[2] - here[2]);
-    const yaw = dist > 1 ? Math.atan2(point[0] - here[0], point[2] - here[2]) : facing; // a click on the spot keeps the facing
-    const speed = Math.max(30, Number(this.els.speed.value) || 130);
-    const frames = Math.round(Math.min(this.app.model.max_transition_frames, Math.max(MIN_FRAMES, (dist / speed) * this.app.model.fps)));
+    const yaw = dist > 1 ? Math.atan2(point[0] - here[0], point[2] - here[2]) : facing; // a click on the spot keeps it
+    const speed = Math.max(30, Number(this.els.speed.value) || 130), fps = this.app.model.fps;
+    const frames = Math.round(Math.min(this.app.model.max_transition_frames, Math.max(MIN_FRAMES, (dist / speed) * fps)));
     // The target: the current pose (and the one before it, for velocity) turned to face the click, moved there.
     const target = motionPayload(placeMotion(sk, sliceMotion(m, m.frames - 2, m.frames), point, yaw));
     this.dest = { point, yaw };
@@ -100,19 +107,26 @@ export class LiveMode {
       status(`retargeted: ${(dist / 100).toFixed(1)} m in ${frames} frames`);
       return;
     }
-    const ctx = this.app.model.context_frames;
-    const styleId = await this.app.styles.resolve(this.els.style.value);
-    const id = `walker-${++this.starts}`;
-    this.stream.send({ type: "start", character: id, context: motionPayload(m, m.frames - ctx, m.frames), target, frames,
-                       style_id: styleId, pace: "realtime" });
-    this.character = id;
-    this.slot = null;
-    status(`walking ${(dist / 100).toFixed(1)} m in ${frames} frames…`);
+    // A start waits for the style (a demo style is registered first): clicks meanwhile are ignored, not doubled.
+    if (this.starting) return;
+    this.starting = true;
+    try {
+      const ctx = this.app.model.context_frames;
+      const styleId = await this.app.styles.resolve(this.els.style);
+      const id = `walker-${++this.starts}`;
+      this.stream.send({ type: "start", character: id, context: motionPayload(m, m.frames - ctx, m.frames), target, frames,
+                         style_id: styleId, pace: "realtime" });
+      this.character = id;
+      this.slot = null;
+      status(`walking ${(dist / 100).toFixed(1)} m in ${frames} frames…`);
+    } finally {
+      this.starting = false;
+    }
   }
 
   async switchStyle() {
     if (!this.character) return;
-    const styleId = await this.app.styles.resolve(this.els.style.value);
+    const styleId = await this.app.styles.resolve(this.els.style);
     this.stream.send({ type: "style", character: this.character, style_id: styleId });
   }
 
@@ -175,8 +189,9 @@ export class LiveMode {
       `\nlatency: arrival − server t ${f(i.latenessMs)} ms (p50 ${f(i.latenessP50Ms)}), vs frame 0\nping round trip ${f(i.rttMs)} ms`;
     const sk = this.app.skeleton, scene = { skeletons: [], markers: [], trails: [{ points: this.trail, color: COLOR }] };
     if (this.positions) {
-      scene.skeletons.push({ parents: sk.parents, side: sk.side, positions: this.positions, color: COLOR, label: i.character ? "streaming" : null });
-      this.app.camera.follow(this.positions, 0.05);
+      scene.skeletons.push({ parents: sk.parents, side: sk.side, positions: this.positions, color: COLOR,
+                             label: i.character ? "streaming" : null });
+      if (!this.app.controls.still) this.app.camera.follow(this.positions, 0.05);
     }
     if (this.dest) scene.markers.push({ point: this.dest.point, yaw: this.dest.yaw, color: DEST });
     return scene;

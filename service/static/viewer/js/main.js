@@ -19,8 +19,10 @@ async function boot() {
     model = await api.model();
     [rig, demos] = await Promise.all([api.rig().catch(() => null), api.demos()]);
   } catch (err) {
-    if (err instanceof ApiError && err.status === 401) { $("key-box").open = true; status("this server needs an API key: enter it above", "error"); }
-    else status(err.message, "error");
+    if (err instanceof ApiError && err.status === 401) {
+      $("key-box").open = true;
+      status("this server needs an API key: enter it above", "error");
+    } else status(err.message, "error");
     window.rsmtViewer = { ready: false, error: err.message };
     return;
   }
@@ -32,7 +34,8 @@ async function boot() {
     side: rig ? sideOf(rig.roles, parents) : null, // -1 on the left: drawn darker, so handedness reads at a glance
   };
   $("model-info").textContent = `${model.name} ${model.version} · ${joints.length} joints · ${model.fps} fps · ` +
-    `context ${model.context_frames} frames · up to ${model.max_transition_frames} frames · ${model.skeleton.units}, ${model.skeleton.up_axis} up`;
+    `context ${model.context_frames} frames · up to ${model.max_transition_frames} frames · ` +
+    `${model.skeleton.units}, ${model.skeleton.up_axis} up`;
 
   const canvas = $("view"), camera = new OrbitCamera(), renderer = new Renderer(canvas, camera);
   const app = {
@@ -67,6 +70,14 @@ async function boot() {
     app.errors.push(err.message);
   }
   setMode(new URLSearchParams(window.location.search).get("mode") === "live" && app.take ? "live" : "transition");
+
+  // Space plays and pauses, unless typing in a field.
+  window.addEventListener("keydown", (ev) => {
+    if (ev.code === "Space" && mode === "transition" && !/^(INPUT|SELECT|TEXTAREA|BUTTON)$/.test(ev.target.tagName)) {
+      ev.preventDefault();
+      app.player.toggle();
+    }
+  });
 
   let last = performance.now(), renderFps = 0, drawn = 0;
   function loop(now) {

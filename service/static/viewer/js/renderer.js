@@ -180,12 +180,13 @@ export class Renderer {
     ctx.lineCap = "round";
     for (const s of skeletons) {
       const P = (j) => [s.positions[j * 3], s.positions[j * 3 + 1], s.positions[j * 3 + 2]];
+      const shadow = (s.alpha ?? 1) === 1; // ghosts (faint poses) cast none: less clutter on the ground
       ctx.strokeStyle = "rgba(0,0,0,0.35)"; ctx.lineWidth = 3;
       for (let j = 0; j < s.parents.length; j++) {
         const p = s.parents[j];
         if (p < 0) continue;
         const a = P(p), b = P(j);
-        this.line(v, [a[0], 0.2, a[2]], [b[0], 0.2, b[2]]);
+        if (shadow) this.line(v, [a[0], 0.2, a[2]], [b[0], 0.2, b[2]]);
         const seg = this.segment(v, a, b);
         if (seg) bones.push({ seg, depth: (seg[0][2] + seg[1][2]) / 2, s, j });
       }

@@ -4,7 +4,8 @@
 // seed gives the same frames, so the file is what was shown.
 
 import {
-  concatMotions, interpolateBaseline, motionFromFrames, motionFromPoses, motionPayload, motionPositions, placeMotion, poseAt, sliceMotion,
+  concatMotions, interpolateBaseline, motionFromFrames, motionFromPoses, motionPayload, motionPositions, placeMotion, poseAt,
+  sliceMotion,
 } from "./math.js";
 import { $, status } from "./ui.js";
 
@@ -37,13 +38,16 @@ export class TransitionMode {
     e.takeSelect.addEventListener("change", () => this.run(() => this.loadDemo(e.takeSelect.value)));
     e.takeFile.addEventListener("change", () => e.takeFile.files[0] && this.run(() => this.loadUpload(e.takeFile.files[0])));
     e.styleFile.addEventListener("change", () => e.styleFile.files[0] && this.run(async () => {
-      const info = await app.styles.upload(e.styleFile.files[0]);
+      const info = await app.styles.upload(e.styleFile.files[0], e.style);
       status(`registered style ${info.name} (${info.frames} frames${info.cached ? ", already cached" : ""})`, "ok");
     }));
     e.context.addEventListener("input", () => this.changed());
     e.frames.addEventListener("input", () => this.changed());
     for (const r of document.querySelectorAll('input[name="target-kind"]')) r.addEventListener("change", () => this.changed());
-    e.place.addEventListener("click", () => { app.controls.setPlacing(true); status("press on the ground, drag towards the facing, release"); });
+    e.place.addEventListener("click", () => {
+      app.controls.setPlacing(true);
+      status("press on the ground, drag towards the facing, release");
+    });
     e.generate.addEventListener("click", () => this.run(() => this.generate()));
     e.exportBtn.addEventListener("click", () => this.run(() => this.exportBvh()));
     e.showTake.addEventListener("change", () => this.showSequence());
@@ -112,7 +116,9 @@ export class TransitionMode {
     e.contextOut.textContent = `${c} (${(c / this.app.model.fps).toFixed(2)} s)`;
     e.framesOut.textContent = fromTake ? `→ target frame ${c + n}` : `${(n / this.app.model.fps).toFixed(2)} s`;
     e.place.disabled = fromTake;
-    if (!this.result) this.showSequence();
+    // A new choice is shown on the take at once; the last result stays one tick away ("the take, not the result").
+    if (this.result) e.showTake.checked = true;
+    this.showSequence();
   }
 
   request(output) {
@@ -129,14 +135,15 @@ export class TransitionMode {
       targetMotion = placeMotion(this.app.skeleton, sliceMotion(m, t - 1, t + 1), this.ground.point, this.ground.yaw);
     }
     return { body: { context, target: motionPayload(targetMotion), frames: n, seed: Number(this.els.seed.value) || 0,
-                     deterministic: this.els.deterministic.checked, output }, targetMotion, c, n };
+                     deterministic: this.els.deterministic.checked, output }, targetMotion, c, n,
+             fromTake: this.targetKind === "take" };
   }
 
   async generate() {
     if (!this.take) throw new Error("load a take first");
     const req = this.request("json");
     status("registering the style…");
-    req.body.style_id = await this.app.styles.resolve(this.els.style.value);
+    req.body.style_id = await this.app.styles.resolve(this.els.style);
     status(`generating ${req.n} frames…`);
     const res = await this.app.api.transition(req.body);
     const m = this.take.motion, sk = this.app.skeleton;
@@ -149,25 +156,27 @@ export class TransitionMode {
       track("RSMT", COLORS.model, concatMotions(lead, generated), sk),
       track("interpolation", COLORS.baseline, concatMotions(lead, baseline), sk),
     ];
-    if (this.targetKind === "take") tracks.push(track("ground truth", COLORS.truth, sliceMotion(m, leadStart, req.c + req.n + 1), sk));
-    this.result = { tracks, request: req, lead: lead.frames, timing: res.timing_ms, targetPositions: motionPositions(sk, req.targetMotion).at(-1) };
+    if (req.fromTake) tracks.push(track("ground truth", COLORS.truth, sliceMotion(m, leadStart, req.c + req.n + 1), sk));
+    this.result = { tracks, request: req, lead: lead.frames, timing: res.timing_ms,
+                    targetPositions: motionPositions(sk, req.targetMotion).at(-1) };
     this.els.exportBtn.disabled = false;
     this.els.showTake.checked = false;
-    this.els.info.textContent = `${req.n} frames, style ${res.style_id.slice(0, 12)}…, seed ${res.seed}; server ${res.timing_ms.total} ms ` +
-      `(engine ${res.timing_ms.engine} ms, ${res.timing_ms.per_frame} ms/frame)`;
+    const t = res.timing_ms;
+    this.els.info.textContent = `${req.n} frames, style ${res.style_id.slice(0, 12)}…, seed ${res.seed}; ` +
+      `server ${t.total} ms (engine ${t.engine} ms, ${t.per_frame} ms/frame)`;
     this.showSequence();
     status(`generated ${req.n} frames in ${res.timing_ms.total} ms`, "ok");
   }
 
   async exportBvh() {
     if (!this.result) throw new Error("generate a transition first");
-    const body = { ...this.result.request.body, output: "bvh", style_id: this.result.request.body.style_id };
-    const res = await this.app.api.transition(body);
+    // The same request, seed included, with output "bvh": the same frames as those shown.
+    const res = await this.app.api.transition({ ...this.result.request.body, output: "bvh" });
     const frames = Number((/Frames:\s*(\d+)/.exec(res.bvh) || [])[1]);
     this.lastExport = { frames, bytes: res.bvh.length };
     const a = document.createElement("a");
     a.href = URL.createObjectURL(new Blob([res.bvh], { type: "text/plain" }));
-    a.download = `rsmt-${this.take.name}-${this.result.request.c}-${this.result.request.n}.bvh`;
+    a.download = `rsmt-${this.take.name.replace(/\.bvh$/i, "")}-${this.result.request.c}-${this.result.request.n}.bvh`;
     document.body.appendChild(a); a.click(); a.remove();
     setTimeout(() => URL.revokeObjectURL(a.href), 10000);
     status(`exported ${frames} frames as ${a.download}`, "ok");
@@ -205,7 +214,8 @@ export class TransitionMode {
         scene.skeletons.push({ ...base, positions: shift(r.targetPositions, offsets[i]), color: COLORS.target, alpha: 0.25, width: 3 });
       });
       // The side-by-side offsets are symmetric about zero: following the first track's own path keeps all in view.
-      if (this.els.follow.checked) this.app.camera.follow(tracks[0].roots[Math.min(f, tracks[0].roots.length - 1)]);
+      const lead = tracks[0].roots;
+      if (this.els.follow.checked && !this.app.controls.still) this.app.camera.follow(lead[Math.min(f, lead.length - 1)]);
       return scene;
     }
     if (!this.take) return scene;
@@ -218,7 +228,7 @@ export class TransitionMode {
       scene.markers.push({ point: this.ground.point, yaw: this.ground.yaw, color: COLORS.target, label: "target" });
     }
     scene.trails.push({ points: m.positions.map((p) => [p[0], 0.3, p[2]]), color: COLORS.take });
-    if (this.els.follow.checked) this.app.camera.follow(m.positions[Math.min(f, m.motion.frames - 1)]);
+    if (this.els.follow.checked && !this.app.controls.still) this.app.camera.follow(m.positions[Math.min(f, m.motion.frames - 1)]);
     return scene;
   }
 }
@@ -245,6 +255,8 @@ function sideOffsets(count, step) {
 function shift(positions, o) {
   if (!o[0] && !o[2]) return positions;
   const out = new Float32Array(positions.length);
-  for (let i = 0; i < positions.length; i += 3) { out[i] = positions[i] + o[0]; out[i + 1] = positions[i + 1]; out[i + 2] = positions[i + 2] + o[2]; }
+  for (let i = 0; i < positions.length; i += 3) {
+    out[i] = positions[i] + o[0]; out[i + 1] = positions[i + 1]; out[i + 2] = positions[i + 2] + o[2];
+  }
   return out;
 }

@@ -19,7 +19,11 @@ export class Player {
     this.playing = false;
     this.els = { play: $("play"), scrub: $("scrub"), time: $("time"), speed: $("speed"), loop: $("loop") };
     this.els.play.addEventListener("click", () => this.toggle());
-    this.els.scrub.addEventListener("input", () => { this.position = Number(this.els.scrub.value); this.playing = false; this.sync(); });
+    this.els.scrub.addEventListener("input", () => {
+      this.position = Number(this.els.scrub.value);
+      this.playing = false;
+      this.sync();
+    });
   }
 
   get frame() { return Math.min(this.length - 1, Math.max(0, Math.floor(this.position))); }
@@ -66,12 +70,14 @@ export class ViewControls {
   constructor(canvas, renderer, camera) {
     this.canvas = canvas; this.renderer = renderer; this.camera = camera;
     this.onClick = null; this.onPlace = null; this.placing = false;
+    this.pressed = false; // while a pointer is down (or a target is being placed) the camera must not follow
     let down = null;
     const local = (ev) => { const r = canvas.getBoundingClientRect(); return [ev.clientX - r.left, ev.clientY - r.top]; };
     canvas.addEventListener("contextmenu", (ev) => ev.preventDefault());
     canvas.addEventListener("pointerdown", (ev) => {
       canvas.setPointerCapture(ev.pointerId);
       const [x, y] = local(ev);
+      this.pressed = true;
       down = { x, y, lastX: x, lastY: y, moved: 0, pan: ev.button === 2 || ev.shiftKey,
                place: this.placing ? renderer.pickGround(x, y) : null };
     });
@@ -93,7 +99,9 @@ export class ViewControls {
         if (p) this.onClick(p);
       }
       down = null;
+      this.pressed = false;
     });
+    canvas.addEventListener("pointercancel", () => { down = null; this.pressed = false; });
     canvas.addEventListener("wheel", (ev) => { ev.preventDefault(); camera.zoom(Math.exp(ev.deltaY * 0.0012)); }, { passive: false });
   }
 
@@ -104,6 +112,9 @@ export class ViewControls {
     this.onPlace?.(start, yaw, done);
     if (done) this.setPlacing(false);
   }
+
+  // The camera follows a character only while nobody is pointing at the ground.
+  get still() { return this.pressed || this.placing; }
 
   setPlacing(on) {
     this.placing = on;
@@ -123,38 +134,38 @@ export class StylePicker {
     this.styles = [];
   }
 
-  async refresh(select) {
+  // Reload the list; `select` (one of the pickers) is set to `value`, the others keep their choice.
+  async refresh(select = null, value = null) {
     const { styles } = await this.api.styles();
     this.styles = styles;
-    this.fill(select);
-  }
-
-  fill(selectValue) {
     for (const sel of this.selects) {
-      const keep = selectValue || sel.value;
+      const keep = sel === select && value ? value : sel.value;
       sel.innerHTML = "";
       for (const s of this.styles) sel.add(new Option(`${s.name} (${s.frames} frames)`, `id:${s.style_id}`));
       const registered = new Set(this.styles.map((s) => s.name));
-      for (const d of this.demos) if (!registered.has(d.name)) sel.add(new Option(`${d.name} (demo, registered on use)`, `demo:${d.name}`));
+      for (const d of this.demos) {
+        if (!registered.has(d.name)) sel.add(new Option(`${d.name} (demo, registered on use)`, `demo:${d.name}`));
+      }
       if ([...sel.options].some((o) => o.value === keep)) sel.value = keep;
     }
   }
 
-  // The style_id for a select's value, registering a demo clip when needed.
-  async resolve(value) {
+  // The style_id chosen in `select`, registering a demo clip when needed.
+  async resolve(select) {
+    const value = select.value;
     if (!value) throw new Error("pick a style (or upload a style BVH)");
     if (value.startsWith("id:")) return value.slice(3);
     const name = value.slice(5);
     const clip = await this.api.demo(name);
     const info = await this.api.registerStyle(name, { root_positions: clip.root_positions, rotations: clip.rotations });
-    await this.refresh(`id:${info.style_id}`);
+    await this.refresh(select, `id:${info.style_id}`);
     return info.style_id;
   }
 
-  async upload(file) {
+  async upload(file, select) {
     const text = await file.text();
     const info = await this.api.registerStyle(file.name.replace(/\.bvh$/i, ""), { bvh: text });
-    await this.refresh(`id:${info.style_id}`);
+    await this.refresh(select, `id:${info.style_id}`);
     return info;
   }
 }

@@ -1,0 +1,130 @@
+"""The viewer's page and helper endpoints over HTTP (no browser): what is served, offline, and the takes it reads."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+
+import httpx
+import numpy as np
+import pytest
+import torch
+
+from model.bvh import dump_clip
+from model.synthetic import synthetic_skeleton, synthetic_walk
+from service.app import create_app
+from service.routes.viewer import STATIC_DIR
+from service.settings import Settings
+
+STATIC_FILES = sorted(p for p in STATIC_DIR.rglob("*") if p.is_file())
+
+
+def test_viewer_redirects_to_its_page_and_serves_every_module(viewer_server) -> None:
+    r = httpx.get(viewer_server.url + "/viewer")
+    assert r.status_code == 307 and r.headers["location"].endswith("/viewer/")
+    page = httpx.get(viewer_server.url + "/viewer/")
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    assert 'src="js/main.js"' in page.text and 'href="viewer.css"' in page.text
+    assert page.headers["cache-control"] == "no-cache"  # revalidated: never a mix of old and new modules
+    # Every module imported anywhere is served, as JavaScript (browsers refuse modules of another type).
+    modules = {"main.js"}
+    for path in STATIC_DIR.glob("js/*.js"):
+        modules |= set(re.findall(r'from "\./([\w-]+\.js)"', path.read_text()))
+    for name in sorted(modules):
+        r = httpx.get(f"{viewer_server.url}/viewer/js/{name}")
+        assert r.status_code == 200, name
+        assert "javascript" in r.headers["content-type"], (name, r.headers["content-type"])
+    missing = httpx.get(viewer_server.url + "/viewer/js/nothing.js")
+    assert missing.status_code == 404 and missing.json()["error"]["code"] == "not_found"
+
+
+def test_the_page_needs_nothing_from_outside() -> None:
+    # Offline: no CDN, no web fonts, no absolute URL of any host in what the page loads.
+    assert {p.name for p in STATIC_FILES} >= {"index.html", "viewer.css", "main.js", "math.js", "renderer.js", "transport.js"}
+    for path in STATIC_FILES:
+        text = path.read_text()
+        assert not re.search(r"(https?:)?//[a-z0-9.-]+\.[a-z]{2,}", text, re.IGNORECASE), path
+        if path.suffix == ".css":
+            assert "@import" not in text and "url(" not in text, path
+
+
+def test_rig_roles_and_demos_on_the_models_skeleton(viewer_server) -> None:
+    model = httpx.get(viewer_server.url + "/v1/model").json()
+    joints = len(model["skeleton"]["joints"])
+    rig = httpx.get(viewer_server.url + "/v1/viewer/rig").json()
+    sk = synthetic_skeleton()
+    assert rig["roles"]["left_hip"] == sk.index("UpperLeg_L") and rig["roles"]["right_shoulder"] == sk.index("UpperArm_R")
+    assert len(rig["roles"]["mirror"]) == joints
+    demos = httpx.get(viewer_server.url + "/v1/viewer/demos").json()["demos"]
+    kinds = {d["kind"] for d in demos}
+    assert kinds == {"take", "style"}
+    for d in demos:
+        clip = httpx.get(f"{viewer_server.url}/v1/viewer/demos/{d['name']}").json()
+        rot = np.asarray(clip["rotations"])
+        assert clip["fps"] == model["fps"] and rot.shape == (clip["frames"], joints, 4)
+        assert np.allclose(np.linalg.norm(rot, axis=-1), 1.0, atol=1e-5)
+        if d["kind"] == "style":
+            assert model["style_clip_frames"]["min"] <= clip["frames"] <= model["style_clip_frames"]["max"]
+    r = httpx.get(viewer_server.url + "/v1/viewer/demos/no-such-demo")
+    assert r.status_code == 404 and "walk" in r.json()["error"]["message"]
+
+
+def test_a_demo_take_and_style_drive_the_contract_endpoints_as_the_viewer_does(viewer_server) -> None:
+    url = viewer_server.url
+    ctx = httpx.get(url + "/v1/model").json()["context_frames"]
+    take = httpx.get(url + "/v1/viewer/demos/walk-turn-left").json()
+    style = httpx.get(url + "/v1/viewer/demos/style-slow").json()
+    motion = {k: style[k] for k in ("root_positions", "rotations")}
+    reg = httpx.post(url + "/v1/styles", json={"name": "style-slow", "motion": motion})
+    assert reg.status_code == 201, reg.text
+    c, n = 60, 30
+
+    def poses(a: int, b: int) -> dict:
+        return {"root_positions": take["root_positions"][a:b], "rotations": take["rotations"][a:b]}
+
+    body = {"context": poses(c - ctx + 1, c + 1), "target": poses(c + n - 1, c + n + 1), "frames": n,
+            "style_id": reg.json()["style_id"], "seed": 5}
+    r = httpx.post(url + "/v1/transition", json=body, timeout=60)
+    assert r.status_code == 200, r.text
+    assert len(r.json()["frames"]) == n
+    exported = httpx.post(url + "/v1/transition", json={**body, "output": "bvh"}, timeout=60).json()["bvh"]
+    assert f"Frames: {n}\n" in exported
+
+
+def test_an_uploaded_take_is_read_onto_the_models_rig_and_fps(viewer_server) -> None:
+    # 60 fps and XYZ channel order: the server's reader makes it the model's 30 fps, local x,y,z,w quaternions.
+    walk60 = synthetic_walk(61, fps=60.0, turn_deg_s=20.0)
+    bvh = dump_clip(walk60, rotation_order="XYZ")
+    r = httpx.post(viewer_server.url + "/v1/viewer/clip", json={"name": "turn.bvh", "motion": {"bvh": bvh}})
+    assert r.status_code == 200, r.text
+    clip = r.json()
+    assert clip["name"] == "turn.bvh" and clip["fps"] == 30.0 and clip["frames"] == 31
+    # Every other frame of the 60 fps take, exactly where the clocks meet.
+    assert np.allclose(clip["root_positions"], walk60.root_positions[::2].numpy(), atol=1e-3)
+    dots = (torch.tensor(clip["rotations"]) * walk60.rotations[::2]).sum(-1).abs()  # q and -q are one rotation
+    assert torch.all(dots > 1 - 1e-4)
+
+
+@pytest.mark.parametrize(("bvh", "code", "words"), [
+    ("HIERARCHY\nROOT Hips\n{\n\tOFFSET 0 0 zero\n", "bad_motion", "line 4"),
+    (dump_clip(synthetic_walk(5)).replace("Toes_L", "Toe_Left"), "skeleton_mismatch", "Toes_L"),
+])
+def test_an_unusable_upload_is_refused_with_the_reason(viewer_server, bvh: str, code: str, words: str) -> None:
+    r = httpx.post(viewer_server.url + "/v1/viewer/clip", json={"motion": {"bvh": bvh}})
+    assert r.status_code == 422
+    err = r.json()["error"]
+    assert err["code"] == code and words in err["message"], err
+
+
+def test_with_api_keys_the_page_is_public_and_the_helpers_are_not(viewer_bundle) -> None:
+    # In process, lifespan not run: no model is loaded, which the static page and the demo list never need.
+    key = "k" * 24
+    app = create_app(Settings(models=viewer_bundle, api_keys=[key]))
+
+    async def probe() -> list[int]:
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://viewer") as client:
+            return [(await client.get(path, headers=headers)).status_code for path, headers in (
+                ("/viewer/", {}), ("/viewer/js/transport.js", {}), ("/v1/viewer/demos", {}),
+                ("/v1/viewer/demos", {"X-API-Key": key}))]
+
+    assert asyncio.run(probe()) == [200, 200, 401, 200]
