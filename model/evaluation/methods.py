@@ -106,14 +106,14 @@ class BundleMethod(Method):
     def describe(self) -> dict:
         d = super().describe()
         d.update(path=str(self.path), version=self.bundle.version, bundle_name=self.bundle.meta.name,
-                 max_transition=self.engine.config.max_transition, exact_arrival=self.exact_arrival)
+                 max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival)
         return d
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
         v = request.variant
-        limit = self.engine.config.max_transition
+        limit = self.engine.max_frames
         if v.frames > limit:
-            raise Unavailable(f"{v.frames} frames exceed the model's max_transition of {limit}")
+            raise Unavailable(f"{v.frames} frames exceed the model's limit of {limit} frames")
         clips = request.style_clips(cases)
         rots: list[Tensor] = []
         roots: list[Tensor] = []

@@ -170,9 +170,9 @@ def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bun
     report = json.loads((out / "report.json").read_text())
     assert report["command"].startswith("rsmt eval --model") and "--limit 4" in report["command"]
     model = report["methods"]["random"]
-    assert model["kind"] == "bundle" and model["max_transition"] == 60
+    assert model["kind"] == "bundle" and model["max_transition"] == 120  # twice the training horizon
     rows = model["variants"]
-    assert "max_transition" in rows["gap40-dt2"]["unavailable"]  # 80 frames > 60
+    assert rows["gap40-dt2"]["frames"] == 80 and "unavailable" not in rows["gap40-dt2"]  # within 2 x 60
     for v in GAPS:
         assert rows[v]["diversity_cm"] > 0 and rows[v]["diversity_cases"] == 2
         assert rows[v]["l2p"] > 0 and rows[v]["last_frame_cm"] >= 0
