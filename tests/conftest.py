@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from model.data_dir import ENV_VAR, find_data_dir
 
@@ -19,3 +20,12 @@ def shared_data() -> Path:
             "(../shared/data/unpack.sh prints it)"
         )
     return path
+
+
+@pytest.fixture
+def one_thread():
+    """Run a test on one torch thread: many small tensor ops are faster that way on 2 cores."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -24,13 +24,7 @@ from rsmt_cli.main import main
 GAPS = ("gap10", "gap20", "gap40")
 CONTROLS = ("gap40-dt2", "gap40-dt0.5", "gap40-d2", "gap40-d-1")
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

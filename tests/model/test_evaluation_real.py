@@ -16,15 +16,7 @@ from model.evaluation import EvalSettings, evaluate, resolve_method
 from model.motion_cache import MotionCache, load_motion_cache
 from model.style_classifier import StyleClassifierConfig
 
-pytestmark = pytest.mark.real_data
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from model.features import clip_features, facing_yaw, features_to_local
 from model.kinematics import forward_kinematics
 from model.mirror import mirror_clip, mirror_reflections
 
-pytestmark = pytest.mark.real_data
+pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]
 
 
 @pytest.fixture(scope="module")
@@ -21,15 +21,6 @@ def takes(shared_data: Path) -> list[Path]:
     files = sorted((shared_data / "data").glob("*.bvh"))
     assert len(files) > 2000, f"expected the 2601 shared takes, found {len(files)}"
     return files
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    # Many small tensor ops run faster on one thread than two on this 2-core machine.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def _sample(files: list[Path], n: int) -> list[Path]:

@@ -15,13 +15,7 @@ from model.style_classifier import (INPUTS, ClassifierError, StyleClassifier, St
                                     select_inputs)
 from model.synthetic import write_synthetic_dataset
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
