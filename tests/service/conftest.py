@@ -10,11 +10,21 @@ from model.bundle import Bundle
 from model.bvh import dump_clip
 from model.clip import Clip
 from model.synthetic import synthetic_skeleton, synthetic_walk
+from tests.service.server import Server
 
 
 @pytest.fixture(scope="session")
 def bundle_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return Bundle.create(synthetic_skeleton(), seed=0).save(tmp_path_factory.mktemp("bundle") / "rsmt")
+
+
+@pytest.fixture(scope="module")
+def server(bundle_dir):
+    """A real uvicorn with default settings for one test module; modules that need other settings
+    define their own ``server`` fixture, which takes precedence."""
+    srv = Server(bundle_dir).start()
+    yield srv
+    srv.stop()
 
 
 def bvh(clip: Clip) -> dict:

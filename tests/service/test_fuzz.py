@@ -14,7 +14,6 @@ from service.app import create_app
 from service.schemas import CLIENT_TYPES
 from service.settings import Settings
 from tests.service.conftest import bvh, walk
-from tests.service.server import Server
 from tests.service.wsclient import Ws
 
 
@@ -43,13 +42,6 @@ def test_openapi_no_server_errors(case):
     if response.status_code >= 400:
         body = response.json()
         assert set(body) == {"error"} and {"code", "message"} <= set(body["error"]), body
-
-
-@pytest.fixture(scope="module")
-def server(bundle_dir):
-    srv = Server(bundle_dir).start()
-    yield srv
-    srv.stop()
 
 
 @pytest.fixture(scope="module")

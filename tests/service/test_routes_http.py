@@ -18,14 +18,6 @@ from tests.service.conftest import (
     transition_body,
     walk,
 )
-from tests.service.server import Server
-
-
-@pytest.fixture(scope="module")
-def server(bundle_dir):
-    srv = Server(bundle_dir).start()
-    yield srv
-    srv.stop()
 
 
 @pytest.fixture(scope="module")

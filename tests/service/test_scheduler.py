@@ -17,15 +17,7 @@ from model.bundle import Bundle
 from model.engine import CharacterBatch, Engine
 from service.scheduler import Scheduler, Stream
 from tests.service.conftest import bvh, context_clip, target_clip, walk
-from tests.service.server import Server
 from tests.service.wsclient import start_message
-
-
-@pytest.fixture(scope="module")
-def server(bundle_dir):
-    srv = Server(bundle_dir).start()
-    yield srv
-    srv.stop()
 
 
 @pytest.fixture(scope="module")
