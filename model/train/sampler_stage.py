@@ -174,8 +174,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
 
     def step(i: int) -> dict[str, float]:
         gen = step_generator(stage.loop.seed, i)
-        progress_frac = i / max(1, stage.loop.iterations * stage.curriculum)
-        longest = int(stage.min_transition + min(1.0, progress_frac) * (stage.max_transition - stage.min_transition))
+        longest = curriculum_length(i, stage)
         length = int(torch.randint(stage.min_transition, max(stage.min_transition, longest) + 1, (1,), generator=gen))
         starts, owners, style_starts = pairs.sample(stage.batch, gen)
         batch = make_batch(train, starts, owners, c.context + length, c.context - 1)
@@ -202,6 +201,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
 
 
 def curriculum_length(step: int, stage: SamplerStageConfig) -> int:
-    """The longest transition drawn at ``step`` (for reports)."""
+    """The longest transition drawn at ``step``: rises linearly from the shortest to the longest over
+    the first ``curriculum`` fraction of training."""
     frac = min(1.0, step / max(1, stage.loop.iterations * stage.curriculum))
     return int(stage.min_transition + math.floor(frac * (stage.max_transition - stage.min_transition)))
