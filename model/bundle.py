@@ -107,7 +107,7 @@ class Bundle:
         if weights_dtype == "float16":
             tensors = {k: v.half() if v.is_floating_point() else v for k, v in tensors.items()}
         save_file(tensors, str(weights), metadata={"format": FORMAT, "weights_dtype": weights_dtype})
-        self.version = _file_hash(weights)
+        self.version = _weights_hash(tensors)
         config = {
             "format": FORMAT,
             "version": self.version,
@@ -154,16 +154,19 @@ class Bundle:
                 bundle.phase_model.load_state_dict(phase_sd, strict=True)
         except RuntimeError as exc:
             raise BundleError(f"{path}: weights do not match the config: {exc}") from exc
-        bundle.version = config.get("version") or _file_hash(path / "weights.safetensors")
+        bundle.version = config.get("version") or _weights_hash(tensors)
         bundle.sampler.eval()
         if bundle.phase_model is not None:
             bundle.phase_model.eval()
         return bundle
 
 
-def _file_hash(path: Path) -> str:
+def _weights_hash(tensors: dict[str, torch.Tensor]) -> str:
+    """A hash of the stored tensors (names, dtypes, shapes, bytes), not of the file: safetensors
+    writes its metadata in no fixed order, so the same weights saved twice differ as files."""
     digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(chunk)
+    for name in sorted(tensors):
+        t = tensors[name].contiguous().reshape(-1)  # 0-d tensors (BatchNorm counters) cannot be viewed as bytes
+        digest.update(f"{name}:{t.dtype}:{tuple(t.shape)}".encode())
+        digest.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
     return digest.hexdigest()[:16]
