@@ -14,6 +14,7 @@ thread, e.g. a test client), the lifespan's shutdown runs the same steps.
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import os
 import signal
@@ -60,6 +61,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             if restore.hooked:  # under uvicorn in the main thread: exit rather than stay up unready
                 os.kill(os.getpid(), signal.SIGTERM)
             return
+        freeze_heap()
         if state.phase is Phase.STARTING:
             state.phase = Phase.READY
             log.info("ready", extra={"models": [m.name for m in registry]})
@@ -72,6 +74,18 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await begin_shutdown(state)
         await registry.stop()
         restore()
+
+
+def freeze_heap() -> None:
+    """Move everything alive after warm-up (models, modules, traced graphs) out of the collector's reach.
+
+    A full collection walks every tracked object; with the models loaded that took 75-134 ms, and when it
+    fell in the step thread it stalled every streamed character for four frames (measured with the
+    default model, 64 characters: the whole of the p99 frame lateness). Frozen objects are never
+    walked again, so later collections only see what the serving itself allocates.
+    """
+    gc.collect()
+    gc.freeze()
 
 
 async def begin_shutdown(state: ServiceState) -> None:

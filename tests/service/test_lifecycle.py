@@ -68,3 +68,31 @@ def test_no_model_fails_at_startup_with_a_hint(tmp_path):
     out = subprocess.run([sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--port", "0"],
                          capture_output=True, text=True, timeout=120, env=env)
     assert out.returncode != 0 and "no model bundle" in out.stderr
+
+
+def test_heap_is_frozen_once_warm(bundle_dir):
+    # A full garbage collection over the loaded models stalled the step thread for ~100 ms (four
+    # frames of every stream); the lifespan freezes the heap after warm-up so that cannot recur.
+    import asyncio
+    import gc
+
+    from service.app import create_app
+    from service.lifecycle import lifespan
+    from service.settings import Settings
+    from service.state import Phase
+
+    async def run() -> int:
+        app = create_app(Settings(models=bundle_dir, warmup_max_batch=2))
+        async with lifespan(app):
+            for _ in range(600):
+                if app.state.service.phase is Phase.READY:
+                    return gc.get_freeze_count()
+                await asyncio.sleep(0.1)
+            raise AssertionError(f"never ready: {app.state.service.phase} {app.state.service.failure}")
+
+    gc.unfreeze()
+    assert gc.get_freeze_count() == 0
+    try:
+        assert asyncio.run(run()) > 1000  # the models' modules and tensors, at least
+    finally:
+        gc.unfreeze()
