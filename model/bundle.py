@@ -86,9 +86,10 @@ class Bundle:
         return cls(skeleton, net, manifold, phase, PeriodicAutoencoder(phase), meta or BundleMeta())
 
     def tensors(self) -> dict[str, torch.Tensor]:
-        out = {f"sampler.{k}": v.detach().contiguous() for k, v in self.sampler.state_dict().items()}
+        # Always CPU tensors: the file and the weights hash must not depend on where the model sits.
+        out = {f"sampler.{k}": v.detach().cpu().contiguous() for k, v in self.sampler.state_dict().items()}
         if self.phase_model is not None:
-            out.update({f"phase.{k}": v.detach().contiguous() for k, v in self.phase_model.state_dict().items()})
+            out.update({f"phase.{k}": v.detach().cpu().contiguous() for k, v in self.phase_model.state_dict().items()})
         return out
 
     def save(self, path: str | Path, weights_dtype: str = "float32") -> Path:

@@ -136,7 +136,7 @@ def matrix_to_quat(m: Tensor) -> Tensor:
     180-degree rotations too.
     """
     flat = torch.cat([m.reshape(*m.shape[:-2], 9), torch.ones_like(m[..., 0, :1])], dim=-1)
-    cand = (flat @ _SHEPPERD.to(m.dtype)).reshape(*m.shape[:-2], 4, 4)  # [..., candidate, (x, y, z, w)]
+    cand = (flat @ _SHEPPERD.to(device=m.device, dtype=m.dtype)).reshape(*m.shape[:-2], 4, 4)  # [..., candidate, (x, y, z, w)]
     # Candidate k's own component (w for k=0, x, y, z for k=1..3) holds 1 + trace-like sums: pick the largest.
     t = cand[..., [0, 1, 2, 3], [3, 0, 1, 2]]
     best = t.argmax(dim=-1, keepdim=True)

@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from rsmt_cli.train_commands import add_device_argument, resolve_cli_device
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -19,6 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--iterations", type=int, default=300, help="optimiser steps (default 300)")
     p.add_argument("--run", type=Path, help="folder for checkpoints (default: OUT/../.finetune-NAME)")
     p.add_argument("--threads", type=int, default=0, help="torch threads")
+    add_device_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run)
 
@@ -31,6 +34,7 @@ def _run(args: argparse.Namespace) -> int:
     from model.engine import Engine
     from model.train.finetune import FinetuneConfig, finetune_style
 
+    device = resolve_cli_device(args.device)  # first, so a missing GPU fails before anything is loaded
     if args.threads:
         torch.set_num_threads(args.threads)
     bundle = Bundle.load(args.model)
@@ -40,10 +44,11 @@ def _run(args: argparse.Namespace) -> int:
     cfg.loop.iterations = args.iterations
     cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, args.iterations))
     run = args.run or args.out.parent / f".finetune-{args.name}"
-    tuned, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet)
+    tuned, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device)
     if not result.finished:
         print(f"stopped early; run again to resume from {run}")
         return 3
     tuned.save(args.out)
-    print(json.dumps({"bundle": str(args.out), "seconds": round(result.seconds, 1), "history": result.history[-1:]}, indent=1))
+    print(json.dumps({"bundle": str(args.out), "device": str(device), "seconds": round(result.seconds, 1),
+                      "history": result.history[-1:]}, indent=1))
     return 0

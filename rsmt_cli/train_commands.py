@@ -8,8 +8,12 @@ import logging
 import shlex
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from model.data_dir import find_data_dir
+
+if TYPE_CHECKING:
+    import torch
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +39,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--time-limit", type=float, default=0.0, metavar="S",
                        help="stop each stage after S seconds with a checkpoint; run again to resume")
         p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+        add_device_argument(p)
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         p.set_defaults(func=_run, stage=stage)
     from rsmt_cli import classifier_commands
 
     classifier_commands.register(sub)
+
+
+def add_device_argument(parser: argparse.ArgumentParser) -> None:
+    """``--device auto|cpu|cuda``, shared by the training commands."""
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                        help="where to train: cuda (a GPU), cpu, or auto = cuda when torch sees a GPU, else cpu "
+                             "(default: auto)")
+
+
+def resolve_cli_device(name: str) -> torch.device:
+    """The torch device for ``--device``, announced once on stderr beside the progress bars
+    (stdout ends with the JSON summary). A ValueError (e.g. cuda without a GPU) becomes main's error line."""
+    import torch
+
+    from model.train.loop import resolve_device
+
+    device = resolve_device(name)
+    gpu = f" ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else ""
+    print(f"training on {device}{gpu}", file=sys.stderr, flush=True)
+    return device
 
 
 def load_config(args: argparse.Namespace):
@@ -54,6 +79,7 @@ def load_config(args: argparse.Namespace):
 def _run(args: argparse.Namespace) -> int:
     from model.train.pipeline import STAGES, run
 
+    device = resolve_cli_device(args.device)  # first, so a missing GPU fails before any data is read
     cfg = load_config(args)
     if args.threads:
         cfg.threads = args.threads
@@ -68,10 +94,11 @@ def _run(args: argparse.Namespace) -> int:
     if "sampler" in stages and args.out is None:
         raise ValueError("training the sampler writes a bundle: pass --out BUNDLE")
     command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv else None
-    bundle = run(cfg, Path(data), run_dir, stages, args.out, progress=not args.quiet, command=command)
+    bundle = run(cfg, Path(data), run_dir, stages, args.out, progress=not args.quiet, command=command, device=device)
     if "sampler" in stages and bundle is None:
         print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
         return 3
     timings = json.loads((run_dir / "timings.json").read_text()) if (run_dir / "timings.json").is_file() else {}
-    print(json.dumps({"run": str(run_dir), "bundle": str(args.out) if bundle else None, "timings_s": timings}, indent=1))
+    print(json.dumps({"run": str(run_dir), "bundle": str(args.out) if bundle else None, "device": str(device),
+                      "timings_s": timings}, indent=1))
     return 0

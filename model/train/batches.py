@@ -46,7 +46,8 @@ def make_batch(tensors: MotionTensors, starts: Tensor, owners: Tensor, length: i
     ph = amp = fr = None
     if with_phase:
         ph, amp, fr = tensors.gather_phase(starts, length)
-    return WindowBatch(states, ph, amp, fr, contacts, tensors.style[owners], crot)
+    # Style ids live on the CPU with the take bookkeeping; the batch lives where the motion does.
+    return WindowBatch(states, ph, amp, fr, contacts, tensors.style[owners].to(pos.device), crot)
 
 
 def foot_slide_loss(pred: PoseState, contacts: Tensor, feet: list[int]) -> Tensor:

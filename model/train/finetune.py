@@ -17,7 +17,7 @@ from model.bundle import Bundle
 from model.clip import Clip
 from model.features import local_frame_features
 from model.train.batches import make_batch
-from model.train.loop import LoopConfig, LoopResult, step_generator, train_loop
+from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 from model.train.phase_stage import label_tensors
 from model.train.sampler_stage import SamplerStageConfig, StylePairs, transition_losses
@@ -40,8 +40,12 @@ def trainable_parameters(bundle: Bundle) -> list[tuple[str, torch.nn.Parameter]]
 
 
 def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: FinetuneConfig, folder: Path,
-                   progress: bool = True) -> tuple[Bundle, LoopResult]:
-    """A copy of ``bundle`` adapted to the style of ``clips`` (already on the bundle's rig, model fps)."""
+                   progress: bool = True, device: torch.device | str = "auto") -> tuple[Bundle, LoopResult]:
+    """A copy of ``bundle`` adapted to the style of ``clips`` (already on the bundle's rig, model fps).
+
+    Trains on ``device``; the returned bundle is on the CPU, like every loaded one.
+    """
+    dev = resolve_device(device)
     if bundle.phase_model is None:
         raise ValueError("this bundle has no phase model, which fine-tuning needs to label the clips")
     c = bundle.config
@@ -54,9 +58,9 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     tuned = copy.deepcopy(bundle)
     reference = torch.cat([clip.rotations for clip in clips])
     tensors = MotionTensors.from_clips([(clip, 0, "clip") for clip in clips], [style_name], bundle.skeleton, reference,
-                                       augment=cfg.augment, seed=cfg.loop.seed, progress=progress)
-    label_tensors(tuned.phase_model, tensors, progress)
-    sampler = tuned.sampler
+                                       augment=cfg.augment, seed=cfg.loop.seed, progress=progress).to(dev)
+    label_tensors(tuned.phase_model, tensors, progress, device=dev)
+    sampler = tuned.sampler.to(dev)
     params = trainable_parameters(tuned)
     for n, p in sampler.named_parameters():
         p.requires_grad_(n.startswith(TRAINABLE_PREFIXES))
@@ -87,6 +91,7 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
 
     result = train_loop("finetune", folder, sampler, params, cfg.loop, step, validate, progress)
     sampler.eval()
+    sampler.to("cpu")  # bundles are saved, and used by the engine, from the CPU
     for p in sampler.parameters():
         p.requires_grad_(False)
     tuned.meta = copy.deepcopy(bundle.meta)

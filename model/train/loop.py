@@ -23,6 +23,7 @@ from torch import nn
 from tqdm import tqdm
 
 log = logging.getLogger(__name__)
+Tensor = torch.Tensor
 
 
 @dataclass
@@ -60,6 +61,44 @@ class LoopResult:
     finished: bool = False
 
 
+DEVICE_CHOICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(device: str | torch.device | None = "auto") -> torch.device:
+    """The torch device to train on: ``auto`` (or ``None``) is CUDA when torch sees a GPU, else the CPU.
+
+    Asking for CUDA where there is none fails here, with a message saying so, instead of deep
+    inside torch at the first tensor moved.
+    """
+    if device is None or (isinstance(device, str) and device == "auto"):
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"unknown device {device!r}: use one of {', '.join(DEVICE_CHOICES)}") from exc
+    if dev.type == "cpu":
+        return dev
+    if dev.type != "cuda":
+        raise ValueError(f"unsupported device {device!r}: use one of {', '.join(DEVICE_CHOICES)}")
+    if not torch.cuda.is_available():
+        why = "this torch build has no CUDA support" if torch.version.cuda is None else "no CUDA GPU is visible"
+        raise ValueError(f"device {str(device)!r} was asked for, but {why} (torch.cuda.is_available() is False); "
+                         "use --device cpu or auto")
+    if dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise ValueError(f"device {str(device)!r} was asked for, but only {torch.cuda.device_count()} CUDA GPU(s) are visible")
+    # An explicit index, as tensors report it, so device comparisons hold.
+    return dev if dev.index is not None else torch.device("cuda", torch.cuda.current_device())
+
+
+def cpu_randn_like(t: Tensor) -> Tensor:
+    """Standard normal noise shaped like ``t``, drawn from the CPU generator and moved to ``t``'s device.
+
+    Drawing on the CPU keeps every random number in the CPU RNG, the one checkpoints save, so a
+    resumed GPU run draws what it would have, and a GPU run draws the same noise as a CPU run.
+    """
+    return torch.randn(t.shape, dtype=t.dtype).to(t.device)
+
+
 def step_generator(seed: int, step: int) -> torch.Generator:
     """The random stream of one training step: a resumed run draws exactly the batches it would have."""
     return torch.Generator().manual_seed(seed * 1_000_003 + step)
@@ -88,14 +127,17 @@ def _atomic_write_text(path: Path, text: str) -> None:
 
 def save_checkpoint(folder: Path, model: nn.Module, optimizer: torch.optim.Optimizer, step: int, history: list[dict],
                     extra: dict | None = None) -> None:
-    """Weights, optimiser moments and RNG in safetensors; counters and history in JSON."""
+    """Weights, optimiser moments and RNG in safetensors; counters and history in JSON.
+
+    Tensors are written from the CPU whatever the device trained on, so a checkpoint resumes anywhere.
+    """
     folder.mkdir(parents=True, exist_ok=True)
-    tensors = {f"model.{k}": v.detach().contiguous().clone() for k, v in model.state_dict().items()}
+    tensors = {f"model.{k}": v.detach().cpu().contiguous().clone() for k, v in model.state_dict().items()}
     opt = optimizer.state_dict()
     for pid, state in opt["state"].items():
         for k, v in state.items():
             t = v if torch.is_tensor(v) else torch.tensor(v)
-            tensors[f"opt.{pid}.{k}"] = t.detach().contiguous().clone()
+            tensors[f"opt.{pid}.{k}"] = t.detach().cpu().contiguous().clone()
     tensors["rng.torch"] = torch.get_rng_state()
     tmp = folder / "checkpoint.safetensors.tmp"
     save_file(tensors, str(tmp))
@@ -107,7 +149,11 @@ def save_checkpoint(folder: Path, model: nn.Module, optimizer: torch.optim.Optim
 
 
 def load_checkpoint(folder: Path, model: nn.Module, optimizer: torch.optim.Optimizer) -> tuple[int, list[dict], dict] | None:
-    """Restore a checkpoint written by :func:`save_checkpoint`; ``None`` when there is none."""
+    """Restore a checkpoint written by :func:`save_checkpoint`; ``None`` when there is none.
+
+    The tensors load on the CPU; ``load_state_dict`` copies them onto the model's device, and the
+    optimiser's onto each parameter's device (its step counters stay on the CPU, as AdamW keeps them).
+    """
     if not (folder / "checkpoint.json").is_file() or not (folder / "checkpoint.safetensors").is_file():
         return None
     meta = json.loads((folder / "checkpoint.json").read_text())
@@ -138,6 +184,8 @@ def train_loop(
     The loop owns zeroing, clipping, the learning-rate schedule and the optimiser step.
     """
     torch.manual_seed(cfg.seed)
+    first = next(iter(p for _, p in params), None)
+    log.info("%s: training on %s", name, first.device if first is not None else "cpu")
     optimizer = make_optimizer(params, cfg)
     start, history = 0, []
     restored = load_checkpoint(folder, model, optimizer)

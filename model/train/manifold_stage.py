@@ -9,7 +9,7 @@ import torch
 
 from model.manifold import ManifoldConfig, MotionManifold
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
-from model.train.loop import LoopConfig, LoopResult, step_generator, train_loop
+from model.train.loop import LoopConfig, LoopResult, cpu_randn_like, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor
@@ -35,7 +35,7 @@ def rollout_losses(model: MotionManifold, batch: WindowBatch, cfg: ManifoldStage
     for t in range(1, s.rel.shape[1] - 1):
         gt = s.index((slice(None), t + 1))
         mu, logvar = model.encoder(state.vector(), gt.vector())
-        z = mu + torch.randn_like(mu) * torch.exp(0.5 * logvar) if sample else mu
+        z = mu + cpu_randn_like(mu) * torch.exp(0.5 * logvar) if sample else mu
         assert batch.phase is not None
         state = model.decoder.step(state, gt.vel[:, root], gt.rot[:, root], z, batch.phase[:, t + 1])
         pos_l.append(((state.positions() - gt.positions()) / EDGE_CM).pow(2).mean())
@@ -46,8 +46,15 @@ def rollout_losses(model: MotionManifold, batch: WindowBatch, cfg: ManifoldStage
 
 
 def train_manifold(train: MotionTensors, val: MotionTensors, config: ManifoldConfig, stage: ManifoldStageConfig,
-                   folder: Path, progress: bool = True) -> tuple[MotionManifold, LoopResult]:
-    model = MotionManifold(config)
+                   folder: Path, progress: bool = True,
+                   device: torch.device | str = "auto") -> tuple[MotionManifold, LoopResult]:
+    """Fit encoder and decoder by rollout on windows of the training takes; the model is returned on ``device``."""
+    dev = resolve_device(device)
+    # Initialised on the CPU from the stage's seed, then moved: the same seed gives the same start on any
+    # device and in any process (torch 2.13 seeds its global RNG randomly at start-up).
+    torch.manual_seed(stage.loop.seed)
+    model = MotionManifold(config).to(dev)
+    train, val = train.to(dev), val.to(dev)
     feet = list(train.skeleton.feet)
     starts, owners = train.window_starts(stage.window, 5)
     vstarts, vowners = val.window_starts(stage.window, stage.window)

@@ -6,6 +6,7 @@ Windows are addressed by global frame index, so a batch is one gather, not a Pyt
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import re
 from collections.abc import Sequence
@@ -57,6 +58,9 @@ class MotionTensors:
         take_start / take_len / style / content: ``[n]`` per take (style and content are ids).
         source: per take, ``"orig"``, ``"mirror"`` or ``"rescale"``.
         phase / amplitude / frequency: ``[N, M, 2]``, ``[N, M]``, ``[N, M]`` labels (after labelling).
+
+    The per-frame tensors (positions, rotations, labels) may live on a GPU (see :meth:`to`); the
+    per-take bookkeeping stays on the CPU, where windows are listed and drawn.
     """
 
     skeleton: Skeleton
@@ -125,6 +129,28 @@ class MotionTensors:
                    torch.tensor(con), list(styles), contents, src, names)
 
     @property
+    def device(self) -> torch.device:
+        return self.positions.device
+
+    def to(self, device: torch.device | str) -> MotionTensors:
+        """A copy with the per-frame tensors on ``device``; ``self`` when they are there already.
+
+        Take starts, lengths, style and content ids stay on the CPU: window lists and random draws
+        are made there with CPU generators, so every device trains on the same batches.
+        """
+        device = torch.device(device)
+        if device.type == "cuda" and device.index is None:  # tensors report "cuda:0", never bare "cuda"
+            device = torch.device("cuda", torch.cuda.current_device())
+        if self.positions.device == device and (self.phase is None or self.phase.device == device):
+            return self
+
+        def move(t: Tensor | None) -> Tensor | None:
+            return None if t is None else t.to(device)
+
+        return dataclasses.replace(self, positions=self.positions.to(device), rotations=self.rotations.to(device),
+                                   phase=move(self.phase), amplitude=move(self.amplitude), frequency=move(self.frequency))
+
+    @property
     def num_takes(self) -> int:
         return len(self.take_len)
 
@@ -141,13 +167,13 @@ class MotionTensors:
 
     def gather(self, starts: Tensor, length: int) -> tuple[Tensor, Tensor]:
         """``(positions [B, L, J, 3], rotations [B, L, J, 4])`` of windows starting at ``starts``."""
-        idx = starts.unsqueeze(1) + torch.arange(length)
+        idx = (starts.unsqueeze(1) + torch.arange(length)).to(self.positions.device)
         return self.positions[idx], self.rotations[idx]
 
     def gather_phase(self, starts: Tensor, length: int) -> tuple[Tensor, Tensor, Tensor]:
         if self.phase is None or self.amplitude is None or self.frequency is None:
             raise ValueError("phase labels are missing: label the data with the phase model first")
-        idx = starts.unsqueeze(1) + torch.arange(length)
+        idx = (starts.unsqueeze(1) + torch.arange(length)).to(self.phase.device)
         return self.phase[idx], self.amplitude[idx], self.frequency[idx]
 
     def take_slice(self, i: int) -> slice:

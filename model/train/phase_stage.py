@@ -11,7 +11,7 @@ from tqdm import tqdm
 from model.features import facing_yaw
 from model.phase import PeriodicAutoencoder, PhaseConfig, label_phases
 from model.rotations import quat_rotate, yaw_quat
-from model.train.loop import LoopConfig, LoopResult, step_generator, train_loop
+from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor
@@ -34,14 +34,14 @@ def local_velocities(tensors: MotionTensors) -> Tensor:
     local = quat_rotate(yaw_quat(-yaw).unsqueeze(1), pos - ground.unsqueeze(1))
     vel = torch.zeros_like(local)
     vel[1:] = local[1:] - local[:-1]
-    first = tensors.take_start
+    first = tensors.take_start.to(vel.device)
     vel[first] = vel[(first + 1).clamp(max=len(vel) - 1)]
     return vel.flatten(1)
 
 
 def _window_batch(vel: Tensor, centres: Tensor, window: int) -> Tensor:
     half = window // 2
-    idx = centres.unsqueeze(1) + torch.arange(-half, half + 1)
+    idx = (centres.unsqueeze(1) + torch.arange(-half, half + 1)).to(vel.device)
     win = vel[idx].transpose(1, 2)  # [B, C, W]
     return win - win.mean(dim=-1, keepdim=True)
 
@@ -57,9 +57,15 @@ def _centres(tensors: MotionTensors, window: int) -> Tensor:
 
 
 def train_phase(train: MotionTensors, val: MotionTensors, config: PhaseConfig, stage: PhaseStageConfig,
-                folder: Path, progress: bool = True) -> tuple[PeriodicAutoencoder, LoopResult]:
-    """Fit the PAE on centred velocity windows of the training takes."""
-    model = PeriodicAutoencoder(config)
+                folder: Path, progress: bool = True,
+                device: torch.device | str = "auto") -> tuple[PeriodicAutoencoder, LoopResult]:
+    """Fit the PAE on centred velocity windows of the training takes; the model is returned on ``device``."""
+    dev = resolve_device(device)
+    # Initialised on the CPU from the stage's seed, then moved: the same seed gives the same start on any
+    # device and in any process (torch 2.13 seeds its global RNG randomly at start-up).
+    torch.manual_seed(stage.loop.seed)
+    model = PeriodicAutoencoder(config).to(dev)
+    train, val = train.to(dev), val.to(dev)
     vel_train, vel_val = local_velocities(train), local_velocities(val)
     c_train, c_val = _centres(train, config.window), _centres(val, config.window)
     gen = torch.Generator().manual_seed(stage.loop.seed)
@@ -85,18 +91,25 @@ def train_phase(train: MotionTensors, val: MotionTensors, config: PhaseConfig, s
     return model, result
 
 
-def label_tensors(model: PeriodicAutoencoder, tensors: MotionTensors, progress: bool = True) -> None:
+def label_tensors(model: PeriodicAutoencoder, tensors: MotionTensors, progress: bool = True,
+                  device: torch.device | str | None = None) -> None:
     """Fill ``tensors.phase``, ``amplitude`` and ``frequency`` for every frame.
 
     The frequency label is the frame-to-frame advance of each channel's shift (wrapped to half a
     cycle), in cycles per second: the quantity the sampler's phase update integrates.
+
+    The labelling runs on ``device`` (default: where the model is); the model is put back where it
+    was afterwards, and the labels are stored on the device of ``tensors.positions``.
     """
-    vel = local_velocities(tensors)
+    home = next(model.parameters()).device
+    dev = home if device is None else resolve_device(device)
+    model.to(dev)
+    vel = local_velocities(tensors.to(dev))
     m = model.config.phases
     n = len(vel)
-    phase = torch.zeros(n, m, 2)
-    amp = torch.zeros(n, m)
-    freq = torch.zeros(n, m)
+    phase = torch.zeros(n, m, 2, device=dev)
+    amp = torch.zeros(n, m, device=dev)
+    freq = torch.zeros(n, m, device=dev)
     for i in tqdm(range(tensors.num_takes), desc="phase labels", disable=not progress, leave=False):
         sl = tensors.take_slice(i)
         out = label_phases(model, vel[sl])
@@ -106,7 +119,9 @@ def label_tensors(model: PeriodicAutoencoder, tensors: MotionTensors, progress: 
         d = d - torch.round(d)
         f = torch.cat([d[:1], d]) * model.config.fps if len(d) else torch.zeros_like(shift)
         freq[sl] = f
-    tensors.phase, tensors.amplitude, tensors.frequency = phase, amp, freq
+    model.to(home)
+    where = tensors.positions.device
+    tensors.phase, tensors.amplitude, tensors.frequency = phase.to(where), amp.to(where), freq.to(where)
 
 
 def phase_summary(tensors: MotionTensors) -> dict[str, float]:

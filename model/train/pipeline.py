@@ -24,6 +24,7 @@ from model.manifold import ManifoldConfig, MotionManifold
 from model.motion_cache import MotionCache, load_motion_cache
 from model.phase import PeriodicAutoencoder, PhaseConfig
 from model.sampler import SamplerConfig, TransitionSampler
+from model.train.loop import resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton
 from model.train.phase_stage import PhaseStageConfig, label_tensors, phase_summary, train_phase
@@ -119,7 +120,8 @@ def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> Pre
 
 def _save_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
     folder.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.detach().contiguous() for k, v in module.state_dict().items()}, str(folder / "weights.safetensors"))
+    # CPU tensors whatever the device trained on, so the weights load anywhere.
+    save_file({k: v.detach().cpu().contiguous() for k, v in module.state_dict().items()}, str(folder / "weights.safetensors"))
     (folder / "config.json").write_text(json.dumps(config, indent=1))
 
 
@@ -127,28 +129,43 @@ def _load_weights(module: torch.nn.Module, folder: Path, stage: str) -> None:
     path = folder / "weights.safetensors"
     if not path.is_file():
         raise FileNotFoundError(f"stage {stage!r} has no weights in {folder}: train it first (rsmt train {stage})")
-    module.load_state_dict(load_file(str(path)), strict=True)
+    module.load_state_dict(load_file(str(path)), strict=True)  # copied onto the module's device
 
 
-def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progress: bool) -> None:
-    """Phase labels for every frame, reused from ``path`` when made by the same weights on the same frames."""
+def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progress: bool,
+            device: torch.device | None = None) -> None:
+    """Phase labels for every frame, reused from ``path`` when made by the same weights on the same frames.
+
+    The key's sums are taken where the tensors are, so labels made on another device may not match
+    it (sums in another order) and are then made again; the file always holds CPU tensors.
+    """
     weights = torch.cat([p.detach().flatten() for p in pae.state_dict().values() if p.is_floating_point()])
     key = f"{weights.double().sum().item():.12e}:{weights.numel()}:{len(tensors.positions)}:{tensors.positions.double().sum().item():.9e}"
     if path.is_file():
         stored = load_file(str(path))
         if bytes(stored["key"].tolist()).decode() == key:
-            tensors.phase, tensors.amplitude, tensors.frequency = stored["phase"], stored["amplitude"], stored["frequency"]
+            where = tensors.positions.device
+            tensors.phase, tensors.amplitude, tensors.frequency = (stored["phase"].to(where), stored["amplitude"].to(where),
+                                                                   stored["frequency"].to(where))
             return
-    label_tensors(pae, tensors, progress)
+    label_tensors(pae, tensors, progress, device=device)
     assert tensors.phase is not None and tensors.amplitude is not None and tensors.frequency is not None
     path.parent.mkdir(parents=True, exist_ok=True)
-    save_file({"phase": tensors.phase, "amplitude": tensors.amplitude, "frequency": tensors.frequency,
+    save_file({"phase": tensors.phase.cpu(), "amplitude": tensors.amplitude.cpu(), "frequency": tensors.frequency.cpu(),
                "key": torch.tensor(list(key.encode()), dtype=torch.uint8)}, str(path))
 
 
 def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...], out: Path | None,
-        progress: bool = True, command: str | None = None) -> Bundle | None:
-    """Run the given stages (in recipe order) and write the bundle when the sampler is done."""
+        progress: bool = True, command: str | None = None, device: torch.device | str = "auto") -> Bundle | None:
+    """Run the given stages (in recipe order) and write the bundle when the sampler is done.
+
+    ``device`` (``auto``: CUDA when there is a GPU, else the CPU) is where the networks train and
+    the motion tensors live. It is a property of the machine, not of the recipe, so it is not part
+    of ``cfg`` or of the saved ``train_config.json``: a run can resume on another device. Random
+    draws stay on the CPU's generators, so the CPU path's numbers do not depend on this option.
+    """
+    dev = resolve_device(device)
+    log.info("training on %s", dev)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -156,6 +173,8 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
     began = time.monotonic()
     data = prepare_data(cfg, data_dir, progress)
+    # Data are read and augmented on the CPU, then held where the networks train.
+    data.train, data.val = data.train.to(dev), data.val.to(dev)
     timings["data_s"] = round(time.monotonic() - began, 1)
     (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
     data.train.skeleton.save(run_dir / "skeleton.json")
@@ -163,36 +182,40 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     pae = PeriodicAutoencoder(cfg.phase)
     if "phase" in stages:
         t0 = time.monotonic()
-        pae, result = train_phase(data.train, data.val, cfg.phase, cfg.phase_stage, run_dir / "phase", progress)
+        pae, result = train_phase(data.train, data.val, cfg.phase, cfg.phase_stage, run_dir / "phase", progress, dev)
         if not result.finished:
             return None
         _save_weights(pae, run_dir / "phase", cfg.phase.to_dict())
         timings["phase_s"] = round(time.monotonic() - t0, 1)
     else:
         _load_weights(pae, run_dir / "phase", "phase")
+        pae.to(dev)
     pae.eval()
     t0 = time.monotonic()
     for part, tensors in (("train", data.train), ("val", data.val)):
-        _labels(pae, tensors, run_dir / "phase" / f"labels_{part}.safetensors", progress)
+        _labels(pae, tensors, run_dir / "phase" / f"labels_{part}.safetensors", progress, dev)
     timings["labels_s"] = round(time.monotonic() - t0, 1)
     (run_dir / "phase_summary.json").write_text(json.dumps(phase_summary(data.train), indent=1))
 
     manifold = MotionManifold(cfg.manifold)
     if "manifold" in stages:
         t0 = time.monotonic()
-        manifold, result = train_manifold(data.train, data.val, cfg.manifold, cfg.manifold_stage, run_dir / "manifold", progress)
+        manifold, result = train_manifold(data.train, data.val, cfg.manifold, cfg.manifold_stage, run_dir / "manifold",
+                                          progress, dev)
         if not result.finished:
             return None
         _save_weights(manifold.decoder, run_dir / "manifold", cfg.manifold.to_dict())
         timings["manifold_s"] = round(time.monotonic() - t0, 1)
     elif "sampler" in stages:
         _load_weights(manifold.decoder, run_dir / "manifold", "manifold")
+        manifold.to(dev)
 
     bundle = None
     if "sampler" in stages:
         t0 = time.monotonic()
+        torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
         sampler = TransitionSampler(cfg.sampler, manifold.decoder)
-        sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress)
+        sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev)
         if not result.finished:
             return None
         timings["sampler_s"] = round(time.monotonic() - t0, 1)
@@ -203,6 +226,10 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
             training_command=command or " ".join(sys.argv),
             training_time_s=timings,
         )
+        # A bundle is CPU tensors, as Bundle.load makes it: saved weights load anywhere, and the
+        # returned bundle is ready for the CPU engine.
+        sampler.cpu()
+        pae.cpu()
         bundle = Bundle(data.train.skeleton, sampler, cfg.manifold, cfg.phase, pae, meta)
         if out is not None:
             bundle.save(out)

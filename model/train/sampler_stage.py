@@ -18,7 +18,7 @@ from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.rotations import sixd_to_quat
 from model.sampler import SamplerConfig, TransitionSampler
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
-from model.train.loop import LoopConfig, LoopResult, step_generator, train_loop
+from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor
@@ -91,7 +91,7 @@ class StylePairs:
 def _fk_from_states(rot6: Tensor, root_pos: Tensor, tensors: MotionTensors) -> Tensor:
     sk = tensors.skeleton
     local = global_to_local_rotations(sixd_to_quat(rot6), sk.parents)
-    return forward_kinematics(local, root_pos, sk.offsets_tensor(), sk.parents)[0]
+    return forward_kinematics(local, root_pos, sk.offsets_tensor().to(rot6.device), sk.parents)[0]
 
 
 def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor,
@@ -108,16 +108,18 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     est_p, est_a, est_f = model.phase_estimator(ctx.vector())
     gt_p, gt_a, gt_f = batch.phase[:, k - 1], batch.amplitude[:, k - 1], batch.frequency[:, k - 1]
     est_loss = (est_p - gt_p).pow(2).mean() + (est_a - gt_a).pow(2).mean() + (est_f - gt_f).pow(2).mean()
+    dev = s.rel.device
     if training and gen is not None:
-        use_gt = (torch.rand(b, generator=gen) < cfg.gt_phase_probability).view(b, 1)
+        # Drawn from the step's CPU generator, then moved: the same draws on every device.
+        use_gt = (torch.rand(b, generator=gen) < cfg.gt_phase_probability).view(b, 1).to(dev)
         start_phase = (torch.where(use_gt.unsqueeze(-1), gt_p, est_p.detach()), torch.where(use_gt, gt_a, est_a.detach()),
                        torch.where(use_gt, gt_f, est_f.detach()))
-        noise = torch.randn(b, 2 * c.width, generator=gen) * c.noise_std
+        noise = (torch.randn(b, 2 * c.width, generator=gen) * c.noise_std).to(dev)
     else:
         start_phase = None
-        noise = torch.zeros(b, 2 * c.width)
+        noise = torch.zeros(b, 2 * c.width, device=dev)
     target = s.index((slice(None), k + length - 1))
-    state = model.begin(ctx, target, torch.full((b,), length), noise, style, start_phase)
+    state = model.begin(ctx, target, torch.full((b,), length, device=dev), noise, style, start_phase)
     pos_l, rot_l, ph_l, foot_l = [], [], [], []
     rots, roots = [], []
     for t in range(length):
@@ -150,11 +152,18 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
 
 
 def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSampler, stage: SamplerStageConfig,
-                  folder: Path, progress: bool = True) -> tuple[TransitionSampler, LoopResult]:
-    """Train every sampler module except the decoder, which stays frozen (gradients flow through it)."""
+                  folder: Path, progress: bool = True,
+                  device: torch.device | str = "auto") -> tuple[TransitionSampler, LoopResult]:
+    """Train every sampler module except the decoder, which stays frozen (gradients flow through it).
+
+    ``model`` is moved to ``device`` (in place) and stays there.
+    """
     c = model.config
     if stage.max_transition > c.max_transition:
         raise ValueError("the stage's max_transition exceeds the model's")
+    dev = resolve_device(device)
+    model.to(dev)
+    train, val = train.to(dev), val.to(dev)
     mean, std = style_statistics(train, stage.style_frames, seed=stage.loop.seed)
     model.style_mean.copy_(mean)
     model.style_std.copy_(std)
