@@ -40,6 +40,10 @@ class LoopConfig:
         seed: torch seed at the start (restored from checkpoints on resume).
         checkpoint_every_s: seconds between checkpoints within an epoch.
         time_limit_s: stop (after a checkpoint) when this much time has passed in this run; 0 = none.
+        restart_at / restart_lr: a warm restart: from step ``restart_at`` on, a second cosine from
+            ``restart_lr`` down to ``lr_final`` over the remaining steps (0 = none). Lengthening a
+            finished run this way keeps the schedule of its first part, so the run resumes from
+            its checkpoint and the same config trained from scratch repeats it.
     """
 
     iterations: int = 1000
@@ -52,6 +56,8 @@ class LoopConfig:
     seed: int = 0
     checkpoint_every_s: float = 120.0
     time_limit_s: float = 0.0
+    restart_at: int = 0
+    restart_lr: float = 0.0
 
 
 @dataclass
@@ -115,7 +121,12 @@ def make_optimizer(params: list[tuple[str, nn.Parameter]], cfg: LoopConfig) -> t
 def learning_rate(step: int, cfg: LoopConfig) -> float:
     if step < cfg.warmup:
         return cfg.lr * (step + 1) / cfg.warmup
-    progress = min(1.0, (step - cfg.warmup) / max(1, cfg.iterations - cfg.warmup))
+    restart = 0 < cfg.restart_at < cfg.iterations
+    if restart and step >= cfg.restart_at:
+        progress = (step - cfg.restart_at) / max(1, cfg.iterations - cfg.restart_at)
+        return cfg.lr_final + 0.5 * (cfg.restart_lr - cfg.lr_final) * (1 + math.cos(math.pi * progress))
+    end = cfg.restart_at if restart else cfg.iterations
+    progress = min(1.0, (step - cfg.warmup) / max(1, end - cfg.warmup))
     return cfg.lr_final + 0.5 * (cfg.lr - cfg.lr_final) * (1 + math.cos(math.pi * progress))
 
 
