@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="style classifier folder (rsmt train classifier) for style accuracy and FMD")
     p.add_argument("--out", type=Path, metavar="DIR", help="folder for report.json, report.md and the pictures")
     p.add_argument("--limit", type=int, metavar="N", help="evaluate at most N cases, spread evenly over the split")
+    p.add_argument("--styles", nargs="+", default=[], metavar="STYLE",
+                   help="only cases of these styles, e.g. a style held out of training (style clips still come from all)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noisy samples for diversity (default 0)")
     p.add_argument("--diversity-cases", type=int, default=32, metavar="N",
                    help="cases used for diversity, spread evenly (default 32; 0 skips diversity)")
@@ -62,7 +64,8 @@ def eval_command(args: argparse.Namespace) -> int:
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
-                            diversity_samples=args.diversity_samples, render_cases=args.render_cases)
+                            diversity_samples=args.diversity_samples, render_cases=args.render_cases,
+                            styles=tuple(args.styles))
     run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
                    progress=not args.quiet)
     command = _command(args)
@@ -86,6 +89,8 @@ def _command(args: argparse.Namespace) -> str:
         parts += ["--out", str(args.out)]
     if args.limit is not None:
         parts += ["--limit", str(args.limit)]
+    if args.styles:
+        parts += ["--styles", *args.styles]
     parts += ["--seed", str(args.seed)]
     if args.exact_arrival:
         parts.append("--exact-arrival")

@@ -142,11 +142,13 @@ def _rank_style_takes(cache: MotionCache, pool: Sequence[int], style: str, conte
 
 
 def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = None,
-                step: int = CASE_STEP) -> list[EvalCase]:
+                step: int = CASE_STEP, only_styles: Sequence[str] = ()) -> list[EvalCase]:
     """The cases of ``takes`` (a split), sorted by take id then start; see the module docstring.
 
     Takes shorter than :data:`SPAN` give no case but still serve as style clips (when at least
     :data:`SPAN` frames long). A case whose style has no other take in ``takes`` is skipped.
+    ``only_styles`` keeps only cases of those styles; style clips (same and other style) still come
+    from every take, so a case is the same case with or without the filter.
     ``limit`` keeps that many cases spread evenly over the sorted list (so every style stays in).
     """
     order = sorted(takes, key=lambda i: cache.takes[i].take_id)
@@ -156,6 +158,8 @@ def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = No
     for i in order:
         n = cache.num_frames(i)
         take = cache.takes[i]
+        if only_styles and take.style not in only_styles:
+            continue
         for start in range(0, n - SPAN + 1, step):
             cid = f"{take.take_id}@{start}"
             same = _rank_style_takes(cache, pool, take.style, take.content, i, cid)

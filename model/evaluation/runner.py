@@ -47,6 +47,7 @@ class EvalSettings:
     diversity_cases: int = 32
     diversity_samples: int = 10
     render_cases: int = 4
+    styles: tuple[str, ...] = ()  # only cases of these styles (e.g. a held-out one); all when empty
 
 
 @dataclass
@@ -94,7 +95,10 @@ def evaluate(
     takes = split[settings.split]
     if stats is None:
         stats = reference_stats(cache, split.train, progress=progress)
-    case_list = build_cases(cache, takes, settings.limit)
+    unknown = sorted(set(settings.styles) - set(cache.styles))
+    if unknown:
+        raise ValueError(f"unknown style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
+    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles)
     cases = CaseSet.load(cache, case_list)
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]

@@ -74,6 +74,10 @@ def test_cases_are_deterministic_and_paired(cache: MotionCache) -> None:
     limited = build_cases(cache, takes, limit=5)
     assert len(limited) == 5 and limited[0] == cases[0] and set(limited) <= set(cases)
     assert len({c.style for c in limited}) == len(cache.styles)
+    # A style filter keeps exactly that style's cases, unchanged (their clips still come from all takes).
+    one = cache.styles[0]
+    only = build_cases(cache, takes, only_styles=[one])
+    assert only and only == [c for c in cases if c.style == one]
 
 
 def test_variants_and_targets(cache: MotionCache) -> None:
@@ -205,3 +209,15 @@ def test_unknown_model_is_an_error(dataset: tuple[Path, Path], capsys: pytest.Ca
     data, _ = dataset
     assert main(["eval", "--model", "no-such-bundle", "--data", str(data), "--quiet"]) == 2
     assert "neither" in capsys.readouterr().err
+
+
+def test_styles_filter(dataset: tuple[Path, Path], cache: MotionCache, capsys: pytest.CaptureFixture[str]) -> None:
+    data, _ = dataset
+    one = cache.styles[1]
+    assert main(["eval", "--model", "interp", "--data", str(data), "--styles", one, "--json", "--quiet",
+                 "--diversity-cases", "0"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["cases"] > 0 and set(report["styles"]) == {one}
+    assert "--styles " + one in report["command"]
+    assert main(["eval", "--model", "interp", "--data", str(data), "--styles", "no-such-style", "--quiet"]) == 2
+    assert "unknown style" in capsys.readouterr().err
