@@ -40,10 +40,11 @@ class LoopConfig:
         seed: torch seed at the start (restored from checkpoints on resume).
         checkpoint_every_s: seconds between checkpoints within an epoch.
         time_limit_s: stop (after a checkpoint) when this much time has passed in this run; 0 = none.
-        restart_at / restart_lr: a warm restart: from step ``restart_at`` on, a second cosine from
-            ``restart_lr`` down to ``lr_final`` over the remaining steps (0 = none). Lengthening a
-            finished run this way keeps the schedule of its first part, so the run resumes from
-            its checkpoint and the same config trained from scratch repeats it.
+        restart_at / restart_lr: warm restarts: from step ``restart_at`` on, another cosine from
+            ``restart_lr`` down to ``lr_final`` until the next restart or the end (0 = none). Each
+            may be one number or a list (several restarts). Lengthening a finished run this way
+            keeps the schedule of its first part, so the run resumes from its checkpoint and the
+            same config trained from scratch repeats it.
     """
 
     iterations: int = 1000
@@ -56,8 +57,16 @@ class LoopConfig:
     seed: int = 0
     checkpoint_every_s: float = 120.0
     time_limit_s: float = 0.0
-    restart_at: int = 0
-    restart_lr: float = 0.0
+    restart_at: int | tuple[int, ...] = 0
+    restart_lr: float | tuple[float, ...] = 0.0
+
+    def restarts(self) -> list[tuple[int, float]]:
+        """``(step, lr)`` of every warm restart inside the run, in order."""
+        steps = (self.restart_at,) if isinstance(self.restart_at, int) else tuple(self.restart_at)
+        lrs = (self.restart_lr,) if isinstance(self.restart_lr, (int, float)) else tuple(self.restart_lr)
+        if len(steps) != len(lrs):
+            raise ValueError(f"restart_at has {len(steps)} steps but restart_lr {len(lrs)} rates")
+        return sorted((int(a), float(r)) for a, r in zip(steps, lrs, strict=True) if 0 < a < self.iterations)
 
 
 @dataclass
@@ -121,11 +130,13 @@ def make_optimizer(params: list[tuple[str, nn.Parameter]], cfg: LoopConfig) -> t
 def learning_rate(step: int, cfg: LoopConfig) -> float:
     if step < cfg.warmup:
         return cfg.lr * (step + 1) / cfg.warmup
-    restart = 0 < cfg.restart_at < cfg.iterations
-    if restart and step >= cfg.restart_at:
-        progress = (step - cfg.restart_at) / max(1, cfg.iterations - cfg.restart_at)
-        return cfg.lr_final + 0.5 * (cfg.restart_lr - cfg.lr_final) * (1 + math.cos(math.pi * progress))
-    end = cfg.restart_at if restart else cfg.iterations
+    restarts = cfg.restarts()
+    ends = [a for a, _ in restarts[1:]] + [cfg.iterations] if restarts else []
+    for (start, peak), end in reversed(list(zip(restarts, ends, strict=True))):
+        if step >= start:
+            progress = (step - start) / max(1, end - start)
+            return cfg.lr_final + 0.5 * (peak - cfg.lr_final) * (1 + math.cos(math.pi * progress))
+    end = restarts[0][0] if restarts else cfg.iterations
     progress = min(1.0, (step - cfg.warmup) / max(1, end - cfg.warmup))
     return cfg.lr_final + 0.5 * (cfg.lr - cfg.lr_final) * (1 + math.cos(math.pi * progress))
 

@@ -20,10 +20,13 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from model.bundle import Bundle, BundleMeta
+from model.classifier_training import TrainSettings, build_windows, train_classifier
 from model.manifold import ManifoldConfig, MotionManifold
 from model.motion_cache import MotionCache, load_motion_cache
 from model.phase import PeriodicAutoencoder, PhaseConfig
 from model.sampler import SamplerConfig, TransitionSampler
+from model.splits import Split
+from model.style_classifier import StyleClassifier, StyleClassifierConfig
 from model.train.loop import resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton
@@ -104,6 +107,7 @@ class PreparedData:
     train: MotionTensors
     val: MotionTensors
     data_dir: Path
+    split: Split
 
 
 def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> PreparedData:
@@ -115,7 +119,33 @@ def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> Pre
     train = MotionTensors.from_cache(cache, split.train, skeleton, augment=cfg.augment, seed=cfg.seed, progress=progress)
     val = MotionTensors.from_cache(cache, split.val, skeleton, augment=False, progress=progress)
     fit_to_skeleton(cfg, skeleton.num_joints, skeleton.roles.root)
-    return PreparedData(cache, train, val, data_dir)
+    return PreparedData(cache, train, val, data_dir, split)
+
+
+def style_critic(cfg: TrainConfig, data: PreparedData, folder: Path, progress: bool = True) -> StyleClassifier:
+    """The frozen style classifier behind the sampler's style loss, trained once per run (about a minute).
+
+    It learns from the run's training split only, with its own input selection and seed; the
+    evaluation classifier (``rsmt train classifier``) is a separate network, so a sampler cannot be
+    tuned to the very network that scores it.
+    """
+    stage = cfg.sampler_stage
+    styles = [s for s in data.cache.styles if s not in cfg.holdout_styles]
+    config = StyleClassifierConfig(styles=styles, joints=data.train.skeleton.num_joints, inputs=stage.critic_inputs)
+    if (folder / "weights.safetensors").is_file():
+        critic = StyleClassifier.load(folder)
+        if critic.config.to_dict() == config.to_dict():
+            return critic
+        log.info("style critic in %s has another config; training a new one", folder)
+    settings = TrainSettings(epochs=stage.critic_epochs, iterations=stage.critic_iterations, seed=cfg.seed + 1)
+    train = build_windows(data.cache, data.split.train, config.window, settings.step, settings.mirror, styles, progress,
+                          "critic windows")
+    val = build_windows(data.cache, data.split.val, config.window, settings.eval_step, False, styles, progress,
+                        "critic val windows")
+    result = train_classifier(train, val, config, settings, progress, report=log.info)
+    result.model.save(folder, {"role": "style critic of the sampler's style loss", "best_epoch": result.best_epoch,
+                               "history": result.history, "seconds": round(result.seconds, 1)})
+    return result.model
 
 
 def _save_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
@@ -212,10 +242,17 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
 
     bundle = None
     if "sampler" in stages:
+        critic = None
+        if cfg.sampler_stage.w_style > 0:
+            t0 = time.monotonic()
+            critic = style_critic(cfg, data, run_dir / "critic", progress)
+            if time.monotonic() - t0 > 1.0:  # trained now, not reloaded from the run folder
+                timings["critic_s"] = round(time.monotonic() - t0, 1)
         t0 = time.monotonic()
         torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
         sampler = TransitionSampler(cfg.sampler, manifold.decoder)
-        sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev)
+        sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev,
+                                        critic)
         if not result.finished:
             return None
         timings["sampler_s"] = round(time.monotonic() - t0, 1)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from model.train.loop import LoopConfig, learning_rate
 
 
@@ -27,3 +29,18 @@ def test_warm_restart_keeps_the_first_run_and_anneals_again():
     assert all(a >= b for a, b in zip(tail, tail[1:], strict=False))
     # A restart at or past the end is no restart.
     assert learning_rate(700, LoopConfig(iterations=800, restart_at=800, restart_lr=1.0)) == learning_rate(700, first)
+
+
+def test_several_warm_restarts_extend_the_previous_schedule():
+    one = LoopConfig(iterations=1200, warmup=50, lr=1e-3, lr_final=1e-5, restart_at=800, restart_lr=3e-4)
+    two = LoopConfig(iterations=1500, warmup=50, lr=1e-3, lr_final=1e-5, restart_at=(800, 1200), restart_lr=(3e-4, 1e-4))
+    assert all(learning_rate(s, two) == learning_rate(s, one) for s in range(1200))
+    assert math.isclose(learning_rate(1200, two), 1e-4)
+    assert math.isclose(learning_rate(1500, two), 1e-5)
+    # Lists as a JSON config gives them, in any order.
+    assert LoopConfig(iterations=1500, restart_at=[1200, 800], restart_lr=[1e-4, 3e-4]).restarts() == [(800, 3e-4), (1200, 1e-4)]
+
+
+def test_restart_lists_must_pair_up():
+    with pytest.raises(ValueError, match="restart_lr"):
+        learning_rate(900, LoopConfig(iterations=1500, restart_at=(800, 1200), restart_lr=3e-4))

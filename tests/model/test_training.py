@@ -11,8 +11,11 @@ from safetensors.torch import load_file
 from model.bundle import Bundle
 from model.engine import Engine
 from model.synthetic import synthetic_walk, write_synthetic_dataset
+from model.style_classifier import StyleClassifier
+from model.synthetic import SYNTHETIC_STYLES
 from model.train.loop import resolve_device
 from rsmt_cli.main import main
+from rsmt_cli.train_commands import PRESET_DIR
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -109,3 +112,47 @@ def test_train_smoke_on_cuda_writes_a_cpu_bundle(tmp_path, monkeypatch, capsys):
     # The CUDA run's checkpoints load on the CPU: a CPU run in the same folder finds every stage done.
     assert main(_smoke_args(tmp_path, data, "gpu", "--device", "cpu")) == 0
     assert Bundle.load(tmp_path / "bundle-gpu").version == bundle.version
+
+
+def test_style_loss_trains_a_critic_and_uses_cross_style_pairs(tmp_path, monkeypatch):
+    """With ``w_style`` the run trains its own style critic (once: a rerun reuses it), the sampler's
+    steps score same-style and cross-style transitions with it from ``extra_losses_from`` on, with
+    the velocity, acceleration and foot-height losses, and the bundle still loads."""
+    monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
+    data = tmp_path / "data"
+    write_synthetic_dataset(data)
+    cfg = json.loads((PRESET_DIR / "smoke.json").read_text())
+    cfg["sampler_stage"].update(w_style=0.5, cross_batch=4, critic_epochs=1, critic_iterations=5,
+                                style_loss_min_frames=3, w_vel=1.0, w_acc=1.0, w_foot_height=1.0, extra_losses_from=3)
+    path = tmp_path / "style.json"
+    path.write_text(json.dumps(cfg))
+    args = ["train", "all", "--config", str(path), "--data", str(data), "--out", str(tmp_path / "bundle"),
+            "--run", str(tmp_path / "run"), "--quiet"]
+    assert main(args) == 0
+    critic = StyleClassifier.load(tmp_path / "run" / "critic")
+    assert critic.config.inputs == "dynamics" and sorted(critic.styles) == sorted(SYNTHETIC_STYLES)
+    history = json.loads((tmp_path / "run" / "sampler" / "checkpoint.json").read_text())["history"]
+    assert {"train_style_acc", "val_style_acc", "train_acc", "val_foot_height"} <= set(history[-1])
+    assert "train_style_acc" not in history[0]  # the first epoch ends before extra_losses_from
+    assert Bundle.load(tmp_path / "bundle").sampler is not None
+    stamp = (tmp_path / "run" / "critic" / "weights.safetensors").stat().st_mtime_ns
+    (tmp_path / "run" / "sampler" / "checkpoint.json").unlink()  # retrain the sampler only
+    assert main(args) == 0
+    assert (tmp_path / "run" / "critic" / "weights.safetensors").stat().st_mtime_ns == stamp
+
+
+def test_cross_style_pairs_differ_in_style():
+    from model.train.motion_tensors import MotionTensors
+    from model.train.sampler_stage import StylePairs
+
+    styles = list(SYNTHETIC_STYLES)
+    clips = [(synthetic_walk(frames=80, speed_cm_s=100.0 + 10 * i), i % len(styles), "walk") for i in range(6)]
+    tensors = MotionTensors.from_clips(clips, styles, clips[0][0].skeleton, None, augment=False, seed=0, progress=False)
+    pairs = StylePairs(tensors, 30, 20)
+    gen = torch.Generator().manual_seed(0)
+    starts_of_take = tensors.take_start
+    for _ in range(10):
+        starts, owners, clip_starts, style = pairs.sample_cross(6, gen)
+        assert (tensors.style[owners] != style).all()
+        clip_owner = torch.searchsorted(starts_of_take, clip_starts, right=True) - 1
+        assert (tensors.style[clip_owner] == style).all()

@@ -1,0 +1,44 @@
+"""The sampler's motion losses that need no network: acceleration profile and planted-foot speed."""
+
+from __future__ import annotations
+
+import torch
+
+from model.train.sampler_stage import acceleration_profile, planted_foot_speed
+
+
+def test_acceleration_profile_is_zero_at_constant_velocity_and_measures_each_joint():
+    vel = torch.zeros(2, 6, 3, 3)
+    vel[..., 0] = 1.5  # every joint moves steadily
+    assert torch.allclose(acceleration_profile(vel), torch.zeros(2, 3), atol=1e-3)
+    t = torch.arange(6, dtype=torch.float32)
+    vel[:, :, 1, 2] = 2.0 * t  # joint 1 speeds up by 2 cm/frame every frame
+    prof = acceleration_profile(vel)
+    assert torch.allclose(prof[:, 1], torch.full((2,), 2.0), atol=1e-3)
+    assert torch.allclose(prof[:, 0], torch.zeros(2), atol=1e-3)
+
+
+def _feet(heights: list[float], dx: float, dy: float = 0.0, frames: int = 5) -> torch.Tensor:
+    pos = torch.zeros(1, frames, 3, 3)
+    t = torch.arange(frames, dtype=torch.float32)
+    for j, h in enumerate(heights):
+        pos[0, :, j, 0] = dx * t
+        pos[0, :, j, 1] = h + dy * t
+    return pos
+
+
+def test_planted_foot_speed_counts_horizontal_sliding_on_the_ground_only():
+    ground = torch.tensor([4.0, 12.0])
+    feet = [1, 2]
+    sliding = planted_foot_speed(_feet([0.0, 4.0, 12.0], dx=1.0), feet, ground)
+    assert torch.isclose(sliding, torch.tensor(1.0), atol=1e-3)
+    assert planted_foot_speed(_feet([0.0, 10.0, 20.0], dx=1.0), feet, ground) == 0  # both feet in the air
+    lifting = planted_foot_speed(_feet([0.0, 4.0, 12.0], dx=0.0, dy=0.2), feet, ground)
+    assert lifting < 1e-3  # rising straight up is not sliding
+
+
+def test_planted_foot_speed_slows_feet_rather_than_lifting_them():
+    pos = _feet([0.0, 4.5, 12.5], dx=1.0).requires_grad_(True)
+    planted_foot_speed(pos, [1, 2], torch.tensor([4.0, 12.0])).backward()
+    assert pos.grad[..., 1].abs().max() == 0  # no gradient on height
+    assert pos.grad[..., 0].abs().max() > 0
