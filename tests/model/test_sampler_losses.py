@@ -42,3 +42,23 @@ def test_planted_foot_speed_slows_feet_rather_than_lifting_them():
     planted_foot_speed(pos, [1, 2], torch.tensor([4.0, 12.0])).backward()
     assert pos.grad[..., 1].abs().max() == 0  # no gradient on height
     assert pos.grad[..., 0].abs().max() > 0
+
+
+def test_velocity_spectrum_puts_jitter_at_the_top_and_ignores_timing():
+    from model.train.sampler_stage import velocity_spectrum
+
+    frames = 20
+    t = torch.arange(frames, dtype=torch.float32)
+    steady = torch.zeros(1, frames, 1, 3)
+    steady[..., 0] = 2.0
+    jitter = steady.clone()
+    jitter[0, :, 0, 1] = torch.where(t % 2 == 0, 1.0, -1.0)  # a frame-to-frame back-and-forth
+    floor = torch.log(torch.tensor(0.1))
+    assert torch.allclose(velocity_spectrum(steady), torch.full((1, frames // 2 + 1, 1), float(floor)))
+    spec = velocity_spectrum(jitter)[0, :, 0]
+    assert spec.argmax() == frames // 2 and spec[: frames // 2].max() <= floor + 1e-4
+    # The same rhythm a few frames later has the same spectrum: timing is not asked for.
+    wave = torch.zeros(1, frames, 1, 3)
+    wave[0, :, 0, 0] = torch.sin(2 * torch.pi * 4 * t / frames)
+    later = torch.roll(wave, 3, dims=1)
+    assert torch.allclose(velocity_spectrum(wave), velocity_spectrum(later), atol=1e-4)
