@@ -33,6 +33,11 @@ class FinetuneConfig:
     max_transition: int = 40
     style_frames: int = 120
     augment: bool = True
+    # The texture terms of the default sampler's last training steps (SamplerStageConfig): how much
+    # each joint accelerates and the velocity spectrum are much of what a style looks like.
+    w_vel: float = 1.0
+    w_acc: float = 2.0
+    w_spectrum: float = 0.2
 
 
 def trainable_parameters(bundle: Bundle) -> list[tuple[str, torch.nn.Parameter]]:
@@ -81,7 +86,8 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
         length = int(torch.randint(5, transition + 1, (1,), generator=gen))
         starts, owners, style_starts = pairs.sample(cfg.batch, gen)
         out = run_losses(starts, owners, style_starts, length, gen, True)
-        total = out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + 0.05 * out["foot"]
+        total = (out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + 0.05 * out["foot"]
+                 + cfg.w_vel * out["vel"] + cfg.w_acc * out["acc"] + cfg.w_spectrum * out["spectrum"])
         total.backward()
         return {k: out[k].item() for k in ("pos", "fk_error_cm")}
 
