@@ -27,6 +27,7 @@ from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor
 
+CRITIC_INPUTS = ("velocity", "dynamics", "acceleration")  # input selections that depend on positions only
 
 @dataclass
 class SamplerStageConfig:
@@ -57,6 +58,13 @@ class SamplerStageConfig:
     style_loss_min_frames: int = 16  # shorter transitions get no style loss: too short to show a style
     extra_losses_from: int = 0  # step from which w_vel, w_acc, w_spectrum, w_foot_height, w_style and cross pairs apply
     validation_transition: int = 40
+
+    def __post_init__(self) -> None:
+        if self.critic_inputs not in CRITIC_INPUTS:
+            # Critics read positions only (critic_logits): no gradient through 6D-to-quaternion conversions.
+            raise ValueError(f"critic_inputs must be one of {', '.join(CRITIC_INPUTS)}, got {self.critic_inputs!r}")
+        if self.cross_batch < 0:
+            raise ValueError("cross_batch must be 0 or more")
 
 
 def style_statistics(tensors: MotionTensors, frames: int, samples: int = 2048, seed: int = 0) -> tuple[Tensor, Tensor]:
@@ -252,9 +260,9 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     if use_critic:
         if critic is None:
             raise ValueError("w_style > 0 needs a style critic")
-        if critic.config.inputs not in ("velocity", "dynamics", "acceleration"):
-            raise ValueError(f"the style critic must read velocities only (critic_inputs velocity, dynamics or "
-                             f"acceleration), not {critic.config.inputs!r}")
+        if critic.config.inputs not in CRITIC_INPUTS:
+            raise ValueError(f"the style critic must read velocities only ({', '.join(CRITIC_INPUTS)}), "
+                             f"not {critic.config.inputs!r}")
         critic.to(dev).eval()
         for p in critic.parameters():
             p.requires_grad_(False)

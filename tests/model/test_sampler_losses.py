@@ -62,3 +62,13 @@ def test_velocity_spectrum_puts_jitter_at_the_top_and_ignores_timing():
     wave[0, :, 0, 0] = torch.sin(2 * torch.pi * 4 * t / frames)
     later = torch.roll(wave, 3, dims=1)
     assert torch.allclose(velocity_spectrum(wave), velocity_spectrum(later), atol=1e-4)
+
+
+def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
+    import pytest
+
+    from model.train.sampler_stage import SamplerStageConfig
+
+    with pytest.raises(ValueError, match="critic_inputs"):
+        SamplerStageConfig(critic_inputs="pose")
+    assert SamplerStageConfig(critic_inputs="velocity").critic_inputs == "velocity"
