@@ -18,7 +18,7 @@ from model.features import local_frame_features
 from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.metrics import FOOT_HEIGHT_THRESHOLD_CM, ground_levels
 from model.rotations import sixd_to_quat
-from model.sampler import SamplerConfig, TransitionSampler
+from model.sampler import TransitionSampler
 from model.skeleton import Skeleton
 from model.style_classifier import StyleClassifier, motion_features
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
@@ -253,7 +253,6 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     length_max = c.context + stage.max_transition
     pairs = StylePairs(train, length_max, stage.style_frames)
     vpairs = StylePairs(val, c.context + stage.validation_transition, stage.style_frames, step=20)
-    gen = torch.Generator().manual_seed(stage.loop.seed)
     vgen = torch.Generator().manual_seed(stage.loop.seed + 1)
     val_sets = [vpairs.sample(16, vgen) for _ in range(4)]
     use_critic = stage.w_style > 0

@@ -10,9 +10,8 @@ from safetensors.torch import load_file
 
 from model.bundle import Bundle
 from model.engine import Engine
-from model.synthetic import synthetic_walk, write_synthetic_dataset
 from model.style_classifier import StyleClassifier
-from model.synthetic import SYNTHETIC_STYLES
+from model.synthetic import SYNTHETIC_STYLES, synthetic_walk, write_synthetic_dataset
 from model.train.loop import resolve_device
 from rsmt_cli.main import main
 from rsmt_cli.train_commands import PRESET_DIR
@@ -154,5 +153,6 @@ def test_cross_style_pairs_differ_in_style():
     for _ in range(10):
         starts, owners, clip_starts, style = pairs.sample_cross(6, gen)
         assert (tensors.style[owners] != style).all()
+        assert ((starts >= starts_of_take[owners]) & (starts + 30 <= starts_of_take[owners] + tensors.take_len[owners])).all()
         clip_owner = torch.searchsorted(starts_of_take, clip_starts, right=True) - 1
         assert (tensors.style[clip_owner] == style).all()
