@@ -326,6 +326,12 @@ def ground_levels(
     return level.to(dtype)
 
 
+def ground_contact_weight(height: Tensor, height_threshold_cm: float = FOOT_HEIGHT_THRESHOLD_CM) -> Tensor:
+    """Foot skate's contact weight ``clamp(2 - 2^(h/H), 0, 1)`` for heights above the ground: 1 at or
+    below it, 0 from ``H`` up (see :func:`foot_skate`)."""
+    return (2.0 - torch.pow(2.0, height / height_threshold_cm)).clamp(0.0, 1.0)
+
+
 def foot_skate_terms(
     pos: Tensor, feet: Sequence[int], ground: Tensor | Sequence[float], height_threshold_cm: float = FOOT_HEIGHT_THRESHOLD_CM
 ) -> tuple[Tensor, Tensor]:
@@ -345,7 +351,7 @@ def foot_skate_terms(
     step = p[:, 1:] - p[:, :-1]
     v = step[..., [0, 2]].norm(dim=-1)  # horizontal cm/frame, [B, T-1, F]
     h = p[:, 1:, :, 1] - ground_t  # height above that joint's ground at the later frame
-    w = (2.0 - torch.pow(2.0, h / height_threshold_cm)).clamp(0.0, 1.0)
+    w = ground_contact_weight(h, height_threshold_cm)
     return (v * w).sum(), (w > 0).sum().to(pos.dtype)
 
 

@@ -122,20 +122,24 @@ def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> Pre
     return PreparedData(cache, train, val, data_dir, split)
 
 
-def style_critic(cfg: TrainConfig, data: PreparedData, folder: Path, progress: bool = True) -> StyleClassifier:
+def style_critic(cfg: TrainConfig, data: PreparedData, folder: Path,
+                 progress: bool = True) -> tuple[StyleClassifier, float | None]:
     """The frozen style classifier behind the sampler's style loss, trained once per run (about a minute).
+
+    Returns the critic and the seconds spent training it (None when reloaded from ``folder``).
 
     It learns from the run's training split only, with its own input selection and seed; the
     evaluation classifier (``rsmt train classifier``) is a separate network, so a sampler cannot be
     tuned to the very network that scores it.
     """
+    began = time.monotonic()
     stage = cfg.sampler_stage
     styles = [s for s in data.cache.styles if s not in cfg.holdout_styles]
     config = StyleClassifierConfig(styles=styles, joints=data.train.skeleton.num_joints, inputs=stage.critic_inputs)
     if (folder / "weights.safetensors").is_file():
         critic = StyleClassifier.load(folder)
         if critic.config.to_dict() == config.to_dict():
-            return critic
+            return critic, None
         log.info("style critic in %s has another config; training a new one", folder)
     settings = TrainSettings(epochs=stage.critic_epochs, iterations=stage.critic_iterations, seed=cfg.seed + 1)
     train = build_windows(data.cache, data.split.train, config.window, settings.step, settings.mirror, styles, progress,
@@ -145,7 +149,7 @@ def style_critic(cfg: TrainConfig, data: PreparedData, folder: Path, progress: b
     result = train_classifier(train, val, config, settings, progress, report=log.info)
     result.model.save(folder, {"role": "style critic of the sampler's style loss", "best_epoch": result.best_epoch,
                                "history": result.history, "seconds": round(result.seconds, 1)})
-    return result.model
+    return result.model, time.monotonic() - began
 
 
 def _save_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
@@ -244,10 +248,9 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     if "sampler" in stages:
         critic = None
         if cfg.sampler_stage.w_style > 0:
-            t0 = time.monotonic()
-            critic = style_critic(cfg, data, run_dir / "critic", progress)
-            if time.monotonic() - t0 > 1.0:  # trained now, not reloaded from the run folder
-                timings["critic_s"] = round(time.monotonic() - t0, 1)
+            critic, seconds = style_critic(cfg, data, run_dir / "critic", progress)
+            if seconds is not None:  # trained now, not reloaded from the run folder
+                timings["critic_s"] = round(seconds, 1)
         t0 = time.monotonic()
         torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
         sampler = TransitionSampler(cfg.sampler, manifold.decoder)

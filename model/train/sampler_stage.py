@@ -16,7 +16,7 @@ from torch import nn
 
 from model.features import local_frame_features
 from model.kinematics import forward_kinematics, global_to_local_rotations
-from model.metrics import FOOT_HEIGHT_THRESHOLD_CM, ground_levels
+from model.metrics import ground_contact_weight, ground_levels
 from model.rotations import sixd_to_quat
 from model.sampler import TransitionSampler
 from model.skeleton import Skeleton
@@ -189,12 +189,13 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
         "last_pos": ((last.positions() - target.positions()).abs() / EDGE_CM).mean(),
         "last_rot": (last.rot - target.rot).abs().mean(),
     }
+    frames = torch.cat([before[:, 1:], pred_fk], 1)  # the last context frame, then the generated ones
     if ground is not None:
-        out["foot_height"] = planted_foot_speed(torch.cat([before[:, 1:], pred_fk], 1), feet, ground)
+        out["foot_height"] = planted_foot_speed(frames, feet, ground)
     if critic is not None and critic_labels is not None and length >= cfg.style_loss_min_frames:
         known = critic_labels >= 0
         if known.any():
-            logits = critic_logits(critic, torch.cat([before[:, 1:], pred_fk], 1)[known], tensors.skeleton)
+            logits = critic_logits(critic, frames[known], tensors.skeleton)
             out["style"] = nn.functional.cross_entropy(logits, critic_labels[known])
             out["style_acc"] = (logits.argmax(-1) == critic_labels[known]).float().mean()
     if not ground_truth:
@@ -270,6 +271,12 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
 
     ground = ground_levels(train.positions, list(train.skeleton.feet)).to(dev) if stage.w_foot_height > 0 else None
 
+    # Loss weights by name; a loss a step did not compute (no critic, no ground truth) is skipped.
+    base_weights = {"pos": stage.w_pos, "rot": stage.w_rot, "last_pos": stage.w_last_pos, "last_rot": stage.w_last_rot,
+                    "phase": stage.w_phase, "foot": stage.w_foot, "fk": stage.w_fk, "estimator": stage.w_estimator}
+    weights = {**base_weights, "vel": stage.w_vel, "acc": stage.w_acc, "spectrum": stage.w_spectrum,
+               "foot_height": stage.w_foot_height, "style": stage.w_style}
+
     def labels_of(style_ids: Tensor) -> Tensor | None:
         return class_of[style_ids.cpu()].to(dev) if use_critic else None
 
@@ -288,15 +295,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         losses = transition_losses(model, train, batch, features_of(style_starts, train), length, stage, gen, True,
                                    critic if styled else None, labels_of(train.style[owners]),
                                    ground=ground if extra else None)
-        w_vel, w_acc, w_spec = (stage.w_vel, stage.w_acc, stage.w_spectrum) if extra else (0.0, 0.0, 0.0)
-        total = (stage.w_pos * losses["pos"] + stage.w_rot * losses["rot"] + stage.w_last_pos * losses["last_pos"]
-                 + stage.w_last_rot * losses["last_rot"] + stage.w_phase * losses["phase"] + stage.w_foot * losses["foot"]
-                 + stage.w_fk * losses["fk"] + stage.w_estimator * losses["estimator"]
-                 + w_vel * losses["vel"] + w_acc * losses["acc"] + w_spec * losses["spectrum"])
-        if "foot_height" in losses:
-            total = total + stage.w_foot_height * losses["foot_height"]
-        if "style" in losses:
-            total = total + stage.w_style * losses["style"]
+        total = weighted_sum(losses, weights if extra else base_weights)
         shown = {k: v.item() for k, v in losses.items() if k in ("pos", "fk_error_cm", "last_fk_error_cm", "foot", "phase",
                                                                   "acc", "style_acc", "foot_height", "spectrum")}
         if styled and stage.cross_batch > 0 and length >= stage.style_loss_min_frames:
@@ -304,13 +303,9 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
             xb = make_batch(train, xs, xo, c.context + length, c.context - 1)
             xl = transition_losses(model, train, xb, features_of(xclips, train), length, stage, gen, True, critic,
                                    labels_of(torch.full((len(xs),), xstyle)), ground_truth=False, ground=ground)
-            cross = stage.w_last_pos * xl["last_pos"] + stage.w_last_rot * xl["last_rot"]
-            if "foot_height" in xl:
-                cross = cross + stage.w_foot_height * xl["foot_height"]
-            if "style" in xl:
-                cross = cross + stage.w_style * xl["style"]
+            if "style_acc" in xl:
                 shown["cross_acc"] = xl["style_acc"].item()
-            total = total + cross * (len(xs) / stage.batch)
+            total = total + weighted_sum(xl, weights) * (len(xs) / stage.batch)
         total.backward()
         return shown
 
@@ -331,6 +326,12 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     return model, result
 
 
+def weighted_sum(losses: dict[str, Tensor], weights: dict[str, float]) -> Tensor:
+    """``sum(weights[k] * losses[k])`` over the weighted losses present, in ``weights``' order."""
+    terms = [w * losses[k] for k, w in weights.items() if k in losses]
+    return sum(terms[1:], terms[0])  # left to right, as the terms are listed
+
+
 def planted_foot_speed(positions: Tensor, feet: list[int], ground: Tensor) -> Tensor:
     """Horizontal speed of foot joints weighted by how close each is to its ground level (cm/frame).
 
@@ -341,8 +342,7 @@ def planted_foot_speed(positions: Tensor, feet: list[int], ground: Tensor) -> Te
     """
     p = positions[:, :, feet]
     speed = (p[:, 1:, :, [0, 2]] - p[:, :-1, :, [0, 2]]).pow(2).sum(-1).add(1e-6).sqrt()
-    height = (p[:, 1:, :, 1] - ground).detach()
-    w = (2.0 - torch.pow(2.0, height / FOOT_HEIGHT_THRESHOLD_CM)).clamp(0.0, 1.0)
+    w = ground_contact_weight((p[:, 1:, :, 1] - ground).detach())
     return (speed * w).sum() / (w > 0).sum().clamp_min(1)
 
 
