@@ -23,6 +23,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from model.manifold import ManifoldConfig, ManifoldDecoder
+from model.output_config import OutputConfig
 from model.phase import PeriodicAutoencoder, PhaseConfig
 from model.sampler import SamplerConfig, TransitionSampler
 from model.skeleton import Skeleton
@@ -59,6 +60,7 @@ class Bundle:
     phase_model: PeriodicAutoencoder | None = None
     meta: BundleMeta = field(default_factory=BundleMeta)
     version: str = "unsaved"
+    output: OutputConfig = field(default_factory=OutputConfig)  # the engine's post-processing of frames
 
     @property
     def config(self) -> SamplerConfig:
@@ -117,6 +119,7 @@ class Bundle:
             "manifold": self.manifold_config.to_dict(),
             "phase": self.phase_config.to_dict(),
             "has_phase_model": self.phase_model is not None,
+            "output": self.output.to_dict(),
             "meta": self.meta.__dict__,
         }
         (path / "config.json").write_text(json.dumps(config, indent=1))
@@ -144,6 +147,10 @@ class Bundle:
             PhaseConfig(**config["phase"]),
             BundleMeta(**config.get("meta", {})),
         )
+        try:
+            bundle.output = OutputConfig.from_dict(config.get("output", {}))
+        except (TypeError, ValueError) as exc:
+            raise BundleError(f"{path}/config.json: bad output settings: {exc}") from exc
         if not config.get("has_phase_model", True):
             bundle.phase_model = None
         tensors = load_file(str(path / "weights.safetensors"))

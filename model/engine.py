@@ -22,6 +22,9 @@ from model.clip import Clip
 from model.compiled_step import CompiledStep
 from model.features import CanonicalFrame, local_frame_features
 from model.kinematics import forward_kinematics, global_to_local_rotations
+from model.foot_lock import FootLock, FootLockState
+from model.output_config import OutputConfig
+from model.output_filter import smooth_frame, smoothing_weight
 from model.representation import PoseState, state_from_positions
 from model.rotations import quat_normalize, quat_to_sixd, sixd_to_quat
 from model.sampler import SamplerState, StyleContext
@@ -66,6 +69,8 @@ class Character:
     # Exact arrival (see model.arrival): its per-character state and the target pose in world space.
     arrival: ArrivalState | None = None
     _target_pose: tuple[Tensor, Tensor] | None = field(default=None, repr=False)
+    # Memory of the output steps (smoothing, foot lock) while out of a batch: named rows [1, ...].
+    _post: dict[str, Tensor] | None = field(default=None, repr=False)
     # Inputs of the recurrent warm-up, run batched when the character joins a batch.
     _init: tuple[PoseState, PoseState, int, Tensor] | None = field(default=None, repr=False)
 
@@ -96,7 +101,13 @@ class Engine:
     """Serves one bundle. Thread settings are process-wide torch settings, applied here once."""
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
-                 cache_bytes: int = 256 << 20, compiled: bool | None = None) -> None:
+                 cache_bytes: int = 256 << 20, compiled: bool | None = None, smoothing: float | None = None,
+                 foot_lock: bool | None = None) -> None:
+        """``smoothing`` (the output filter's strength, :mod:`model.output_filter`) and ``foot_lock``
+        (:mod:`model.foot_lock`) override the bundle's output settings; None keeps them."""
+        out = bundle.output
+        self.output = OutputConfig(out.smoothing if smoothing is None else float(smoothing),
+                                   out.foot_lock if foot_lock is None else bool(foot_lock))
         if threads:
             torch.set_num_threads(threads)
         if compiled is None:
@@ -107,6 +118,7 @@ class Engine:
             p.requires_grad_(False)
         self.skeleton: Skeleton = bundle.skeleton
         self.config = bundle.config
+        self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
         self._offsets = self.skeleton.offsets_tensor()
         self.arrival = ArrivalCorrector(self.skeleton)
@@ -236,6 +248,11 @@ class Engine:
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
         ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames)
         ch._init, ch._frame = (cstate, tstate, frames, noise), frame
+        crot = quat_normalize(context.rotations)
+        ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
+        if self.foot_lock is not None:
+            lock = self.foot_lock.start(crot, context.root_positions)
+            ch._post.update({f"lock_{f}": getattr(lock, f) for f in FootLockState.FIELDS})
         if exact_arrival:
             ch.arrival = ArrivalState()
             ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
@@ -325,6 +342,8 @@ class CharacterBatch:
         self._style: StyleContext | None = None
         self._yaw: Tensor | None = None
         self._origin: Tensor | None = None
+        # The output steps' memory, a row per member (see Engine.prepare for the names).
+        self._post: dict[str, Tensor] | None = None
         self._pending: list[Character] = []
         self._style_dirty = False
 
@@ -349,8 +368,13 @@ class CharacterBatch:
             self._state = SamplerState.stack(rows)  # type: ignore[arg-type]
             self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
             self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
+            posts = ([self._post] if self._post is not None else []) + [c._post for c in joined]
+            if any(p is None for p in posts):
+                raise ValueError("character was not prepared by Engine.prepare")
+            self._post = {k: torch.cat([p[k] for p in posts]) for k in posts[0]}  # type: ignore[index, union-attr]
             for c in joined:
                 c._row = None
+                c._post = None
             self.members.extend(joined)
             self._pending = []
             self._style_dirty = True
@@ -397,6 +421,8 @@ class CharacterBatch:
         row = torch.tensor([i])
         ch._row = self._state.index(row)  # a copy: later steps never write into it
         ch._frame = CanonicalFrame(self._yaw[row], self._origin[row])
+        assert self._post is not None
+        ch._post = {k: v[i : i + 1].clone() for k, v in self._post.items()}
         self._keep([m for m in self.members if m is not ch])
 
     def drop_finished(self) -> list[Character]:
@@ -411,11 +437,14 @@ class CharacterBatch:
             return
         if not keep:
             self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
+            self._post = None
             return
         idx = torch.tensor([self.members.index(k) for k in keep])
         assert self._state is not None and self._yaw is not None and self._origin is not None
         self._state = self._state.index(idx)
         self._yaw, self._origin = self._yaw[idx], self._origin[idx]
+        assert self._post is not None
+        self._post = {k: v[idx] for k, v in self._post.items()}
         self.members = keep
         self._style_dirty = True
 
@@ -432,6 +461,18 @@ class CharacterBatch:
         grot = frame.rotations_from(sixd_to_quat(pose.rot))
         root = frame.positions_from(pose.positions()[:, self.engine.skeleton.roles.root])
         local = global_to_local_rotations(grot, self.engine.skeleton.parents)
+        post = self._post
+        assert post is not None
+        remaining = torch.tensor([m.remaining - 1 for m in self.members])
+        if self.engine.output.smoothing > 0:
+            local, root = smooth_frame(local, root, post["prev_rot"], post["prev_root"],
+                                       smoothing_weight(self.engine.output.smoothing, remaining))
+        # Remembered before foot lock and exact arrival bend the frame: the filter follows the network's motion.
+        post["prev_rot"], post["prev_root"] = local, root
+        if self.engine.foot_lock is not None:
+            lock = FootLockState(*(post[f"lock_{f}"] for f in FootLockState.FIELDS))
+            local, lock = self.engine.foot_lock.apply(local, root, remaining, lock)
+            post.update({f"lock_{f}": getattr(lock, f) for f in FootLockState.FIELDS})
         exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
         if exact:
             idx = torch.tensor(exact)

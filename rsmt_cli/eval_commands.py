@@ -39,6 +39,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", type=int, default=128, help="transitions generated together by a bundle (default 128)")
     p.add_argument("--exact-arrival", action="store_true",
                    help="run bundles with the engine's exact-arrival option (the last frames bend onto the target)")
+    p.add_argument("--smoothing", type=float, default=None, metavar="A",
+                   help="run bundles with this output-filter strength, 0 to 1 exclusive (default: each bundle's "
+                        "own setting; 0 scores the network's raw frames)")
+    p.add_argument("--foot-lock", choices=("on", "off"), default=None,
+                   help="run bundles with foot locking on or off (default: each bundle's own setting)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     p.add_argument("--json", action="store_true", help="print the JSON report instead of the Markdown tables")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -60,7 +65,10 @@ def eval_command(args: argparse.Namespace) -> int:
     data = args.data or find_data_dir()
     if data is None:
         raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
-    methods = [resolve_method(spec, args.batch, args.exact_arrival) for spec in args.model]
+    if args.smoothing is not None and not 0.0 <= args.smoothing < 1.0:
+        raise ValueError("--smoothing must be in [0, 1)")
+    foot_lock = None if args.foot_lock is None else args.foot_lock == "on"
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, args.smoothing, foot_lock) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
@@ -94,6 +102,10 @@ def _command(args: argparse.Namespace) -> str:
     parts += ["--seed", str(args.seed)]
     if args.exact_arrival:
         parts.append("--exact-arrival")
+    if args.smoothing is not None:
+        parts += ["--smoothing", f"{args.smoothing:g}"]
+    if args.foot_lock is not None:
+        parts += ["--foot-lock", args.foot_lock]
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),
                                  ("--diversity-samples", args.diversity_samples, 10)):
         if value != default:

@@ -39,6 +39,9 @@ class Settings(BaseSettings):
     threads: int = Field(1, ge=0, description="torch intra-op threads (0: torch's choice); process-wide")
     request_threads: int = Field(1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
     warmup_max_batch: int = Field(64, ge=1, description="warm the batched step at 1, 2, 4, ... up to this many characters")
+    output_smoothing: float | None = Field(
+        None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
+    foot_lock: bool | None = Field(None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
 
     # ------------------------------------------------------------------ style cache
     style_cache_entries: int = Field(1024, ge=1)

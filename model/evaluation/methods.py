@@ -92,13 +92,14 @@ class BundleMethod(Method):
     uses_style = True
     stochastic = True
 
-    def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False) -> None:
+    def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
+                 smoothing: float | None = None, foot_lock: bool | None = None) -> None:
         from model.bundle import Bundle
         from model.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)
-        self.engine = Engine(self.bundle)
+        self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock)
         self.name = name or self.path.name
         self.batch = batch
         self.exact_arrival = exact_arrival
@@ -106,7 +107,8 @@ class BundleMethod(Method):
     def describe(self) -> dict:
         d = super().describe()
         d.update(path=str(self.path), version=self.bundle.version, bundle_name=self.bundle.meta.name,
-                 max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival)
+                 max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival,
+                 output=self.engine.output.to_dict())
         return d
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
@@ -136,8 +138,12 @@ class BundleMethod(Method):
         return torch.stack(rots).float(), torch.stack(roots).float()
 
 
-def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False) -> Method:
-    """``interp``, ``zerovel``, ``gt`` or the path of a model bundle (``exact_arrival``: the engine's option)."""
+def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smoothing: float | None = None,
+                   foot_lock: bool | None = None) -> Method:
+    """``interp``, ``zerovel``, ``gt`` or the path of a model bundle.
+
+    ``exact_arrival``, ``smoothing`` and ``foot_lock`` (None: the bundle's own) are the engine's options for bundles.
+    """
     if spec in BASELINES:
         return BaselineMethod(spec)
     if spec == GROUND_TRUTH:
@@ -145,4 +151,4 @@ def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False) -> 
     path = Path(spec)
     if not path.is_dir():
         raise FileNotFoundError(f"--model {spec!r} is neither {', '.join([*BASELINES, GROUND_TRUTH])} nor a bundle folder")
-    return BundleMethod(path, batch, exact_arrival=exact_arrival)
+    return BundleMethod(path, batch, exact_arrival=exact_arrival, smoothing=smoothing, foot_lock=foot_lock)

@@ -43,3 +43,28 @@ def test_import_builds_nothing_and_model_stays_free_of_web_code():
     code = ("import sys, model.engine, model.bundle, model.bvh; "
             "assert not [m for m in sys.modules if m.startswith(('fastapi', 'starlette', 'uvicorn'))]")
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
+
+
+def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
+    from service.registry import load_registry
+
+    monkeypatch.setenv("RSMT_OUTPUT_SMOOTHING", "0.25")
+    monkeypatch.setenv("RSMT_FOOT_LOCK", "true")
+    s = Settings(models=DEFAULT_BUNDLE)
+    assert (s.output_smoothing, s.foot_lock) == (0.25, True)
+    engine = _engine_of(load_registry(s))
+    assert engine.output.smoothing == 0.25 and engine.foot_lock is not None
+    monkeypatch.setenv("RSMT_OUTPUT_SMOOTHING", "1")
+    with pytest.raises(ValidationError):
+        Settings()
+    monkeypatch.delenv("RSMT_OUTPUT_SMOOTHING")
+    monkeypatch.delenv("RSMT_FOOT_LOCK")
+    engine = _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE)))
+    assert engine.output == engine.bundle.output  # unset: the bundle's own
+
+
+def _engine_of(registry):
+    (model,) = list(registry)
+    model.work.shutdown()
+    model.step.shutdown()
+    return model.engine

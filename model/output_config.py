@@ -1,0 +1,33 @@
+"""What the engine does to the network's frames before they leave: a bundle setting.
+
+Both steps are causal and per character, so whole transitions and streams get the same frames;
+both hand the arrival frame back untouched (see :mod:`model.output_filter`, :mod:`model.foot_lock`).
+A bundle saved without this section gets the network's frames as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """``smoothing``: the causal output filter's weight of the previous emitted frame, in [0, 1)
+    (0: off). ``foot_lock``: hold planted feet by leg IK."""
+
+    smoothing: float = 0.0
+    foot_lock: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.smoothing < 1.0:
+            raise ValueError(f"output smoothing must be in [0, 1), got {self.smoothing}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> OutputConfig:
+        unknown = set(data) - {"smoothing", "foot_lock"}
+        if unknown:
+            raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
+        return cls(**data)

@@ -1,0 +1,88 @@
+"""Foot locking: a planted foot is held while the body slides, lets go past its reach, and leaves
+the arrival frame and feet in the air alone."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from model.foot_lock import FootLock, FootLockConfig, FootLockState
+from model.kinematics import forward_kinematics
+from model.synthetic import synthetic_walk
+
+
+def _sliding_pose(frames: int, speed_cm: float, still: int = 0):
+    """Frame 8 of the synthetic walk (left foot down, right foot up) frozen, its root sliding along x
+    after ``still`` frames."""
+    walk = synthetic_walk(frames=20)
+    rot = walk.rotations[8].expand(frames, -1, -1).clone()
+    root = walk.root_positions[8].expand(frames, -1).clone()
+    root[:, 0] += speed_cm * (torch.arange(frames, dtype=torch.float32) - still).clamp_min(0)
+    return walk.skeleton, rot, root
+
+
+def _run(lock: FootLock, rot, root, context: int, remaining_end: int = 100):
+    state = lock.start(rot[:context], root[:context])
+    out = []
+    for t in range(context, rot.shape[0]):
+        remaining = torch.tensor([remaining_end + rot.shape[0] - 1 - t])
+        r, state = lock.apply(rot[t : t + 1], root[t : t + 1], remaining, state)
+        out.append(r[0])
+    return torch.stack(out), state
+
+
+def test_planted_foot_is_held_then_released():
+    sk, rot, root = _sliding_pose(50, speed_cm=0.5, still=9)  # a still context: the left foot is planted
+    lock = FootLock(sk, 30.0)
+    out, _ = _run(lock, rot, root, context=10)
+    gen = lock.ankles(rot[10:], root[10:])
+    held = lock.ankles(out, root[10:])
+    planted = held[0, 0]
+    # The generated left ankle slides 0.5 cm a frame; the shown one stays put until the drift passes 10 cm.
+    drift = (gen[:, 0] - planted)[:, [0, 2]].norm(dim=-1)
+    while_held = drift < 9.9
+    assert while_held.sum() >= 15
+    assert (held[while_held, 0] - planted).norm(dim=-1).max() < 0.05
+    # Released, it catches up with the generated foot, halving the gap each frame, then locks again
+    # once within 1 cm (not before: re-locking mid catch-up would make it hop).
+    gap = (held[:, 0] - gen[:, 0]).norm(dim=-1)
+    r = int((~while_held).nonzero()[0])
+    assert torch.allclose(gap[r : r + 4], gap[r - 1] * torch.tensor([0.5, 0.25, 0.125, 0.0625]), atol=0.02)
+    assert gap[r + 2] > 1.0 > gap[r + 3]
+    assert (held[r + 4 : r + 9, 0] - held[r + 4, 0]).norm(dim=-1).max() < 0.05
+    # The right foot is 25 cm up: never locked, never moved.
+    assert torch.allclose(held[:, 1], gen[:, 1], atol=1e-4)
+    # Joints off the legs are untouched; the left foot keeps its world rotation.
+    legs = {13, 14, 15}
+    other = [j for j in range(sk.num_joints) if j not in legs]
+    assert torch.equal(out[:, other], rot[10:, other])
+    _, g_out = forward_kinematics(out, root[10:], sk.offsets_tensor(), sk.parents)
+    _, g_gen = forward_kinematics(rot[10:], root[10:], sk.offsets_tensor(), sk.parents)
+    dots = (g_out[:, 15] * g_gen[:, 15]).sum(-1).abs()
+    assert torch.allclose(dots, torch.ones_like(dots), atol=1e-5)
+
+
+def test_fast_foot_does_not_lock_and_arrival_is_untouched():
+    sk, rot, root = _sliding_pose(30, speed_cm=4.0)  # 120 cm/s: a foot moving that fast is not planted
+    lock = FootLock(sk, 30.0)
+    out, state = _run(lock, rot, root, context=10)
+    assert torch.equal(out, rot[10:]) and not state.locked.any()
+    sk, rot, root = _sliding_pose(30, speed_cm=0.5)
+    out, _ = _run(lock, rot, root, context=10, remaining_end=0)  # the last frame is the arrival frame
+    assert torch.allclose(out[-1], rot[-1], atol=1e-6)
+    assert not torch.allclose(out[5], rot[15], atol=1e-3)  # earlier frames were held
+
+
+def test_state_rows_stack_and_split():
+    sk, rot, root = _sliding_pose(12, speed_cm=0.5)
+    lock = FootLock(sk, 30.0)
+    a, b = lock.start(rot[:10], root[:10]), lock.start(rot[:10], root[:10] + 5.0)
+    both = FootLockState.cat([a, b])
+    assert both.anchor.shape == (2, 2, 3) and torch.equal(both.index(slice(1, 2)).anchor, b.anchor)
+
+
+def test_config_is_validated():
+    with pytest.raises(ValueError):
+        FootLockConfig(contact_cm=6.0, lift_cm=5.0)
+    with pytest.raises(ValueError):
+        FootLockConfig(catch_up=0.0)
