@@ -21,8 +21,8 @@ from model.bundle import Bundle
 from model.clip import Clip
 from model.compiled_step import CompiledStep
 from model.features import CanonicalFrame, local_frame_features
-from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.foot_lock import FootLock, FootLockState
+from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.output_config import OutputConfig
 from model.output_filter import smooth_frame, smoothing_weight
 from model.representation import PoseState, state_from_positions

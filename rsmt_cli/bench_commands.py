@@ -15,6 +15,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     p.add_argument("--batch-sizes", default="1,8,32,128,512", help="concurrent characters to measure (comma-separated)")
     p.add_argument("--budget", type=float, default=8.0, metavar="S", help="seconds of throughput runs per model (default 8)")
+    p.add_argument("--smoothing", type=float, default=None, metavar="A",
+                   help="output filter strength for the bundle (default: the bundle's own)")
+    p.add_argument("--foot-lock", choices=("on", "off"), default=None,
+                   help="foot locking for the bundle (default: the bundle's own)")
     p.add_argument("--no-paper", action="store_true", help="skip the paper-size network")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON here")
     p.set_defaults(func=_run)
@@ -34,7 +38,11 @@ def _run(args: argparse.Namespace) -> int:
     path = args.model or DEFAULT_BUNDLE
     bundle = Bundle.load(path)
     probe = machine_probe()
-    results = [bench_engine(Engine(bundle), f"{bundle.meta.name} ({path.name})", sizes, budget_s=args.budget)]
+    foot_lock = None if args.foot_lock is None else args.foot_lock == "on"
+    engine = Engine(bundle, smoothing=args.smoothing, foot_lock=foot_lock)
+    out = engine.output
+    label = f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}, foot lock {'on' if out.foot_lock else 'off'})"
+    results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     if not args.no_paper:
         results.append(bench_engine(paper_size_engine(bundle), "paper-size, random weights", sizes, budget_s=args.budget))
     print(format_table(results, probe))

@@ -29,10 +29,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import atexit
 import json
 import os
 import platform
 import re
+import shutil
 import signal
 import socket
 import struct
@@ -310,7 +312,9 @@ def spawn(bundle: Path | None, threads: int, env: dict[str, str]) -> tuple[subpr
         from model.bundle import Bundle
         from model.synthetic import synthetic_skeleton
 
-        bundle = Bundle.create(synthetic_skeleton(), seed=0).save(Path(tempfile.mkdtemp(prefix="rsmt-load-")) / "rsmt")
+        folder = tempfile.mkdtemp(prefix="rsmt-load-")
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        bundle = Bundle.create(synthetic_skeleton(), seed=0).save(Path(folder) / "rsmt")
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

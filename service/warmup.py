@@ -74,7 +74,7 @@ def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict
         for i in range(n):
             # Replicas of one prepared character (its deferred warm-up inputs or its state are shared, never mutated).
             ch = Character(id=f"warm{i}", style=template.style, frames_total=template.frames_total)
-            ch._row, ch._init, ch._frame = template._row, template._init, template._frame
+            ch._row, ch._init, ch._frame, ch._post = template._row, template._init, template._frame, template._post
             batch.add(ch)
         started = time.perf_counter()
         batch.step()

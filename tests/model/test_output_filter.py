@@ -51,7 +51,9 @@ def test_blend_takes_the_short_way_whatever_the_sign():
     b, _ = smooth_frame(rot, torch.zeros(4, 3), -prev, torch.zeros(4, 3), w)
     assert torch.allclose(a, b, atol=1e-6)
     # Halfway-ish between two rotations: never further from either than they are from each other.
-    ang = lambda x, y: 2 * torch.acos((x * y).sum(-1).abs().clamp(max=1.0))  # noqa: E731
+    def ang(x, y):
+        return 2 * torch.acos((x * y).sum(-1).abs().clamp(max=1.0))
+
     assert (ang(a, rot) <= ang(rot, prev) + 1e-4).all() and (ang(a, prev) <= ang(rot, prev) + 1e-4).all()
 
 

@@ -18,13 +18,18 @@ from tests.service.wsclient import Ws
 
 
 def _schema():
+    import atexit
+    import shutil
     import tempfile
     from pathlib import Path
 
     from model.bundle import Bundle
     from model.synthetic import synthetic_skeleton
 
-    path = Bundle.create(synthetic_skeleton(), seed=0).save(Path(tempfile.mkdtemp(prefix="rsmt-fuzz-")) / "rsmt")
+    # Made at collection (schemathesis reads the schema then), so no fixture can own it: removed at exit.
+    folder = tempfile.mkdtemp(prefix="rsmt-fuzz-")
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    path = Bundle.create(synthetic_skeleton(), seed=0).save(Path(folder) / "rsmt")
     app = create_app(Settings(models=path, threads=1, warmup_max_batch=2, max_body_bytes=256 << 10))
     return schemathesis.openapi.from_asgi("/openapi.json", app)
 
