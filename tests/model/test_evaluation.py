@@ -205,6 +205,23 @@ def test_bundle_is_deterministic_without_noise(cache: MotionCache, bundle_dir: P
     assert not torch.equal(s1[1], s2[1])
 
 
+def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle_dir: Path, dataset: tuple[Path, Path],
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    from model.evaluation.methods import Request
+
+    cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=2))
+    raw = BundleMethod(bundle_dir, smoothing=0.0, foot_lock=False)
+    smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
+    assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True}
+    a = raw.generate(cs, Request(variant("gap10")))
+    b = smooth.generate(cs, Request(variant("gap10")))
+    assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way
+    assert torch.allclose(a[1][:, -1], b[1][:, -1], atol=1e-5)  # the arrival frame is the network's own
+    data, _ = dataset
+    assert main(["eval", "--model", str(bundle_dir), "--data", str(data), "--smoothing", "1.5", "--quiet"]) == 2
+    assert "--smoothing" in capsys.readouterr().err
+
+
 def test_unknown_model_is_an_error(dataset: tuple[Path, Path], capsys: pytest.CaptureFixture[str]) -> None:
     data, _ = dataset
     assert main(["eval", "--model", "no-such-bundle", "--data", str(data), "--quiet"]) == 2
