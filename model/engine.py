@@ -102,12 +102,11 @@ class Engine:
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
                  cache_bytes: int = 256 << 20, compiled: bool | None = None, smoothing: float | None = None,
-                 foot_lock: bool | None = None) -> None:
-        """``smoothing`` (the output filter's strength, :mod:`model.output_filter`) and ``foot_lock``
-        (:mod:`model.foot_lock`) override the bundle's output settings; None keeps them."""
-        out = bundle.output
-        self.output = OutputConfig(out.smoothing if smoothing is None else float(smoothing),
-                                   out.foot_lock if foot_lock is None else bool(foot_lock))
+                 foot_lock: bool | None = None, root_smoothing: float | None = None) -> None:
+        """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
+        the root, :mod:`model.output_filter`) and ``foot_lock`` (:mod:`model.foot_lock`) override the
+        bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too."""
+        self.output = _output_settings(bundle.output, smoothing, root_smoothing, foot_lock)
         if threads:
             torch.set_num_threads(threads)
         if compiled is None:
@@ -325,6 +324,17 @@ class Engine:
         return [(torch.stack(rots[ch.id]), torch.stack(roots[ch.id])) for ch in characters]
 
 
+def _output_settings(bundle: OutputConfig, smoothing: float | None, root_smoothing: float | None,
+                     foot_lock: bool | None) -> OutputConfig:
+    """The bundle's output settings with the caller's overrides (see :class:`Engine`)."""
+    if smoothing is None and root_smoothing is None:
+        rot, root = bundle.smoothing, bundle.root_smoothing
+    else:
+        rot = bundle.smoothing if smoothing is None else float(smoothing)
+        root = float(root_smoothing) if root_smoothing is not None else (None if smoothing is not None else bundle.root_smoothing)
+    return OutputConfig(rot, bundle.foot_lock if foot_lock is None else bool(foot_lock), root)
+
+
 def _cat_pose(items: list[PoseState]) -> PoseState:
     return PoseState(*(torch.cat([getattr(p, k) for p in items]) for k in ("rel", "vel", "rot", "root_xz")))
 
@@ -464,9 +474,11 @@ class CharacterBatch:
         post = self._post
         assert post is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])
-        if self.engine.output.smoothing > 0:
-            local, root = smooth_frame(local, root, post["prev_rot"], post["prev_root"],
-                                       smoothing_weight(self.engine.output.smoothing, remaining))
+        out = self.engine.output
+        if out.smooths:
+            fade = smoothing_weight(1.0, remaining)
+            local, root = smooth_frame(local, root, post["prev_rot"], post["prev_root"], out.smoothing * fade,
+                                       out.root_strength * fade)
         # Remembered before foot lock and exact arrival bend the frame: the filter follows the network's motion.
         post["prev_rot"], post["prev_root"] = local, root
         if self.engine.foot_lock is not None:

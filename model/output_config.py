@@ -12,22 +12,33 @@ from dataclasses import asdict, dataclass
 
 @dataclass(frozen=True)
 class OutputConfig:
-    """``smoothing``: the causal output filter's weight of the previous emitted frame, in [0, 1)
-    (0: off). ``foot_lock``: hold planted feet by leg IK."""
+    """``smoothing``: the causal output filter's weight of the previous emitted frame for the joint
+    rotations, in [0, 1) (0: off); ``root_smoothing``: the same for the root position (None: as
+    ``smoothing``). ``foot_lock``: hold planted feet by leg IK."""
 
     smoothing: float = 0.0
     foot_lock: bool = False
+    root_smoothing: float | None = None
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.smoothing < 1.0:
-            raise ValueError(f"output smoothing must be in [0, 1), got {self.smoothing}")
+        for name, value in (("output smoothing", self.smoothing), ("root smoothing", self.root_strength)):
+            if not 0.0 <= value < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {value}")
+
+    @property
+    def root_strength(self) -> float:
+        return self.smoothing if self.root_smoothing is None else self.root_smoothing
+
+    @property
+    def smooths(self) -> bool:
+        return self.smoothing > 0 or self.root_strength > 0
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> OutputConfig:
-        unknown = set(data) - {"smoothing", "foot_lock"}
+        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock"}
         if unknown:
             raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
         return cls(**data)

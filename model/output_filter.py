@@ -31,8 +31,9 @@ def smoothing_weight(strength: float, remaining: Tensor, fade: int = DEFAULT_FAD
 
 
 def smooth_frame(rotations: Tensor, roots: Tensor, previous_rotations: Tensor, previous_roots: Tensor,
-                 weight: Tensor) -> tuple[Tensor, Tensor]:
-    """Blend a frame towards the previous emitted one by ``weight [N]`` (0: the frame as it is).
+                 weight: Tensor, root_weight: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """Blend a frame towards the previous emitted one by ``weight [N]`` (0: the frame as it is); the
+    root by ``root_weight [N]`` (None: ``weight``).
 
     Args:
         rotations, previous_rotations: ``[N, J, 4]`` unit quaternions (local or global: the blend
@@ -43,4 +44,5 @@ def smooth_frame(rotations: Tensor, roots: Tensor, previous_rotations: Tensor, p
     # The previous frame's quaternions on this frame's hemisphere, so the blend takes the short way.
     sign = torch.where((rotations * previous_rotations).sum(-1, keepdim=True) < 0, -1.0, 1.0)
     rot = quat_normalize(torch.lerp(rotations, sign * previous_rotations, w.unsqueeze(-1)))
-    return rot, torch.lerp(roots, previous_roots, w)
+    wr = w if root_weight is None else root_weight.to(roots.dtype).view(-1, 1)
+    return rot, torch.lerp(roots, previous_roots, wr)

@@ -17,6 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--budget", type=float, default=8.0, metavar="S", help="seconds of throughput runs per model (default 8)")
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help="output filter strength for the bundle (default: the bundle's own)")
+    p.add_argument("--root-smoothing", type=float, default=None, metavar="B",
+                   help="output filter strength for the root (default: as --smoothing if given, else the bundle's own)")
     p.add_argument("--foot-lock", choices=("on", "off"), default=None,
                    help="foot locking for the bundle (default: the bundle's own)")
     p.add_argument("--no-paper", action="store_true", help="skip the paper-size network")
@@ -39,9 +41,10 @@ def _run(args: argparse.Namespace) -> int:
     bundle = Bundle.load(path)
     probe = machine_probe()
     foot_lock = None if args.foot_lock is None else args.foot_lock == "on"
-    engine = Engine(bundle, smoothing=args.smoothing, foot_lock=foot_lock)
+    engine = Engine(bundle, smoothing=args.smoothing, foot_lock=foot_lock, root_smoothing=args.root_smoothing)
     out = engine.output
-    label = f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}, foot lock {'on' if out.foot_lock else 'off'})"
+    label = (f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
+             f"foot lock {'on' if out.foot_lock else 'off'})")
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     if not args.no_paper:
         results.append(bench_engine(paper_size_engine(bundle), "paper-size, random weights", sizes, budget_s=args.budget))

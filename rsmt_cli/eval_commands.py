@@ -42,6 +42,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help="run bundles with this output-filter strength, 0 to 1 exclusive (default: each bundle's "
                         "own setting; 0 scores the network's raw frames)")
+    p.add_argument("--root-smoothing", type=float, default=None, metavar="B",
+                   help="output-filter strength for the root position (default: as --smoothing when that is given, "
+                        "else each bundle's own)")
     p.add_argument("--foot-lock", choices=("on", "off"), default=None,
                    help="run bundles with foot locking on or off (default: each bundle's own setting)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
@@ -65,10 +68,12 @@ def eval_command(args: argparse.Namespace) -> int:
     data = args.data or find_data_dir()
     if data is None:
         raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
-    if args.smoothing is not None and not 0.0 <= args.smoothing < 1.0:
-        raise ValueError("--smoothing must be in [0, 1)")
+    for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
+        if value is not None and not 0.0 <= value < 1.0:
+            raise ValueError(f"{flag} must be in [0, 1)")
     foot_lock = None if args.foot_lock is None else args.foot_lock == "on"
-    methods = [resolve_method(spec, args.batch, args.exact_arrival, args.smoothing, foot_lock) for spec in args.model]
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, args.smoothing, foot_lock, args.root_smoothing)
+               for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
@@ -104,6 +109,8 @@ def _command(args: argparse.Namespace) -> str:
         parts.append("--exact-arrival")
     if args.smoothing is not None:
         parts += ["--smoothing", f"{args.smoothing:g}"]
+    if args.root_smoothing is not None:
+        parts += ["--root-smoothing", f"{args.root_smoothing:g}"]
     if args.foot_lock is not None:
         parts += ["--foot-lock", args.foot_lock]
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),

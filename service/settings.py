@@ -41,6 +41,8 @@ class Settings(BaseSettings):
     warmup_max_batch: int = Field(64, ge=1, description="warm the batched step at 1, 2, 4, ... up to this many characters")
     output_smoothing: float | None = Field(
         None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
+    output_root_smoothing: float | None = Field(
+        None, ge=0, lt=1, description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
     foot_lock: bool | None = Field(None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
 
     # ------------------------------------------------------------------ style cache

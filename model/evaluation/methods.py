@@ -93,13 +93,13 @@ class BundleMethod(Method):
     stochastic = True
 
     def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
-                 smoothing: float | None = None, foot_lock: bool | None = None) -> None:
+                 smoothing: float | None = None, foot_lock: bool | None = None, root_smoothing: float | None = None) -> None:
         from model.bundle import Bundle
         from model.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)
-        self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock)
+        self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock, root_smoothing=root_smoothing)
         self.name = name or self.path.name
         self.batch = batch
         self.exact_arrival = exact_arrival
@@ -139,10 +139,11 @@ class BundleMethod(Method):
 
 
 def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smoothing: float | None = None,
-                   foot_lock: bool | None = None) -> Method:
+                   foot_lock: bool | None = None, root_smoothing: float | None = None) -> Method:
     """``interp``, ``zerovel``, ``gt`` or the path of a model bundle.
 
-    ``exact_arrival``, ``smoothing`` and ``foot_lock`` (None: the bundle's own) are the engine's options for bundles.
+    ``exact_arrival``, ``smoothing``, ``root_smoothing`` and ``foot_lock`` (None: the bundle's own) are the
+    engine's options for bundles.
     """
     if spec in BASELINES:
         return BaselineMethod(spec)
@@ -151,4 +152,5 @@ def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smo
     path = Path(spec)
     if not path.is_dir():
         raise FileNotFoundError(f"--model {spec!r} is neither {', '.join([*BASELINES, GROUND_TRUTH])} nor a bundle folder")
-    return BundleMethod(path, batch, exact_arrival=exact_arrival, smoothing=smoothing, foot_lock=foot_lock)
+    return BundleMethod(path, batch, exact_arrival=exact_arrival, smoothing=smoothing, foot_lock=foot_lock,
+                        root_smoothing=root_smoothing)

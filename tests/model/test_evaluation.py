@@ -212,7 +212,7 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=2))
     raw = BundleMethod(bundle_dir, smoothing=0.0, foot_lock=False)
     smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
-    assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True}
+    assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None}
     a = raw.generate(cs, Request(variant("gap10")))
     b = smooth.generate(cs, Request(variant("gap10")))
     assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way

@@ -149,3 +149,20 @@ def test_output_settings_are_saved_with_the_bundle(bundle, tmp_path):
     del cfg["output"]  # a bundle from before the setting existed: frames as the network makes them
     (tmp_path / "b" / "config.json").write_text(json.dumps(cfg))
     assert Bundle.load(tmp_path / "b").output == OutputConfig()
+
+
+def test_root_has_its_own_strength_and_overrides_combine(bundle):
+    rot, prev = _random_quats(2, J, seed=5), _random_quats(2, J, seed=6)
+    root, proot = torch.zeros(2, 3), torch.ones(2, 3)
+    r, p = smooth_frame(rot, root, prev, proot, torch.full((2,), 0.5), torch.full((2,), 0.2))
+    assert torch.allclose(p, torch.full((2, 3), 0.2))
+    assert torch.allclose(r, smooth_frame(rot, root, prev, proot, torch.full((2,), 0.5))[0])
+    with pytest.raises(ValueError, match="root smoothing"):
+        OutputConfig(smoothing=0.3, root_smoothing=1.0)
+    from dataclasses import replace
+
+    b = replace(bundle, output=OutputConfig(smoothing=0.5, root_smoothing=0.2))
+    assert Engine(b).output.root_strength == 0.2
+    assert Engine(b, smoothing=0.0).output == OutputConfig(0.0)  # one override turns the whole filter off
+    assert Engine(b, root_smoothing=0.1).output == OutputConfig(0.5, root_smoothing=0.1)
+    assert not Engine(b, smoothing=0.0).output.smooths
