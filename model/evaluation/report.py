@@ -106,6 +106,12 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
                   "ground truth of the same cases (other style: to ground truth of cases in the requested style); "
                   "the ground-truth row gives the distance between two halves of the ground truth, the floor at "
                   "this number of cases.", ""]
+        by_style = {GT_NAME: gt.get("style_accuracy_by_style"),
+                    **{name: m["variants"].get("gap40", {}).get("style_accuracy_by_style") for name, m in methods.items()}}
+        names = sorted({s for d in by_style.values() if d for s in d})
+        if names:
+            rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in by_style.items() if d]
+            lines += ["Same-style accuracy per requested style (40-frame gap):", "", *_table(["method", *names], rows), ""]
     else:
         lines += ["No style classifier given (`--classifier DIR`): no style accuracy or FMD.", ""]
     lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]

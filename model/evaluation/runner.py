@@ -117,6 +117,7 @@ def evaluate(
         if scorer is not None and v.gap == STYLE_GAP:
             logits, gt_features = scorer.classify(gt)
             row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
+            row["style_accuracy_by_style"] = scorer.accuracy_by_style(logits, scorer.labels(styles))
             # The noise floor of FMD at this many cases: ground truth against ground truth of other cases.
             row["fmd_split_half"] = scorer.fmd(gt_features[0::2], gt_features[1::2])
         gt_rows[v.name] = row
@@ -144,6 +145,7 @@ def evaluate(
             if scorer is not None and v.gap == STYLE_GAP:
                 logits, feats = scorer.classify(out)
                 row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
+                row["style_accuracy_by_style"] = scorer.accuracy_by_style(logits, scorer.labels(styles))
                 if v.has_ground_truth:
                     assert gt_features is not None
                     row["fmd"] = scorer.fmd(feats, gt_features)

@@ -56,6 +56,12 @@ class StyleScorer:
             return None
         return float((logits[known].argmax(-1) == labels[known]).float().mean())
 
+    def accuracy_by_style(self, logits: Tensor, labels: Tensor) -> dict[str, float]:
+        """Accuracy per requested style (the classifier's styles that occur in ``labels``)."""
+        pred = logits.argmax(-1)
+        return {name: float((pred[labels == i] == i).float().mean())
+                for name, i in self.index.items() if bool((labels == i).any())}
+
     @staticmethod
     def fmd(features: Tensor, reference: Tensor) -> float | None:
         if features.shape[0] < 2 or reference.shape[0] < 2:

@@ -177,6 +177,9 @@ def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bun
     gap40 = rows["gap40"]
     for key in ("style_accuracy", "style_accuracy_cross"):
         assert 0.0 <= gap40[key] <= 1.0
+    per_style = gap40["style_accuracy_by_style"]
+    assert set(per_style) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_style.values())
+    assert "Same-style accuracy per requested style" in stdout
     assert gap40["fmd"] >= 0 and gap40["fmd_cross"] >= 0
     assert 0.0 <= report["ground_truth"]["gap40"]["style_accuracy"] <= 1.0
     interp = report["methods"]["interp"]["variants"]
@@ -238,3 +241,16 @@ def test_styles_filter(dataset: tuple[Path, Path], cache: MotionCache, capsys: p
     assert "--styles " + one in report["command"]
     assert main(["eval", "--model", "interp", "--data", str(data), "--styles", "no-such-style", "--quiet"]) == 2
     assert "unknown style" in capsys.readouterr().err
+
+
+def test_accuracy_by_style_agrees_with_the_overall_accuracy() -> None:
+    from model.evaluation.style_scores import StyleScorer
+
+    scorer = StyleScorer.__new__(StyleScorer)  # only the style index is needed here
+    scorer.index = {"a": 0, "b": 1, "c": 2}
+    labels = torch.tensor([0, 0, 0, 1, 1, 2, -1])
+    logits = torch.nn.functional.one_hot(torch.tensor([0, 0, 1, 1, 0, 2, 0]), 3).float()
+    per = scorer.accuracy_by_style(logits, labels)
+    assert per == pytest.approx({"a": 2 / 3, "b": 1 / 2, "c": 1.0})
+    counts = {"a": 3, "b": 2, "c": 1}
+    assert sum(per[s] * n for s, n in counts.items()) / 6 == pytest.approx(StyleScorer.accuracy(logits, labels))
