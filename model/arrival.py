@@ -53,15 +53,7 @@ class ArrivalCorrector:
         self.window = window
         self.plant_speed = plant_speed_cm
         sk = skeleton
-        # Each leg: hip, knee, ankle (the ankle is the first joint of each foot role).
-        self.legs = []
-        for foot in (sk.roles.left_foot, sk.roles.right_foot):
-            ankle = foot[0]
-            knee = sk.parents[ankle]
-            hip = sk.parents[knee]
-            if hip < 0:
-                raise ValueError(f"the ankle {sk.names[ankle]!r} has no two-bone leg above it")
-            self.legs.append((hip, knee, ankle))
+        self.legs = sk.legs
         self.offsets = sk.offsets_tensor()
 
     def apply(self, rotations: Tensor, roots: Tensor, target_rotations: Tensor, target_roots: Tensor,

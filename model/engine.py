@@ -491,8 +491,7 @@ class CharacterBatch:
             chars = [self.members[i] for i in exact]
             t_rot = torch.stack([c._target_pose[0] for c in chars])  # type: ignore[index]
             t_root = torch.stack([c._target_pose[1] for c in chars])  # type: ignore[index]
-            remaining = torch.tensor([c.remaining - 1 for c in chars])
-            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining,
+            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining[idx],
                                                               [c.arrival for c in chars])  # type: ignore[misc]
             local, root = local.clone(), root.clone()
             local[idx], root[idx] = fixed_rot, fixed_root

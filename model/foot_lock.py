@@ -58,14 +58,7 @@ class FootLockState:
     offset: Tensor
     previous: Tensor
 
-    FIELDS = ("ground", "locked", "anchor", "offset", "previous")
-
-    def index(self, idx) -> FootLockState:
-        return FootLockState(*(getattr(self, f)[idx] for f in self.FIELDS))
-
-    @staticmethod
-    def cat(states: list[FootLockState]) -> FootLockState:
-        return FootLockState(*(torch.cat([getattr(s, f) for s in states]) for f in FootLockState.FIELDS))
+    FIELDS = ("ground", "locked", "anchor", "offset", "previous")  # the engine keeps them as rows of its batch
 
 
 class FootLock:
@@ -75,14 +68,10 @@ class FootLock:
         self.config = config or FootLockConfig()
         self.fps = fps
         sk = skeleton
-        chains = []  # root ... hip, knee, ankle of each leg
-        for foot in (sk.roles.left_foot, sk.roles.right_foot):
-            chain = [foot[0]]
-            while sk.parents[chain[0]] >= 0:
-                chain.insert(0, sk.parents[chain[0]])
-            if len(chain) < 4:
-                raise ValueError(f"the ankle {sk.names[foot[0]]!r} has no two-bone leg below the root")
-            chains.append(chain)
+        chains = [sk.chain_to(ankle) for _, _, ankle in sk.legs]  # root ... hip, knee, ankle of each leg
+        for chain in chains:
+            if len(chain) < 4:  # the hip's parent turns its new world rotation into a local one
+                raise ValueError(f"the ankle {sk.names[chain[-1]]!r} has no two-bone leg below the root")
         if len(chains[0]) != len(chains[1]):
             raise ValueError("foot lock needs legs of the same depth below the root")
         self.chain = torch.tensor(chains).T  # [depth, 2]: joint of each leg at each depth

@@ -231,6 +231,27 @@ class Skeleton:
     def mirror(self) -> tuple[int, ...]:
         return self.roles.mirror
 
+    @property
+    def legs(self) -> tuple[tuple[int, int, int], ...]:
+        """``(hip, knee, ankle)`` of the left leg, then the right: the ankle is each foot role's first
+        joint, the knee and hip its parent and grandparent (the two bones that leg IK bends)."""
+        legs = []
+        for foot in (self.roles.left_foot, self.roles.right_foot):
+            ankle = foot[0]
+            knee = self.parents[ankle]
+            hip = self.parents[knee] if knee >= 0 else -1
+            if hip < 0:
+                raise ValueError(f"the ankle {self.names[ankle]!r} has no two-bone leg above it")
+            legs.append((hip, knee, ankle))
+        return tuple(legs)
+
+    def chain_to(self, joint: int) -> tuple[int, ...]:
+        """The joints from the root down to ``joint``, both included."""
+        chain = [joint]
+        while self.parents[chain[-1]] >= 0:
+            chain.append(self.parents[chain[-1]])
+        return tuple(reversed(chain))
+
     @cached_property
     def children(self) -> tuple[tuple[int, ...], ...]:
         kids: list[list[int]] = [[] for _ in self.names]

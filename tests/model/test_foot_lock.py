@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from model.foot_lock import FootLock, FootLockConfig, FootLockState
+from model.foot_lock import FootLock, FootLockConfig
 from model.kinematics import forward_kinematics
 from model.synthetic import synthetic_walk
 
@@ -53,12 +53,13 @@ def test_planted_foot_is_held_then_released():
     # The right foot is 25 cm up: never locked, never moved.
     assert torch.allclose(held[:, 1], gen[:, 1], atol=1e-4)
     # Joints off the legs are untouched; the left foot keeps its world rotation.
-    legs = {13, 14, 15}
-    other = [j for j in range(sk.num_joints) if j not in legs]
+    left = set(sk.legs[0])
+    other = [j for j in range(sk.num_joints) if j not in left]
     assert torch.equal(out[:, other], rot[10:, other])
     _, g_out = forward_kinematics(out, root[10:], sk.offsets_tensor(), sk.parents)
     _, g_gen = forward_kinematics(rot[10:], root[10:], sk.offsets_tensor(), sk.parents)
-    dots = (g_out[:, 15] * g_gen[:, 15]).sum(-1).abs()
+    ankle = sk.legs[0][2]
+    dots = (g_out[:, ankle] * g_gen[:, ankle]).sum(-1).abs()
     assert torch.allclose(dots, torch.ones_like(dots), atol=1e-5)
 
 
@@ -73,12 +74,11 @@ def test_fast_foot_does_not_lock_and_arrival_is_untouched():
     assert not torch.allclose(out[5], rot[15], atol=1e-3)  # earlier frames were held
 
 
-def test_state_rows_stack_and_split():
-    sk, rot, root = _sliding_pose(12, speed_cm=0.5)
-    lock = FootLock(sk, 30.0)
-    a, b = lock.start(rot[:10], root[:10]), lock.start(rot[:10], root[:10] + 5.0)
-    both = FootLockState.cat([a, b])
-    assert both.anchor.shape == (2, 2, 3) and torch.equal(both.index(slice(1, 2)).anchor, b.anchor)
+def test_legs_come_from_the_skeleton():
+    sk, _, _ = _sliding_pose(2, speed_cm=0.0)
+    assert [tuple(sk.names[j] for j in leg) for leg in sk.legs] == [("UpperLeg_L", "LowerLeg_L", "Foot_L"),
+                                                                   ("UpperLeg_R", "LowerLeg_R", "Foot_R")]
+    assert sk.chain_to(sk.index("Foot_L")) == tuple(sk.index(n) for n in ("Hips", "UpperLeg_L", "LowerLeg_L", "Foot_L"))
 
 
 def test_config_is_validated():
