@@ -23,7 +23,6 @@ from model.compiled_step import CompiledStep
 from model.features import CanonicalFrame, local_frame_features
 from model.foot_lock import FootLock, FootLockState
 from model.kinematics import forward_kinematics, global_to_local_rotations
-from model.output_config import OutputConfig
 from model.output_filter import smooth_frame, smoothing_weight
 from model.representation import PoseState, state_from_positions
 from model.rotations import quat_normalize, quat_to_sixd, sixd_to_quat
@@ -106,7 +105,7 @@ class Engine:
         """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
         the root, :mod:`model.output_filter`) and ``foot_lock`` (:mod:`model.foot_lock`) override the
         bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too."""
-        self.output = _output_settings(bundle.output, smoothing, root_smoothing, foot_lock)
+        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock)
         if threads:
             torch.set_num_threads(threads)
         if compiled is None:
@@ -322,17 +321,6 @@ class Engine:
                 roots[ch.id].append(out.root_positions[i])
             batch.drop_finished()
         return [(torch.stack(rots[ch.id]), torch.stack(roots[ch.id])) for ch in characters]
-
-
-def _output_settings(bundle: OutputConfig, smoothing: float | None, root_smoothing: float | None,
-                     foot_lock: bool | None) -> OutputConfig:
-    """The bundle's output settings with the caller's overrides (see :class:`Engine`)."""
-    if smoothing is None and root_smoothing is None:
-        rot, root = bundle.smoothing, bundle.root_smoothing
-    else:
-        rot = bundle.smoothing if smoothing is None else float(smoothing)
-        root = float(root_smoothing) if root_smoothing is not None else (None if smoothing is not None else bundle.root_smoothing)
-    return OutputConfig(rot, bundle.foot_lock if foot_lock is None else bool(foot_lock), root)
 
 
 def _cat_pose(items: list[PoseState]) -> PoseState:

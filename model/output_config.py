@@ -33,6 +33,17 @@ class OutputConfig:
     def smooths(self) -> bool:
         return self.smoothing > 0 or self.root_strength > 0
 
+    def with_overrides(self, smoothing: float | None = None, root_smoothing: float | None = None,
+                       foot_lock: bool | None = None) -> OutputConfig:
+        """These settings with a caller's overrides (None keeps a setting). Once either strength is
+        given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value."""
+        if smoothing is not None or root_smoothing is not None:
+            rot = self.smoothing if smoothing is None else float(smoothing)
+            root = None if root_smoothing is None else float(root_smoothing)
+        else:
+            rot, root = self.smoothing, self.root_smoothing
+        return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root)
+
     def to_dict(self) -> dict:
         return asdict(self)
 
