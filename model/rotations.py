@@ -298,7 +298,9 @@ def quat_between(u: Tensor, v: Tensor) -> Tensor:
     ey[..., 1] = 1.0
     other = torch.where(u[..., :1].abs() < 0.9, ex, ey)
     perp = torch.linalg.cross(u, other, dim=-1)
-    opposite = w < 1e-7
+    # Only where 1 + u.v is lost in rounding is the cross product no guide: a fixed threshold (1e-7
+    # used to be) snapped directions up to 4.5e-4 rad short of opposite onto exactly -u.
+    opposite = w <= torch.finfo(w.dtype).eps
     axis = torch.where(opposite, perp, axis)
     w = torch.where(opposite, torch.zeros_like(w), w)
     return quat_normalize(torch.cat([axis, w], dim=-1))

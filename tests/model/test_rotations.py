@@ -161,6 +161,13 @@ def test_between(u, v):
     assert torch.allclose(R.quat_rotate(q, u / u.norm()), v / v.norm(), atol=1e-7)
 
 
+def test_between_nearly_opposite():
+    # Found by hypothesis: 1.2e-7 rad short of opposite, which the old 1e-7 threshold on 1 + u.v sent to -u.
+    u = torch.tensor([0.5, 0.0, 5.9605e-08], dtype=torch.float64)
+    v = torch.tensor([-1.0, 0.0, 0.0], dtype=torch.float64)
+    assert torch.allclose(R.quat_rotate(R.quat_between(u, v), u / u.norm()), v, atol=1e-9)
+
+
 def test_between_opposite():
     u = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype=torch.float64)
     q = R.quat_between(u, -u)
