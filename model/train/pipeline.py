@@ -122,34 +122,45 @@ def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> Pre
     return PreparedData(cache, train, val, data_dir, split)
 
 
-def style_critic(cfg: TrainConfig, data: PreparedData, folder: Path,
-                 progress: bool = True) -> tuple[StyleClassifier, float | None]:
-    """The frozen style classifier behind the sampler's style loss, trained once per run (about a minute).
+def style_critics(cfg: TrainConfig, data: PreparedData, run_dir: Path,
+                  progress: bool = True) -> tuple[list[StyleClassifier], float | None]:
+    """The frozen style classifiers behind the sampler's style loss, one per ``critic_inputs`` entry,
+    each trained once per run (about a minute) and kept in the run folder.
 
-    Returns the critic and the seconds spent training it (None when reloaded from ``folder``).
+    Returns the critics and the seconds spent training them (None when all were reloaded). The
+    first lives in ``critic/`` (where runs with a single critic keep it), the others in
+    ``critic-<inputs>/``.
 
-    It learns from the run's training split only, with its own input selection and seed; the
-    evaluation classifier (``rsmt train classifier``) is a separate network, so a sampler cannot be
-    tuned to the very network that scores it.
+    They learn from the run's training split only, each with its own seed; the evaluation
+    classifier (``rsmt train classifier``) is a separate network, so a sampler cannot be tuned to
+    the very network that scores it.
     """
-    began = time.monotonic()
     stage = cfg.sampler_stage
     styles = [s for s in data.cache.styles if s not in cfg.holdout_styles]
-    config = StyleClassifierConfig(styles=styles, joints=data.train.skeleton.num_joints, inputs=stage.critic_inputs)
-    if (folder / "weights.safetensors").is_file():
-        critic = StyleClassifier.load(folder)
-        if critic.config.to_dict() == config.to_dict():
-            return critic, None
-        log.info("style critic in %s has another config; training a new one", folder)
-    settings = TrainSettings(epochs=stage.critic_epochs, iterations=stage.critic_iterations, seed=cfg.seed + 1)
-    train = build_windows(data.cache, data.split.train, config.window, settings.step, settings.mirror, styles, progress,
-                          "critic windows")
-    val = build_windows(data.cache, data.split.val, config.window, settings.eval_step, False, styles, progress,
-                        "critic val windows")
-    result = train_classifier(train, val, config, settings, progress, report=log.info)
-    result.model.save(folder, {"role": "style critic of the sampler's style loss", "best_epoch": result.best_epoch,
-                               "history": result.history, "seconds": round(result.seconds, 1)})
-    return result.model, time.monotonic() - began
+    critics, seconds = [], None
+    windows = None  # built once, for the first critic that has to be trained
+    for i, inputs in enumerate(stage.critic_inputs):
+        folder = run_dir / ("critic" if i == 0 else f"critic-{inputs}")
+        config = StyleClassifierConfig(styles=styles, joints=data.train.skeleton.num_joints, inputs=inputs)
+        if (folder / "weights.safetensors").is_file():
+            critic = StyleClassifier.load(folder)
+            if critic.config.to_dict() == config.to_dict():
+                critics.append(critic)
+                continue
+            log.info("style critic in %s has another config; training a new one", folder)
+        began = time.monotonic()
+        settings = TrainSettings(epochs=stage.critic_epochs, iterations=stage.critic_iterations, seed=cfg.seed + 1 + i)
+        if windows is None:
+            windows = (build_windows(data.cache, data.split.train, config.window, settings.step, settings.mirror, styles,
+                                     progress, "critic windows"),
+                       build_windows(data.cache, data.split.val, config.window, settings.eval_step, False, styles,
+                                     progress, "critic val windows"))
+        result = train_classifier(*windows, config, settings, progress, report=log.info)
+        result.model.save(folder, {"role": "style critic of the sampler's style loss", "best_epoch": result.best_epoch,
+                                   "history": result.history, "seconds": round(result.seconds, 1)})
+        critics.append(result.model)
+        seconds = (seconds or 0.0) + time.monotonic() - began
+    return critics, seconds
 
 
 def _save_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
@@ -246,16 +257,16 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
 
     bundle = None
     if "sampler" in stages:
-        critic = None
+        critics: list[StyleClassifier] = []
         if cfg.sampler_stage.w_style > 0:
-            critic, seconds = style_critic(cfg, data, run_dir / "critic", progress)
+            critics, seconds = style_critics(cfg, data, run_dir, progress)
             if seconds is not None:  # trained now, not reloaded from the run folder
                 timings["critic_s"] = round(seconds, 1)
         t0 = time.monotonic()
         torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
         sampler = TransitionSampler(cfg.sampler, manifold.decoder)
         sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev,
-                                        critic)
+                                        critics)
         if not result.finished:
             return None
         timings["sampler_s"] = round(time.monotonic() - t0, 1)

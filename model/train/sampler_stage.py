@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -52,7 +53,9 @@ class SamplerStageConfig:
     w_foot_height: float = 0.0  # horizontal speed of generated feet at their ground height (planted_foot_speed)
     w_style: float = 0.0  # cross-entropy of the style critic on generated frames (0: no critic)
     cross_batch: int = 0  # windows per step with a style clip of another style (need w_style)
-    critic_inputs: str = "dynamics"  # the critic's input selection (model.style_classifier.INPUTS, velocity-based)
+    # Each critic's input selection (model.style_classifier.INPUTS, velocity-based); the style loss is
+    # their mean, so generated motion has to satisfy critics that read it differently, not one net's blind spots.
+    critic_inputs: tuple[str, ...] = ("dynamics",)
     critic_epochs: int = 6
     critic_iterations: int = 150
     style_loss_min_frames: int = 16  # shorter transitions get no style loss: too short to show a style
@@ -60,9 +63,14 @@ class SamplerStageConfig:
     validation_transition: int = 40
 
     def __post_init__(self) -> None:
-        if self.critic_inputs not in CRITIC_INPUTS:
+        if isinstance(self.critic_inputs, str):  # configs written before critics became a list
+            self.critic_inputs = (self.critic_inputs,)
+        self.critic_inputs = tuple(self.critic_inputs)
+        bad = [c for c in self.critic_inputs if c not in CRITIC_INPUTS]
+        if bad or not self.critic_inputs or len(set(self.critic_inputs)) != len(self.critic_inputs):
             # Critics read positions only (critic_logits): no gradient through 6D-to-quaternion conversions.
-            raise ValueError(f"critic_inputs must be one of {', '.join(CRITIC_INPUTS)}, got {self.critic_inputs!r}")
+            raise ValueError(f"critic_inputs must be distinct selections among {', '.join(CRITIC_INPUTS)}, "
+                             f"got {list(self.critic_inputs)!r}")
         if self.cross_batch < 0:
             raise ValueError("cross_batch must be 0 or more")
 
@@ -129,26 +137,28 @@ def _fk_from_states(rot6: Tensor, root_pos: Tensor, tensors: MotionTensors) -> T
     return forward_kinematics(local, root_pos, sk.offsets_tensor().to(rot6.device), sk.parents)[0]
 
 
-def critic_logits(critic: StyleClassifier, positions: Tensor, skeleton: Skeleton) -> Tensor:
-    """The critic's logits for canonical world positions ``[B, T+1, J, 3]`` (the last context frame first).
+def critic_logits(critics: Sequence[StyleClassifier], positions: Tensor, skeleton: Skeleton) -> list[Tensor]:
+    """Each critic's logits for canonical world positions ``[B, T+1, J, 3]`` (the last context frame first).
 
     Critics read positions only (their inputs are velocity-based), so identity rotations stand in
     and no gradient has to pass through a 6D-to-quaternion conversion.
     """
     rot = positions.new_zeros(*positions.shape[:-1], 4)
     rot[..., 0] = 1.0
-    return critic(motion_features(positions, rot, skeleton))
+    features = motion_features(positions, rot, skeleton)
+    return [critic(features) for critic in critics]
 
 
 def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor,
                       length: int, cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool,
-                      critic: StyleClassifier | None = None, critic_labels: Tensor | None = None,
+                      critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None,
                       ground_truth: bool = True, ground: Tensor | None = None) -> dict[str, Tensor]:
     """Generate ``length`` frames for every window of ``batch`` and score them.
 
     With ``ground_truth`` False (style clips of another style than the content's) only what needs
-    no ground-truth in-between is scored: reaching the target, and the critic's style loss.
-    ``critic_labels`` are the critic's class per window (-1: a style it does not know). ``ground``
+    no ground-truth in-between is scored: reaching the target, and the critics' style loss (their
+    mean cross-entropy; ``style_acc`` is their mean accuracy). ``critic_labels`` are the critics'
+    class per window (-1: a style they do not know; all critics share one style list). ``ground``
     (the foot joints' ground levels, cm) adds the ``foot_height`` loss, which needs no ground truth.
     """
     c = model.config
@@ -192,12 +202,13 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     frames = torch.cat([before[:, 1:], pred_fk], 1)  # the last context frame, then the generated ones
     if ground is not None:
         out["foot_height"] = planted_foot_speed(frames, feet, ground)
-    if critic is not None and critic_labels is not None and length >= cfg.style_loss_min_frames:
+    if critics and critic_labels is not None and length >= cfg.style_loss_min_frames:
         known = critic_labels >= 0
         if known.any():
-            logits = critic_logits(critic, frames[known], tensors.skeleton)
-            out["style"] = nn.functional.cross_entropy(logits, critic_labels[known])
-            out["style_acc"] = (logits.argmax(-1) == critic_labels[known]).float().mean()
+            labels = critic_labels[known]
+            logits = critic_logits(critics, frames[known], tensors.skeleton)
+            out["style"] = torch.stack([nn.functional.cross_entropy(x, labels) for x in logits]).mean()
+            out["style_acc"] = torch.stack([(x.argmax(-1) == labels).float().mean() for x in logits]).mean()
     if not ground_truth:
         return out
     pos_l, rot_l, ph_l, foot_l = [], [], [], []
@@ -231,11 +242,11 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
 
 def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSampler, stage: SamplerStageConfig,
                   folder: Path, progress: bool = True, device: torch.device | str = "auto",
-                  critic: StyleClassifier | None = None) -> tuple[TransitionSampler, LoopResult]:
+                  critics: Sequence[StyleClassifier] = ()) -> tuple[TransitionSampler, LoopResult]:
     """Train every sampler module except the decoder, which stays frozen (gradients flow through it).
 
     ``model`` is moved to ``device`` (in place) and stays there. With ``stage.w_style`` above 0,
-    ``critic`` (a style classifier trained on the training split, frozen) adds a style loss on the
+    ``critics`` (style classifiers trained on the training split, frozen) add a style loss on the
     generated frames, and ``stage.cross_batch`` windows per step get a style clip of another style
     (no ground truth: only the target and the critic's loss apply to them).
     """
@@ -258,16 +269,20 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     val_sets = [vpairs.sample(16, vgen) for _ in range(4)]
     use_critic = stage.w_style > 0
     if use_critic:
-        if critic is None:
+        if not critics:
             raise ValueError("w_style > 0 needs a style critic")
-        if critic.config.inputs not in CRITIC_INPUTS:
-            raise ValueError(f"the style critic must read velocities only ({', '.join(CRITIC_INPUTS)}), "
-                             f"not {critic.config.inputs!r}")
-        critic.to(dev).eval()
-        for p in critic.parameters():
-            p.requires_grad_(False)
-        # The critic's class of each of the data's style ids (-1: a style it was not trained on).
-        class_of = torch.tensor([critic.styles.index(n) if n in critic.styles else -1 for n in train.styles])
+        for critic in critics:
+            if critic.config.inputs not in CRITIC_INPUTS:
+                raise ValueError(f"a style critic must read velocities only ({', '.join(CRITIC_INPUTS)}), "
+                                 f"not {critic.config.inputs!r}")
+            if critic.styles != critics[0].styles:
+                raise ValueError("the style critics must share one list of styles")
+            critic.to(dev).eval()
+            for p in critic.parameters():
+                p.requires_grad_(False)
+        # The critics' class of each of the data's style ids (-1: a style they were not trained on).
+        known_styles = critics[0].styles
+        class_of = torch.tensor([known_styles.index(n) if n in known_styles else -1 for n in train.styles])
 
     ground = ground_levels(train.positions, list(train.skeleton.feet)).to(dev) if stage.w_foot_height > 0 else None
 
@@ -293,7 +308,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         extra = i >= stage.extra_losses_from
         styled = use_critic and extra
         losses = transition_losses(model, train, batch, features_of(style_starts, train), length, stage, gen, True,
-                                   critic if styled else None, labels_of(train.style[owners]),
+                                   critics if styled else (), labels_of(train.style[owners]),
                                    ground=ground if extra else None)
         total = weighted_sum(losses, weights if extra else base_weights)
         shown = {k: v.item() for k, v in losses.items() if k in ("pos", "fk_error_cm", "last_fk_error_cm", "foot", "phase",
@@ -301,7 +316,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         if styled and stage.cross_batch > 0 and length >= stage.style_loss_min_frames:
             xs, xo, xclips, xstyle = pairs.sample_cross(stage.cross_batch, gen)
             xb = make_batch(train, xs, xo, c.context + length, c.context - 1)
-            xl = transition_losses(model, train, xb, features_of(xclips, train), length, stage, gen, True, critic,
+            xl = transition_losses(model, train, xb, features_of(xclips, train), length, stage, gen, True, critics,
                                    labels_of(torch.full((len(xs),), xstyle)), ground_truth=False, ground=ground)
             if "style_acc" in xl:
                 shown["cross_acc"] = xl["style_acc"].item()
@@ -315,7 +330,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
             length = stage.validation_transition
             batch = make_batch(val, starts, owners, c.context + length, c.context - 1)
             out = transition_losses(model, val, batch, features_of(style_starts, val), length, stage, None, False,
-                                    critic if use_critic else None, labels_of(val.style[owners]), ground=ground)
+                                    critics if use_critic else (), labels_of(val.style[owners]), ground=ground)
             for k, v in out.items():
                 sums[k] = sums.get(k, 0.0) + v.item() / len(val_sets)
         return {k: sums[k] for k in ("fk_error_cm", "last_fk_error_cm", "foot", "phase", "estimator", "acc", "style_acc",

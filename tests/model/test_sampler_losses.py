@@ -69,6 +69,9 @@ def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
 
     from model.train.sampler_stage import SamplerStageConfig
 
-    with pytest.raises(ValueError, match="critic_inputs"):
-        SamplerStageConfig(critic_inputs="pose")
-    assert SamplerStageConfig(critic_inputs="velocity").critic_inputs == "velocity"
+    for bad in ("pose", ["velocity", "pose"], [], ["velocity", "velocity"]):
+        with pytest.raises(ValueError, match="critic_inputs"):
+            SamplerStageConfig(critic_inputs=bad)
+    # A single name (configs written before critics became a list) is one critic.
+    assert SamplerStageConfig(critic_inputs="velocity").critic_inputs == ("velocity",)
+    assert SamplerStageConfig(critic_inputs=["dynamics", "acceleration"]).critic_inputs == ("dynamics", "acceleration")

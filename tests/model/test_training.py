@@ -113,15 +113,17 @@ def test_train_smoke_on_cuda_writes_a_cpu_bundle(tmp_path, monkeypatch, capsys):
     assert Bundle.load(tmp_path / "bundle-gpu").version == bundle.version
 
 
-def test_style_loss_trains_a_critic_and_uses_cross_style_pairs(tmp_path, monkeypatch):
-    """With ``w_style`` the run trains its own style critic (once: a rerun reuses it), the sampler's
-    steps score same-style and cross-style transitions with it from ``extra_losses_from`` on, with
+def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypatch):
+    """With ``w_style`` the run trains its own style critics, one per input selection (once: a rerun
+    reuses them), the sampler's steps score same-style and cross-style transitions with them from
+    ``extra_losses_from`` on, with
     the velocity, acceleration and foot-height losses, and the bundle still loads."""
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
     write_synthetic_dataset(data)
     cfg = json.loads((PRESET_DIR / "smoke.json").read_text())
     cfg["sampler_stage"].update(w_style=0.5, cross_batch=4, critic_epochs=1, critic_iterations=5,
+                                critic_inputs=["dynamics", "acceleration"],
                                 style_loss_min_frames=3, w_vel=1.0, w_acc=1.0, w_foot_height=1.0, extra_losses_from=3)
     path = tmp_path / "style.json"
     path.write_text(json.dumps(cfg))
@@ -130,14 +132,17 @@ def test_style_loss_trains_a_critic_and_uses_cross_style_pairs(tmp_path, monkeyp
     assert main(args) == 0
     critic = StyleClassifier.load(tmp_path / "run" / "critic")
     assert critic.config.inputs == "dynamics" and sorted(critic.styles) == sorted(SYNTHETIC_STYLES)
+    second = StyleClassifier.load(tmp_path / "run" / "critic-acceleration")
+    assert second.config.inputs == "acceleration" and second.styles == critic.styles
     history = json.loads((tmp_path / "run" / "sampler" / "checkpoint.json").read_text())["history"]
     assert {"train_style_acc", "val_style_acc", "train_acc", "val_foot_height"} <= set(history[-1])
     assert "train_style_acc" not in history[0]  # the first epoch ends before extra_losses_from
     assert Bundle.load(tmp_path / "bundle").sampler is not None
-    stamp = (tmp_path / "run" / "critic" / "weights.safetensors").stat().st_mtime_ns
+    stamps = [(tmp_path / "run" / d / "weights.safetensors").stat().st_mtime_ns for d in ("critic", "critic-acceleration")]
     (tmp_path / "run" / "sampler" / "checkpoint.json").unlink()  # retrain the sampler only
     assert main(args) == 0
-    assert (tmp_path / "run" / "critic" / "weights.safetensors").stat().st_mtime_ns == stamp
+    assert [(tmp_path / "run" / d / "weights.safetensors").stat().st_mtime_ns
+            for d in ("critic", "critic-acceleration")] == stamps
 
 
 def test_cross_style_pairs_differ_in_style():
