@@ -144,7 +144,7 @@ def critic_logits(critics: Sequence[StyleClassifier], positions: Tensor, skeleto
     and no gradient has to pass through a 6D-to-quaternion conversion.
     """
     rot = positions.new_zeros(*positions.shape[:-1], 4)
-    rot[..., 0] = 1.0
+    rot[..., 3] = 1.0  # x, y, z, w
     features = motion_features(positions, rot, skeleton)
     return [critic(features) for critic in critics]
 

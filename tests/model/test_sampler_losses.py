@@ -75,3 +75,23 @@ def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
     # A single name (configs written before critics became a list) is one critic.
     assert SamplerStageConfig(critic_inputs="velocity").critic_inputs == ("velocity",)
     assert SamplerStageConfig(critic_inputs=["dynamics", "acceleration"]).critic_inputs == ("dynamics", "acceleration")
+
+
+def test_critic_logits_match_the_critics_own_features_of_the_real_motion():
+    """The critics read velocities only, so the stand-in rotations of ``critic_logits`` must change
+    nothing against the real rotations; and every critic of the list answers."""
+    from model.kinematics import forward_kinematics
+    from model.style_classifier import StyleClassifier, StyleClassifierConfig, motion_features
+    from model.synthetic import synthetic_walk
+    from model.train.sampler_stage import critic_logits
+
+    clip = synthetic_walk(frames=41)
+    sk = clip.skeleton
+    pos, grot = forward_kinematics(clip.rotations.float(), clip.root_positions.float(), sk.offsets_tensor(), sk.parents)
+    torch.manual_seed(0)
+    critics = [StyleClassifier(StyleClassifierConfig(styles=["a", "b"], joints=sk.num_joints, inputs=i)).eval()
+               for i in ("dynamics", "acceleration")]
+    got = critic_logits(critics, pos[None], sk)
+    assert len(got) == 2
+    for critic, logits in zip(critics, got):
+        assert torch.allclose(logits, critic(motion_features(pos[None], grot[None], sk)), atol=1e-5)
