@@ -7,10 +7,11 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from rsmt_cli import bench_commands, client_commands, data_commands, eval_commands, serve_commands, train_commands, finetune_commands
+from rsmt_cli import average_commands, bench_commands, client_commands, data_commands, eval_commands, serve_commands, train_commands, finetune_commands
 
 # Each command group module exposes ``register(subparsers)``; later groups are appended here.
-GROUPS = [data_commands, train_commands, bench_commands, serve_commands, eval_commands, finetune_commands, client_commands]
+GROUPS = [data_commands, train_commands, bench_commands, serve_commands, eval_commands, finetune_commands, average_commands,
+          client_commands]
 
 
 def build_parser() -> argparse.ArgumentParser:
