@@ -133,7 +133,8 @@ def style_critics(cfg: TrainConfig, data: PreparedData, run_dir: Path,
 
     They learn from the run's training split only, each with its own seed; the evaluation
     classifier (``rsmt train classifier``) is a separate network, so a sampler cannot be tuned to
-    the very network that scores it.
+    the very network that scores it (though a critic may read the same inputs as the evaluation
+    classifier, as the default model's acceleration critic does: docs/evaluation.md).
     """
     stage = cfg.sampler_stage
     styles = [s for s in data.cache.styles if s not in cfg.holdout_styles]

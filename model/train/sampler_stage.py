@@ -8,8 +8,8 @@ same style. ``L`` follows a curriculum from short to long transitions.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
