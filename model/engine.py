@@ -19,13 +19,13 @@ import torch
 from model.arrival import ArrivalCorrector, ArrivalState
 from model.bundle import Bundle
 from model.clip import Clip
-from model.compiled_step import CompiledStep
+from model.compiled_step import CompiledStep, CompiledWorldPose, world_pose
 from model.features import CanonicalFrame, local_frame_features
 from model.foot_lock import FootLock, FootLockState
 from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.output_filter import smooth_frame, smoothing_weight
 from model.representation import PoseState, state_from_positions
-from model.rotations import quat_normalize, quat_to_sixd, sixd_to_quat
+from model.rotations import quat_normalize, quat_to_sixd
 from model.sampler import SamplerState, StyleContext
 from model.skeleton import Skeleton
 from model.style_cache import LRUCache, clip_content_hash
@@ -122,6 +122,10 @@ class Engine:
         self.arrival = ArrivalCorrector(self.skeleton)
         # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager.
         self.step_fn = CompiledStep(self.sampler) if compiled else (lambda st, sty: self.sampler.step(st, sty)[0])
+        # The frame's conversion to world-space local rotations, traced with it (a quarter of a frame at batch 1 eager).
+        parents, root = list(self.skeleton.parents), self.skeleton.roles.root
+        self.world_fn = CompiledWorldPose(self.skeleton) if compiled else (
+            lambda pose, yaw, origin: world_pose(pose.rot, pose.rel, pose.root_xz, yaw, origin, parents, root))
         self._ids = itertools.count()
 
     # ------------------------------------------------------------------ description
@@ -454,11 +458,7 @@ class CharacterBatch:
             raise ValueError("no live characters to step")
         assert self._state is not None and self._style is not None
         self._state = self.engine.step_fn(self._state, self._style)
-        pose = self._state.pose
-        frame = CanonicalFrame(self._yaw, self._origin)  # type: ignore[arg-type]
-        grot = frame.rotations_from(sixd_to_quat(pose.rot))
-        root = frame.positions_from(pose.positions()[:, self.engine.skeleton.roles.root])
-        local = global_to_local_rotations(grot, self.engine.skeleton.parents)
+        local, root = self.engine.world_fn(self._state.pose, self._yaw, self._origin)  # type: ignore[arg-type]
         post = self._post
         assert post is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])
