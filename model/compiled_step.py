@@ -73,16 +73,12 @@ class CompiledStep:
         self.failed = self._graph is None
 
 
-def world_pose(rot6: Tensor, rel: Tensor, root_xz: Tensor, yaw: Tensor, origin: Tensor, parents: list[int],
-               root: int) -> tuple[Tensor, Tensor]:
-    """A generated pose in world space: local quaternions ``[N, J, 4]`` and root positions ``[N, 3]``.
-
-    ``rot6``, ``rel`` and ``root_xz`` are a :class:`PoseState`'s fields (canonical frame), ``yaw``
-    and ``origin`` each row's :class:`CanonicalFrame`.
-    """
+def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int], root: int) -> tuple[Tensor, Tensor]:
+    """A generated pose (canonical frame) in world space: local quaternions ``[N, J, 4]`` and root
+    positions ``[N, 3]``, for each row's :class:`CanonicalFrame` ``yaw [N]`` and ``origin [N, 3]``."""
     frame = CanonicalFrame(yaw, origin)
-    grot = frame.rotations_from(sixd_to_quat(rot6))
-    root_pos = frame.positions_from(PoseState(rel, rel, rot6, root_xz).positions()[:, root])
+    grot = frame.rotations_from(sixd_to_quat(pose.rot))
+    root_pos = frame.positions_from(pose.positions()[:, root])
     return global_to_local_rotations(grot, parents), root_pos
 
 
@@ -91,30 +87,31 @@ class _WorldPose(torch.nn.Module):
         super().__init__()
         self.parents, self.root = parents, root
 
-    def forward(self, rot6: Tensor, rel: Tensor, root_xz: Tensor, yaw: Tensor, origin: Tensor) -> tuple[Tensor, Tensor]:
-        return world_pose(rot6, rel, root_xz, yaw, origin, self.parents, self.root)
+    def forward(self, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, yaw: Tensor,
+                origin: Tensor) -> tuple[Tensor, Tensor]:
+        return world_pose(PoseState(rel, vel, rot, root_xz), yaw, origin, self.parents, self.root)
 
 
 class CompiledWorldPose:
-    """:func:`world_pose` through a traced graph, built on first use (eager if tracing fails).
+    """:func:`world_pose` for one skeleton; with ``traced`` through a graph built on first use
+    (eager if tracing fails).
 
     At batch 1 the conversion is about 40 small operations: 0.23 ms eager on the development
     machine, a quarter of a whole frame, which tracing cuts like the step's own dispatch cost.
     """
 
-    def __init__(self, skeleton: Skeleton) -> None:
+    def __init__(self, skeleton: Skeleton, traced: bool = True) -> None:
         self.parents, self.root = list(skeleton.parents), skeleton.roles.root
         self._graph: torch.jit.ScriptModule | None = None
-        self.failed = False
+        self.failed = not traced
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor) -> tuple[Tensor, Tensor]:
-        args = (pose.rot, pose.rel, pose.root_xz, yaw, origin)
         if self._graph is None and not self.failed:
-            self._graph = _trace(_WorldPose(self.parents, self.root), args)
+            self._graph = _trace(_WorldPose(self.parents, self.root), (pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin))
             self.failed = self._graph is None
         if self._graph is None:
-            return world_pose(*args, self.parents, self.root)
-        local, root = self._graph(*args)
+            return world_pose(pose, yaw, origin, self.parents, self.root)
+        local, root = self._graph(pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin)
         return local, root
 
 

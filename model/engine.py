@@ -19,7 +19,7 @@ import torch
 from model.arrival import ArrivalCorrector, ArrivalState
 from model.bundle import Bundle
 from model.clip import Clip
-from model.compiled_step import CompiledStep, CompiledWorldPose, world_pose
+from model.compiled_step import CompiledStep, CompiledWorldPose
 from model.features import CanonicalFrame, local_frame_features
 from model.foot_lock import FootLock, FootLockState
 from model.kinematics import forward_kinematics, global_to_local_rotations
@@ -123,9 +123,7 @@ class Engine:
         # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager.
         self.step_fn = CompiledStep(self.sampler) if compiled else (lambda st, sty: self.sampler.step(st, sty)[0])
         # The frame's conversion to world-space local rotations, traced with it (a quarter of a frame at batch 1 eager).
-        parents, root = list(self.skeleton.parents), self.skeleton.roles.root
-        self.world_fn = CompiledWorldPose(self.skeleton) if compiled else (
-            lambda pose, yaw, origin: world_pose(pose.rot, pose.rel, pose.root_xz, yaw, origin, parents, root))
+        self.world_fn = CompiledWorldPose(self.skeleton, traced=compiled)
         self._ids = itertools.count()
 
     # ------------------------------------------------------------------ description

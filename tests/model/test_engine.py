@@ -189,6 +189,8 @@ def test_traced_step_matches_eager(walk):
         if compiled:
             assert not eng.step_fn.failed and eng.step_fn._graph is not None
             assert not eng.world_fn.failed and eng.world_fn._graph is not None  # the world-space conversion too
+        else:
+            assert eng.world_fn._graph is None
     (e1, e3), (c1, c3) = results
     for a, b in zip(e1 + e3, c1 + c3):
         assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)
