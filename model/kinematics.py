@@ -54,8 +54,8 @@ def forward_kinematics(
 
 def global_to_local_rotations(global_rotations: Tensor, parents: Sequence[int]) -> Tensor:
     """Parent-relative rotations ``q_local[j] = q_global[parent]^-1 * q_global[j]`` ``[..., J, 4]``."""
-    idx = torch.tensor([max(p, 0) for p in parents], device=global_rotations.device)
-    parent_rot = global_rotations.index_select(-2, idx)
+    # A list index rather than a tensor made here: traced (model.compiled_step), it stays a constant quietly.
+    parent_rot = global_rotations[..., [max(p, 0) for p in parents], :]
     local = quat_mul(quat_conjugate(parent_rot), global_rotations)
     return torch.cat([global_rotations[..., :1, :], local[..., 1:, :]], dim=-2)
 
