@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from rsmt_cli.output_arguments import add_output_arguments, output_overrides
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("bench", help="per-frame latency, throughput, style encoding time, memory",
@@ -15,12 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     p.add_argument("--batch-sizes", default="1,8,32,128,512", help="concurrent characters to measure (comma-separated)")
     p.add_argument("--budget", type=float, default=8.0, metavar="S", help="seconds of throughput runs per model (default 8)")
-    p.add_argument("--smoothing", type=float, default=None, metavar="A",
-                   help="output filter strength for the bundle (default: the bundle's own)")
-    p.add_argument("--root-smoothing", type=float, default=None, metavar="B",
-                   help="output filter strength for the root (default: as --smoothing if given, else the bundle's own)")
-    p.add_argument("--foot-lock", choices=("on", "off"), default=None,
-                   help="foot locking for the bundle (default: the bundle's own)")
+    add_output_arguments(p, "the bundle")
     p.add_argument("--no-paper", action="store_true", help="skip the paper-size network")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON here")
     p.set_defaults(func=_run)
@@ -40,8 +37,7 @@ def _run(args: argparse.Namespace) -> int:
     path = args.model or DEFAULT_BUNDLE
     bundle = Bundle.load(path)
     probe = machine_probe()
-    foot_lock = None if args.foot_lock is None else args.foot_lock == "on"
-    engine = Engine(bundle, smoothing=args.smoothing, foot_lock=foot_lock, root_smoothing=args.root_smoothing)
+    engine = Engine(bundle, **output_overrides(args))
     out = engine.output
     label = (f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
              f"foot lock {'on' if out.foot_lock else 'off'})")

@@ -8,6 +8,7 @@ import shlex
 from pathlib import Path
 
 from model.data_dir import find_data_dir
+from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,14 +40,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", type=int, default=128, help="transitions generated together by a bundle (default 128)")
     p.add_argument("--exact-arrival", action="store_true",
                    help="run bundles with the engine's exact-arrival option (the last frames bend onto the target)")
-    p.add_argument("--smoothing", type=float, default=None, metavar="A",
-                   help="run bundles with this output-filter strength, 0 to 1 exclusive (default: each bundle's "
-                        "own setting; 0 scores the network's raw frames)")
-    p.add_argument("--root-smoothing", type=float, default=None, metavar="B",
-                   help="output-filter strength for the root position (default: as --smoothing when that is given, "
-                        "else each bundle's own)")
-    p.add_argument("--foot-lock", choices=("on", "off"), default=None,
-                   help="run bundles with foot locking on or off (default: each bundle's own setting)")
+    add_output_arguments(p, "each bundle")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     p.add_argument("--json", action="store_true", help="print the JSON report instead of the Markdown tables")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -68,12 +62,8 @@ def eval_command(args: argparse.Namespace) -> int:
     data = args.data or find_data_dir()
     if data is None:
         raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
-    for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
-        if value is not None and not 0.0 <= value < 1.0:
-            raise ValueError(f"{flag} must be in [0, 1)")
-    foot_lock = None if args.foot_lock is None else args.foot_lock == "on"
-    methods = [resolve_method(spec, args.batch, args.exact_arrival, args.smoothing, foot_lock, args.root_smoothing)
-               for spec in args.model]
+    overrides = output_overrides(args)
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, **overrides) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,

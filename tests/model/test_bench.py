@@ -23,3 +23,10 @@ def test_bench_smoke():
     probe = machine_probe(seconds=0.2)
     table = format_table([res], probe)
     assert "| tiny |" in table and "GFLOP/s" in table
+
+
+def test_bench_refuses_an_output_strength_out_of_range_naming_the_flag(capsys):
+    from rsmt_cli.main import main
+
+    assert main(["bench", "--no-paper", "--root-smoothing", "1.0"]) == 2
+    assert "--root-smoothing must be in [0, 1)" in capsys.readouterr().err

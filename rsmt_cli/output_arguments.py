@@ -1,0 +1,28 @@
+"""The engine's output-step flags, shared by ``rsmt eval`` and ``rsmt bench``."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
+    """``--smoothing``, ``--root-smoothing`` and ``--foot-lock``; ``owner`` names whose settings they
+    override in the help ("each bundle", "the bundle")."""
+    p.add_argument("--smoothing", type=float, default=None, metavar="A",
+                   help=f"output-filter strength, in [0, 1) (default: {owner}'s own setting; 0 gives the network's "
+                        "raw frames)")
+    p.add_argument("--root-smoothing", type=float, default=None, metavar="B",
+                   help=f"output-filter strength for the root position (default: as --smoothing when that is given, "
+                        f"else {owner}'s own)")
+    p.add_argument("--foot-lock", choices=("on", "off"), default=None,
+                   help=f"foot locking on or off (default: {owner}'s own setting)")
+
+
+def output_overrides(args: argparse.Namespace) -> dict[str, float | bool | None]:
+    """The flags as :class:`model.engine.Engine` keyword arguments (None: the bundle's own), checked
+    here so that an error names the flag."""
+    for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
+        if value is not None and not 0.0 <= value < 1.0:
+            raise ValueError(f"{flag} must be in [0, 1)")
+    return {"smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
+            "foot_lock": None if args.foot_lock is None else args.foot_lock == "on"}
