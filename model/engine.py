@@ -19,7 +19,7 @@ import torch
 from model.arrival import ArrivalCorrector, ArrivalState
 from model.bundle import Bundle
 from model.clip import Clip
-from model.compiled_step import CompiledStep, CompiledWorldPose
+from model.compiled_step import CompiledFootLock, CompiledStep, CompiledWorldPose
 from model.features import CanonicalFrame, local_frame_features
 from model.foot_lock import FootLock, FootLockState
 from model.kinematics import forward_kinematics, global_to_local_rotations
@@ -116,7 +116,6 @@ class Engine:
             p.requires_grad_(False)
         self.skeleton: Skeleton = bundle.skeleton
         self.config = bundle.config
-        self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
         self._offsets = self.skeleton.offsets_tensor()
         self.arrival = ArrivalCorrector(self.skeleton)
@@ -124,6 +123,9 @@ class Engine:
         self.step_fn = CompiledStep(self.sampler) if compiled else (lambda st, sty: self.sampler.step(st, sty)[0])
         # The frame's conversion to world-space local rotations, traced with it (a quarter of a frame at batch 1 eager).
         self.world_fn = CompiledWorldPose(self.skeleton, traced=compiled)
+        # Foot locking, traced likewise: eager it costs as much as the network's step at batch 1.
+        self.foot_lock = (CompiledFootLock(FootLock(self.skeleton, self.config.fps), traced=compiled)
+                          if self.output.foot_lock else None)
         self._ids = itertools.count()
 
     # ------------------------------------------------------------------ description

@@ -78,6 +78,7 @@ class FootLock:
         offsets = skeleton.offsets_tensor()
         self.chain_offsets = offsets[self.chain]  # [depth, 2, 3]
         self.hip, self.knee, self.ankle = self.chain[-3], self.chain[-2], self.chain[-1]
+        self.leg_joints = self.chain[-3:].reshape(-1)  # hips, knees, ankles: the joints the lock rewrites
 
     def _legs_fk(self, rotations: Tensor, roots: Tensor) -> tuple[Tensor, Tensor]:
         """World positions ``[N, depth, 2, 3]`` and rotations ``[N, depth, 2, 4]`` along both legs' chains."""
@@ -106,12 +107,15 @@ class FootLock:
         return FootLockState(ground, locked.view(1, 2), last.view(1, 2, 3).clone(), torch.zeros(1, 2, 3),
                              last.view(1, 2, 3).clone())
 
-    def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState) -> tuple[Tensor, FootLockState]:
+    def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState,
+              skip_idle: bool = True) -> tuple[Tensor, FootLockState]:
         """Lock the feet of one frame of ``N`` characters; returns new local rotations and state.
 
         Args:
             rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots (world).
             remaining: ``[N]`` frames left after this one (0 on the arrival frame).
+            skip_idle: return early when no foot needs moving (eager use); False keeps the
+                operations independent of the data, as a traced graph needs.
         """
         c = self.config
         pos, grot = self._legs_fk(rotations, roots)
@@ -129,14 +133,13 @@ class FootLock:
         offset = torch.where(locked.unsqueeze(-1), anchor - ank, state.offset * (1.0 - c.catch_up) * fade)
         new_state = FootLockState(state.ground, locked, anchor, offset, ank)
         move = offset.norm(dim=-1) > 1e-4  # [N, 2]
-        if not bool(move.any()):
+        if skip_idle and not bool(move.any()):
             return rotations, new_state
         hip_w, knee_w, ankle_w = grot[:, -3], grot[:, -2], grot[:, -1]
         new_hip, new_knee = two_bone_ik(pos[:, -3], pos[:, -2], ank, hip_w, knee_w, ank + offset)
         # Local rotations from the new world ones; the ankle keeps its world rotation (the foot stays flat).
-        m = move.unsqueeze(-1)
-        out = rotations.clone()
-        out[:, self.hip] = torch.where(m, quat_mul(quat_conjugate(grot[:, -4]), new_hip), rotations[:, self.hip])
-        out[:, self.knee] = torch.where(m, quat_mul(quat_conjugate(new_hip), new_knee), rotations[:, self.knee])
-        out[:, self.ankle] = torch.where(m, quat_mul(quat_conjugate(new_knee), ankle_w), rotations[:, self.ankle])
-        return out, new_state
+        parents_w = torch.cat([grot[:, -4], new_hip, new_knee], 1)  # [N, 6, 4]: hips, knees, ankles of both legs
+        local = quat_mul(quat_conjugate(parents_w), torch.cat([new_hip, new_knee, ankle_w], 1))
+        moved = torch.where(move.repeat(1, 3).unsqueeze(-1), local, rotations[:, self.leg_joints])
+        # index_copy rather than indexed assignment: a traced graph keeps it generic in the batch size.
+        return rotations.index_copy(1, self.leg_joints, moved), new_state

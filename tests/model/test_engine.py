@@ -179,7 +179,7 @@ def test_traced_step_matches_eager(walk):
     bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
     results = []
     for compiled in (False, True):
-        eng = Engine(bundle, compiled=compiled)
+        eng = Engine(bundle, compiled=compiled, foot_lock=True)
         short, _ = eng.encode_style(walk.window(0, 40))
         long, _ = eng.encode_style(walk.window(10, 150))
         # Traced at batch 1 with one style length, then run at batch 3 with mixed lengths.
@@ -189,8 +189,9 @@ def test_traced_step_matches_eager(walk):
         if compiled:
             assert not eng.step_fn.failed and eng.step_fn._graph is not None
             assert not eng.world_fn.failed and eng.world_fn._graph is not None  # the world-space conversion too
+            assert eng.foot_lock is not None and eng.foot_lock._graph is not None  # and the foot lock
         else:
-            assert eng.world_fn._graph is None
+            assert eng.world_fn._graph is None and eng.foot_lock is not None and eng.foot_lock._graph is None
     (e1, e3), (c1, c3) = results
     for a, b in zip(e1 + e3, c1 + c3):
         assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)

@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from model.foot_lock import FootLock, FootLockConfig
+from model.compiled_step import CompiledFootLock
+from model.foot_lock import FootLock, FootLockConfig, FootLockState
 from model.kinematics import forward_kinematics
 from model.synthetic import synthetic_walk
 
@@ -31,9 +32,13 @@ def _run(lock: FootLock, rot, root, context: int, remaining_end: int = 100):
     return torch.stack(out), state
 
 
+# The mechanics below are checked with these settings; the shipped defaults are tuned on data.
+MECHANICS = FootLockConfig(contact_cm=3.0, lift_cm=5.0, release_cm=10.0, catch_up=0.5, rejoin_cm=1.0)
+
+
 def test_planted_foot_is_held_then_released():
     sk, rot, root = _sliding_pose(50, speed_cm=0.5, still=9)  # a still context: the left foot is planted
-    lock = FootLock(sk, 30.0)
+    lock = FootLock(sk, 30.0, MECHANICS)
     out, _ = _run(lock, rot, root, context=10)
     gen = lock.ankles(rot[10:], root[10:])
     held = lock.ankles(out, root[10:])
@@ -65,13 +70,41 @@ def test_planted_foot_is_held_then_released():
 
 def test_fast_foot_does_not_lock_and_arrival_is_untouched():
     sk, rot, root = _sliding_pose(30, speed_cm=4.0)  # 120 cm/s: a foot moving that fast is not planted
-    lock = FootLock(sk, 30.0)
+    lock = FootLock(sk, 30.0, MECHANICS)
     out, state = _run(lock, rot, root, context=10)
     assert torch.equal(out, rot[10:]) and not state.locked.any()
     sk, rot, root = _sliding_pose(30, speed_cm=0.5)
     out, _ = _run(lock, rot, root, context=10, remaining_end=0)  # the last frame is the arrival frame
     assert torch.allclose(out[-1], rot[-1], atol=1e-6)
     assert not torch.allclose(out[5], rot[15], atol=1e-3)  # earlier frames were held
+
+
+def test_traced_lock_matches_eager_at_any_batch():
+    # Three characters sliding at different speeds (held, released, never locked), one frame at a
+    # time; the graph is traced on a first call at batch 1, then run at batch 3.
+    speeds = (0.5, 1.5, 4.0)
+    poses = [_sliding_pose(40, speed_cm=v, still=9) for v in speeds]
+    sk = poses[0][0]
+    rot = torch.stack([p[1] for p in poses], 1)  # [T, 3, J, 4]
+    root = torch.stack([p[2] for p in poses], 1)
+    eager, traced = FootLock(sk, 30.0, MECHANICS), CompiledFootLock(FootLock(sk, 30.0, MECHANICS))
+    one = eager.start(rot[:10, 0], root[:10, 0])
+    traced.apply(rot[10, :1], root[10, :1], torch.tensor([20]), one)
+    assert traced._graph is not None
+
+    def run(lock) -> tuple[torch.Tensor, FootLockState]:
+        starts = [lock.start(rot[:10, i], root[:10, i]) for i in range(3)]
+        state = FootLockState(*(torch.cat([getattr(s, f) for s in starts]) for f in FootLockState.FIELDS))
+        out = []
+        for t in range(10, 40):
+            r, state = lock.apply(rot[t], root[t], torch.full((3,), 39 - t), state)
+            out.append(r)
+        return torch.stack(out), state
+
+    (e_out, e_state), (t_out, t_state) = run(eager), run(traced)
+    assert torch.allclose(e_out, t_out, atol=1e-5)
+    assert torch.equal(e_state.locked, t_state.locked) and torch.allclose(e_state.anchor, t_state.anchor, atol=1e-4)
+    assert e_state.locked.any() or not torch.equal(e_out, rot[10:])  # the lock did something to compare
 
 
 def test_legs_come_from_the_skeleton():

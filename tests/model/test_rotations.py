@@ -109,6 +109,26 @@ def test_mul_matches_matrix_product(a, b):
     assert torch.allclose(R.quat_to_matrix(R.quat_mul(a, b)), R.quat_to_matrix(a) @ R.quat_to_matrix(b), atol=1e-9)
 
 
+def test_mul_broadcasts_and_keeps_dtype():
+    a = R.quat_normalize(torch.randn(5, 3, 4, dtype=torch.float64))
+    b = R.quat_normalize(torch.randn(3, 4, dtype=torch.float64))
+    out = R.quat_mul(a, b)
+    assert out.shape == (5, 3, 4) and out.dtype == torch.float64
+    assert torch.allclose(R.quat_mul(a[2, 1], b[1]), out[2, 1])
+    assert R.quat_mul(a.float(), b.float()).dtype == torch.float32
+
+
+def test_mul_first_used_in_inference_mode_still_trains():
+    # The product's constant table is cached per dtype; one made inside inference mode would break backward.
+    dtype = torch.float64
+    R._hamilton_tables.pop((dtype, torch.device("cpu")), None)
+    with torch.inference_mode():
+        R.quat_mul(torch.randn(2, 4, dtype=dtype), torch.randn(2, 4, dtype=dtype))
+    a = torch.randn(3, 4, dtype=dtype, requires_grad=True)
+    R.quat_mul(a, a.detach()).sum().backward()
+    assert a.grad is not None and torch.isfinite(a.grad).all()
+
+
 @given(quats(), st.lists(finite, min_size=3, max_size=3))
 def test_rotate_matches_matrix(q, v):
     vec = torch.tensor(v, dtype=torch.float64).expand(len(q), 3)
