@@ -1,5 +1,5 @@
-"""The sampler's per-frame step, its conversion to world space and the foot lock, traced to
-TorchScript: the fastest path measured on this CPU.
+"""The sampler's per-frame step, and what happens to each frame before it leaves (world space,
+output filter, foot lock), traced to TorchScript: the fastest path measured on this CPU.
 
 At batch 1 a step is a few dozen small operations, so Python dispatch costs as much as the
 arithmetic: tracing halves it (0.70 -> 0.36 ms per step on the 2-core development machine, with
@@ -19,6 +19,8 @@ import torch
 
 from model.features import CanonicalFrame
 from model.foot_lock import FootLock, FootLockState
+from model.output_config import OutputConfig
+from model.output_filter import smooth_frame, smoothing_weight
 from model.kinematics import global_to_local_rotations
 from model.representation import PoseState
 from model.rotations import sixd_to_quat
@@ -83,76 +85,77 @@ def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int],
     return global_to_local_rotations(grot, parents), root_pos
 
 
-class _WorldPose(torch.nn.Module):
-    def __init__(self, parents: list[int], root: int) -> None:
-        super().__init__()
-        self.parents, self.root = parents, root
+class FrameOutput:
+    """What happens to a generated frame before it leaves, for one skeleton and output settings:
+    to world space, the output filter (:mod:`model.output_filter`), then the foot lock.
 
-    def forward(self, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, yaw: Tensor,
-                origin: Tensor) -> tuple[Tensor, Tensor]:
-        return world_pose(PoseState(rel, vel, rot, root_xz), yaw, origin, self.parents, self.root)
-
-
-class CompiledWorldPose:
-    """:func:`world_pose` for one skeleton; with ``traced`` through a graph built on first use
-    (eager if tracing fails).
-
-    At batch 1 the conversion is about 40 small operations: 0.23 ms eager on the development
-    machine, a quarter of a whole frame, which tracing cuts like the step's own dispatch cost.
+    Each character's memory is a dict of named rows ``[N, ...]`` (:attr:`keys`): the previous
+    emitted frame for the filter, and the lock's state. Eager and traced paths share this code.
     """
 
-    def __init__(self, skeleton: Skeleton, traced: bool = True) -> None:
+    def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None) -> None:
         self.parents, self.root = list(skeleton.parents), skeleton.roles.root
-        self._graph: torch.jit.ScriptModule | None = None
-        self.failed = not traced
+        self.output, self.lock = output, lock
+        self.keys = ("prev_rot", "prev_root") + (tuple(f"lock_{f}" for f in FootLockState.FIELDS) if lock else ())
 
-    def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor) -> tuple[Tensor, Tensor]:
-        if self._graph is None and not self.failed:
-            self._graph = _trace(_WorldPose(self.parents, self.root), (pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin))
-            self.failed = self._graph is None
-        if self._graph is None:
-            return world_pose(pose, yaw, origin, self.parents, self.root)
-        local, root = self._graph(pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin)
-        return local, root
+    def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
+                 skip_idle: bool = True) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Local rotations ``[N, J, 4]``, root positions ``[N, 3]`` and the new memory, for rows with
+        ``remaining [N]`` frames after this one."""
+        local, root = world_pose(pose, yaw, origin, self.parents, self.root)
+        out = self.output
+        if out.smooths:
+            fade = smoothing_weight(1.0, remaining)
+            local, root = smooth_frame(local, root, memory["prev_rot"], memory["prev_root"], out.smoothing * fade,
+                                       out.root_strength * fade)
+        # Remembered before the foot lock (and the engine's exact arrival) bend the frame: the filter
+        # follows the network's motion.
+        new = {"prev_rot": local, "prev_root": root}
+        if self.lock is not None:
+            state = FootLockState(*(memory[f"lock_{f}"] for f in FootLockState.FIELDS))
+            local, state = self.lock.apply(local, root, remaining, state, skip_idle=skip_idle)
+            new.update({f"lock_{f}": getattr(state, f) for f in FootLockState.FIELDS})
+        return local, root, new
 
 
-class _FlatFootLock(torch.nn.Module):
-    def __init__(self, lock: FootLock) -> None:
+class _FlatFrameOutput(torch.nn.Module):
+    def __init__(self, fn: FrameOutput) -> None:
         super().__init__()
-        self.lock = lock
+        self.fn = fn
 
-    def forward(self, rotations: Tensor, roots: Tensor, remaining: Tensor, ground: Tensor, locked: Tensor,
-                anchor: Tensor, offset: Tensor, previous: Tensor) -> tuple[Tensor, ...]:
-        out, st = self.lock.apply(rotations, roots, remaining, FootLockState(ground, locked, anchor, offset, previous),
-                                  skip_idle=False)
-        return out, st.locked, st.anchor, st.offset, st.previous
+    def forward(self, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, yaw: Tensor, origin: Tensor,
+                remaining: Tensor, *memory: Tensor) -> tuple[Tensor, ...]:
+        local, root, new = self.fn(PoseState(rel, vel, rot, root_xz), yaw, origin, remaining,
+                                   dict(zip(self.fn.keys, memory)), skip_idle=False)
+        return (local, root, *(new[k] for k in self.fn.keys))
 
 
-class CompiledFootLock:
-    """:meth:`FootLock.apply` through a graph traced on first use (eager if tracing fails or ``traced`` is False).
+class CompiledFrameOutput:
+    """:class:`FrameOutput` through one graph traced on first use (eager if tracing fails or
+    ``traced`` is False).
 
-    Eager, the lock is about 300 small operations (leg kinematics, two-bone IK, local rotations):
-    0.8-1.1 ms at batch 1 on the development machine, as much as the network's step. Traced, it
-    always runs the IK (no early return when no foot is held), which costs less than the dispatch it saves.
+    At batch 1 these steps are a few hundred small operations (world space about 40, the filter 15,
+    the foot lock about 240), bound by dispatch: eager they cost as much as the network's step
+    (0.23-0.30 ms without the lock, about 1 ms with it on the development machine). One graph also
+    pays the call overhead once. Traced, the foot lock always runs its IK (no early return when no
+    foot is held), which costs less than the dispatch it saves.
     """
 
-    def __init__(self, lock: FootLock, traced: bool = True) -> None:
-        self.lock = lock
+    def __init__(self, fn: FrameOutput, traced: bool = True) -> None:
+        self.fn = fn
         self._graph: torch.jit.ScriptModule | None = None
         self.failed = not traced
 
-    def start(self, rotations: Tensor, roots: Tensor) -> FootLockState:
-        return self.lock.start(rotations, roots)
-
-    def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState) -> tuple[Tensor, FootLockState]:
-        args = (rotations, roots, remaining, state.ground, state.locked, state.anchor, state.offset, state.previous)
+    def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor,
+                 memory: dict[str, Tensor]) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        args = (pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin, remaining, *(memory[k] for k in self.fn.keys))
         if self._graph is None and not self.failed:
-            self._graph = _trace(_FlatFootLock(self.lock), args)
+            self._graph = _trace(_FlatFrameOutput(self.fn), args)
             self.failed = self._graph is None
         if self._graph is None:
-            return self.lock.apply(rotations, roots, remaining, state)
-        out, locked, anchor, offset, previous = self._graph(*args)
-        return out, FootLockState(state.ground, locked, anchor, offset, previous)
+            return self.fn(pose, yaw, origin, remaining, memory)
+        local, root, *rest = self._graph(*args)
+        return local, root, dict(zip(self.fn.keys, rest))
 
 
 def _trace(module: torch.nn.Module, args: tuple[Tensor, ...]) -> torch.jit.ScriptModule | None:

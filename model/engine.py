@@ -19,11 +19,10 @@ import torch
 from model.arrival import ArrivalCorrector, ArrivalState
 from model.bundle import Bundle
 from model.clip import Clip
-from model.compiled_step import CompiledFootLock, CompiledStep, CompiledWorldPose
+from model.compiled_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.features import CanonicalFrame, local_frame_features
 from model.foot_lock import FootLock, FootLockState
 from model.kinematics import forward_kinematics, global_to_local_rotations
-from model.output_filter import smooth_frame, smoothing_weight
 from model.representation import PoseState, state_from_positions
 from model.rotations import quat_normalize, quat_to_sixd
 from model.sampler import SamplerState, StyleContext
@@ -122,10 +121,9 @@ class Engine:
         # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager.
         self.step_fn = CompiledStep(self.sampler) if compiled else (lambda st, sty: self.sampler.step(st, sty)[0])
         # The frame's conversion to world-space local rotations, traced with it (a quarter of a frame at batch 1 eager).
-        self.world_fn = CompiledWorldPose(self.skeleton, traced=compiled)
-        # Foot locking, traced likewise: eager it costs as much as the network's step at batch 1.
-        self.foot_lock = (CompiledFootLock(FootLock(self.skeleton, self.config.fps), traced=compiled)
-                          if self.output.foot_lock else None)
+        self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
+        # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
+        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock), traced=compiled)
         self._ids = itertools.count()
 
     # ------------------------------------------------------------------ description
@@ -458,21 +456,11 @@ class CharacterBatch:
             raise ValueError("no live characters to step")
         assert self._state is not None and self._style is not None
         self._state = self.engine.step_fn(self._state, self._style)
-        local, root = self.engine.world_fn(self._state.pose, self._yaw, self._origin)  # type: ignore[arg-type]
         post = self._post
         assert post is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])
-        out = self.engine.output
-        if out.smooths:
-            fade = smoothing_weight(1.0, remaining)
-            local, root = smooth_frame(local, root, post["prev_rot"], post["prev_root"], out.smoothing * fade,
-                                       out.root_strength * fade)
-        # Remembered before foot lock and exact arrival bend the frame: the filter follows the network's motion.
-        post["prev_rot"], post["prev_root"] = local, root
-        if self.engine.foot_lock is not None:
-            lock = FootLockState(*(post[f"lock_{f}"] for f in FootLockState.FIELDS))
-            local, lock = self.engine.foot_lock.apply(local, root, remaining, lock)
-            post.update({f"lock_{f}": getattr(lock, f) for f in FootLockState.FIELDS})
+        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post)  # type: ignore[arg-type]
+        post.update(memory)
         exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
         if exact:
             idx = torch.tensor(exact)

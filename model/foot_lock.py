@@ -30,11 +30,14 @@ Tensor = torch.Tensor
 
 @dataclass(frozen=True)
 class FootLockConfig:
-    contact_cm: float = 3.0  # ankle height above the ground under which a slow foot locks
-    lift_cm: float = 5.0  # ankle height above the ground at which a locked foot lets go
+    # Defaults chosen on the validation split with the default model (docs/evaluation.md): tighter
+    # contact and release than a first guess (3 / 5 / 10 cm, catch-up 0.5) hold the feet as well
+    # and no longer cost style accuracy, since the leg is bent less far and lets go more gently.
+    contact_cm: float = 1.5  # ankle height above the ground under which a slow foot locks
+    lift_cm: float = 3.0  # ankle height above the ground at which a locked foot lets go
     plant_speed_cm_s: float = 60.0  # horizontal ankle speed under which a low foot counts as planted
-    release_cm: float = 10.0  # drift of the generated ankle from the lock at which it lets go
-    catch_up: float = 0.5  # share of the held offset removed each frame after a release
+    release_cm: float = 3.0  # drift of the generated ankle from the lock at which it lets go
+    catch_up: float = 0.3  # share of the held offset removed each frame after a release
     rejoin_cm: float = 1.0  # a released foot locks again only once it is this close to the generated one
     fade: int = 5  # frames before arrival from which no lock starts and the offset fades out
 
