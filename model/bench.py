@@ -82,7 +82,7 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
     style_clip = walk.window(20, 20 + min(120, c.style_frames_max))
     res = BenchResult(name, per_frame_parameters(engine.bundle))
     times = []
-    for i in range(5):
+    for _ in range(5):
         engine.styles.delete(engine.style_id(style_clip))
         t0 = time.perf_counter()
         style, _ = engine.encode_style(style_clip)

@@ -19,9 +19,9 @@ import torch
 
 from model.features import CanonicalFrame
 from model.foot_lock import FootLock, FootLockState
+from model.kinematics import global_to_local_rotations
 from model.output_config import OutputConfig
 from model.output_filter import smooth_frame, smoothing_weight
-from model.kinematics import global_to_local_rotations
 from model.representation import PoseState
 from model.rotations import sixd_to_quat
 from model.sampler import SamplerState, StyleContext, TransitionSampler

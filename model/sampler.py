@@ -330,7 +330,6 @@ class TransitionSampler(nn.Module):
         return state
 
     def _core(self, state: SamplerState, style: StyleContext) -> tuple[Tensor, Tensor, Tensor]:
-        c = self.config
         pe = self.time_code(state.tta)
         s = self.state_in(self.state_encoder(state.pose.vector()))
         s = self.act(FiLM.apply(s, style.gamma1, style.beta1))

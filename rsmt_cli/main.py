@@ -7,7 +7,16 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from rsmt_cli import average_commands, bench_commands, client_commands, data_commands, eval_commands, serve_commands, train_commands, finetune_commands
+from rsmt_cli import (
+    average_commands,
+    bench_commands,
+    client_commands,
+    data_commands,
+    eval_commands,
+    finetune_commands,
+    serve_commands,
+    train_commands,
+)
 
 # Each command group module exposes ``register(subparsers)``; later groups are appended here.
 GROUPS = [data_commands, train_commands, bench_commands, serve_commands, eval_commands, finetune_commands, average_commands,

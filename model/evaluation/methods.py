@@ -22,8 +22,8 @@ import torch
 from tqdm import tqdm
 
 from model.baselines import interpolate, zero_velocity
-from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
 from model.clip import Clip
+from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
 
 Tensor = torch.Tensor
 

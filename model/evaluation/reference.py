@@ -19,13 +19,12 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
+from model.evaluation.cases import CASE_STEP, LAST_CONTEXT, SPAN
 from model.features import CanonicalFrame
 from model.kinematics import forward_kinematics
 from model.metrics import PositionStats, ground_levels
 from model.motion_cache import MotionCache
 from model.rotations import quat_normalize
-
-from model.evaluation.cases import CASE_STEP, LAST_CONTEXT, SPAN
 
 Tensor = torch.Tensor
 

@@ -20,8 +20,18 @@ import torch
 from tqdm import tqdm
 
 from model import metrics
-from model.evaluation.cases import (CASE_STEP, CONTEXT, GAP_VARIANTS, SPAN, STYLE_CLIP_FRAMES, VARIANTS, CaseSet,
-                                    Variant, build_cases, stable_hash)
+from model.evaluation.cases import (
+    CASE_STEP,
+    CONTEXT,
+    GAP_VARIANTS,
+    SPAN,
+    STYLE_CLIP_FRAMES,
+    VARIANTS,
+    CaseSet,
+    Variant,
+    build_cases,
+    stable_hash,
+)
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
 from model.evaluation.scoring import ground_truth_transitions, score, to_canonical

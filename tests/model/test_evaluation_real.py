@@ -9,7 +9,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import torch
 
 from model.classifier_training import TrainSettings, build_windows, check_classifier, train_classifier
 from model.evaluation import EvalSettings, evaluate, resolve_method

@@ -8,7 +8,15 @@ import torch
 
 from model.bundle import Bundle, BundleError
 from model.manifold import ManifoldConfig, ManifoldDecoder, MixtureLinear, MotionManifold
-from model.phase import PeriodicAutoencoder, PhaseConfig, PhaseEstimator, advance_phase, blend_phase, label_phases, phase_vectors
+from model.phase import (
+    PeriodicAutoencoder,
+    PhaseConfig,
+    PhaseEstimator,
+    advance_phase,
+    blend_phase,
+    label_phases,
+    phase_vectors,
+)
 from model.representation import PoseState, state_dim, state_from_positions
 from model.sampler import SamplerConfig, SamplerState, StyleContext, TransitionSampler
 from model.synthetic import synthetic_skeleton

@@ -8,11 +8,16 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.classifier_training import (TrainSettings, baseline_windows, build_windows, check_classifier,
-                                       train_classifier)
+from model.classifier_training import TrainSettings, baseline_windows, build_windows, check_classifier, train_classifier
 from model.motion_cache import MotionCache, load_motion_cache
-from model.style_classifier import (INPUTS, ClassifierError, StyleClassifier, StyleClassifierConfig, input_channels,
-                                    select_inputs)
+from model.style_classifier import (
+    INPUTS,
+    ClassifierError,
+    StyleClassifier,
+    StyleClassifierConfig,
+    input_channels,
+    select_inputs,
+)
 from model.synthetic import write_synthetic_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
