@@ -120,7 +120,6 @@ class Engine:
         self.arrival = ArrivalCorrector(self.skeleton)
         # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager.
         self.step_fn = CompiledStep(self.sampler) if compiled else (lambda st, sty: self.sampler.step(st, sty)[0])
-        # The frame's conversion to world-space local rotations, traced with it (a quarter of a frame at batch 1 eager).
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
         self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock), traced=compiled)
