@@ -18,6 +18,7 @@ from torch import nn
 from model.features import local_frame_features
 from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.metrics import ground_contact_weight, ground_levels
+from model.representation import PoseState
 from model.rotations import sixd_to_quat
 from model.sampler import TransitionSampler
 from model.skeleton import Skeleton
@@ -53,6 +54,13 @@ class SamplerStageConfig:
     w_foot_height: float = 0.0  # horizontal speed of generated feet at their ground height (planted_foot_speed)
     w_style: float = 0.0  # cross-entropy of the style critic on generated frames (0: no critic)
     cross_batch: int = 0  # windows per step with a style clip of another style (need w_style)
+    # Windows per step with changed controls, scored without ground truth (reaching the target, feet,
+    # critics): half get a duration scaled by a factor in [1/control_dt, control_dt], half a target
+    # moved by x times the window's own root travel, x in [-control_shift, control_shift] (the
+    # evaluation's d = 2 and d = -1 are x = 1 and x = -2). Natural windows alone never ask for either.
+    control_batch: int = 0
+    control_dt: float = 2.0
+    control_shift: float = 2.0
     # Each critic's input selection (model.style_classifier.INPUTS, velocity-based); the style loss is
     # their mean, so generated motion has to satisfy critics that read it differently, not one net's blind spots.
     critic_inputs: tuple[str, ...] = ("dynamics",)
@@ -71,8 +79,10 @@ class SamplerStageConfig:
             # Critics read positions only (critic_logits): no gradient through 6D-to-quaternion conversions.
             raise ValueError(f"critic_inputs must be distinct selections among {', '.join(CRITIC_INPUTS)}, "
                              f"got {list(self.critic_inputs)!r}")
-        if self.cross_batch < 0:
-            raise ValueError("cross_batch must be 0 or more")
+        if self.cross_batch < 0 or self.control_batch < 0:
+            raise ValueError("cross_batch and control_batch must be 0 or more")
+        if self.control_dt < 1.0 or self.control_shift < 0.0:
+            raise ValueError("control_dt must be at least 1 and control_shift at least 0")
 
 
 def style_statistics(tensors: MotionTensors, frames: int, samples: int = 2048, seed: int = 0) -> tuple[Tensor, Tensor]:
@@ -152,8 +162,12 @@ def critic_logits(critics: Sequence[StyleClassifier], positions: Tensor, skeleto
 def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor,
                       length: int, cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool,
                       critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None,
-                      ground_truth: bool = True, ground: Tensor | None = None) -> dict[str, Tensor]:
+                      ground_truth: bool = True, ground: Tensor | None = None, frames: int | None = None,
+                      target_shift: Tensor | None = None) -> dict[str, Tensor]:
     """Generate ``length`` frames for every window of ``batch`` and score them.
+
+    Changed controls (no ground truth): ``frames`` generates that many frames towards the window's
+    target instead, and ``target_shift [B, 2]`` moves the target's root (x, z) in the canonical frame.
 
     With ``ground_truth`` False (style clips of another style than the content's) only what needs
     no ground-truth in-between is scored: reaching the target, and the critics' style loss (their
@@ -165,6 +179,9 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     k = c.context
     s = batch.states
     b = s.rel.shape[0]
+    if (frames is not None or target_shift is not None) and ground_truth:
+        raise ValueError("changed controls have no ground-truth in-between frames")
+    steps = length if frames is None else frames
     feet = list(tensors.skeleton.feet)
     code = model.encode_style(style_feats)
     style = model.style_context(code)
@@ -184,9 +201,11 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
         start_phase = None
         noise = torch.zeros(b, 2 * c.width, device=dev)
     target = s.index((slice(None), k + length - 1))
-    state = model.begin(ctx, target, torch.full((b,), length, device=dev), noise, style, start_phase)
+    if target_shift is not None:
+        target = PoseState(target.rel, target.vel, target.rot, target.root_xz + target_shift)
+    state = model.begin(ctx, target, torch.full((b,), steps, device=dev), noise, style, start_phase)
     poses, auxes = [], []
-    for _ in range(length):
+    for _ in range(steps):
         state, aux = model.step(state, style)
         poses.append(state.pose)
         auxes.append(aux)
@@ -202,7 +221,7 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     frames = torch.cat([before[:, 1:], pred_fk], 1)  # the last context frame, then the generated ones
     if ground is not None:
         out["foot_height"] = planted_foot_speed(frames, feet, ground)
-    if critics and critic_labels is not None and length >= cfg.style_loss_min_frames:
+    if critics and critic_labels is not None and steps >= cfg.style_loss_min_frames:
         known = critic_labels >= 0
         if known.any():
             labels = critic_labels[known]
@@ -299,6 +318,31 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         pos, rot = tensors.gather(style_starts, stage.style_frames)
         return local_frame_features(pos, rot, tensors.skeleton)
 
+    def control_losses(length: int, gen: torch.Generator) -> dict[str, Tensor]:
+        """Windows of ``length`` frames with a scaled duration (first half) or a moved target (second half)."""
+        n = stage.control_batch
+        cs, co, cclips = pairs.sample(n, gen)
+        scale = math.exp((2 * float(torch.rand(1, generator=gen)) - 1) * math.log(stage.control_dt))
+        frames = max(stage.min_transition, min(c.max_transition, round(length * scale)))
+        x = (2 * torch.rand(n, 1, generator=gen) - 1) * stage.control_shift
+        out: dict[str, list[Tensor]] = {}
+        for rows, moved in ((slice(0, n // 2), False), (slice(n // 2, n), True)):
+            if rows.stop <= rows.start:
+                continue
+            cb = make_batch(train, cs[rows], co[rows], c.context + length, c.context - 1)
+            if moved:
+                # The window's own root travel over the gap, scaled: the evaluation's "location" control.
+                travel = cb.states.root_xz[:, c.context + length - 1] - cb.states.root_xz[:, c.context - 1]
+                kw: dict = {"target_shift": travel * x[rows].to(travel.device)}
+            else:
+                kw = {"frames": frames}
+            losses = transition_losses(model, train, cb, features_of(cclips[rows], train), length, stage, gen, True,
+                                       critics if use_critic else (), labels_of(train.style[co[rows]]),
+                                       ground_truth=False, ground=ground, **kw)
+            for key, v in losses.items():
+                out.setdefault(key, []).append(v)
+        return {key: torch.stack(v).mean() for key, v in out.items()}
+
     def step(i: int) -> dict[str, float]:
         gen = step_generator(stage.loop.seed, i)
         longest = curriculum_length(i, stage)
@@ -321,6 +365,12 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
             if "style_acc" in xl:
                 shown["cross_acc"] = xl["style_acc"].item()
             total = total + weighted_sum(xl, weights) * (len(xs) / stage.batch)
+        if extra and stage.control_batch > 0:
+            cl = control_losses(length, gen)
+            if "style_acc" in cl:
+                shown["control_acc"] = cl["style_acc"].item()
+            shown["control_last"] = cl["last_pos"].item()
+            total = total + weighted_sum(cl, weights) * (stage.control_batch / stage.batch)
         total.backward()
         return shown
 

@@ -77,6 +77,16 @@ def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
     assert SamplerStageConfig(critic_inputs=["dynamics", "acceleration"]).critic_inputs == ("dynamics", "acceleration")
 
 
+def test_changed_control_settings_are_checked():
+    import pytest
+
+    from model.train.sampler_stage import SamplerStageConfig
+
+    for bad in ({"control_batch": -1}, {"control_dt": 0.5}, {"control_shift": -1.0}):
+        with pytest.raises(ValueError, match="control"):
+            SamplerStageConfig(**bad)
+
+
 def test_critic_logits_match_the_critics_own_features_of_the_real_motion():
     """The critics read velocities only, so the stand-in rotations of ``critic_logits`` must change
     nothing against the real rotations; and every critic of the list answers."""

@@ -117,14 +117,16 @@ def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypa
     """With ``w_style`` the run trains its own style critics, one per input selection (once: a rerun
     reuses them), the sampler's steps score same-style and cross-style transitions with them from
     ``extra_losses_from`` on, with
-    the velocity, acceleration and foot-height losses, and the bundle still loads."""
+    the velocity, acceleration and foot-height losses, and changed-control windows (scaled durations,
+    moved targets) from then on too; the bundle still loads."""
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
     write_synthetic_dataset(data)
     cfg = json.loads((PRESET_DIR / "smoke.json").read_text())
     cfg["sampler_stage"].update(w_style=0.5, cross_batch=4, critic_epochs=1, critic_iterations=5,
                                 critic_inputs=["dynamics", "acceleration"],
-                                style_loss_min_frames=3, w_vel=1.0, w_acc=1.0, w_foot_height=1.0, extra_losses_from=3)
+                                style_loss_min_frames=3, w_vel=1.0, w_acc=1.0, w_foot_height=1.0, extra_losses_from=3,
+                                control_batch=4)
     path = tmp_path / "style.json"
     path.write_text(json.dumps(cfg))
     args = ["train", "all", "--config", str(path), "--data", str(data), "--out", str(tmp_path / "bundle"),
@@ -137,6 +139,8 @@ def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypa
     history = json.loads((tmp_path / "run" / "sampler" / "checkpoint.json").read_text())["history"]
     assert {"train_style_acc", "val_style_acc", "train_acc", "val_foot_height"} <= set(history[-1])
     assert "train_style_acc" not in history[0]  # the first epoch ends before extra_losses_from
+    assert {"train_control_last", "train_control_acc"} <= set(history[-1])
+    assert history[-1]["train_control_last"] > 0 and "train_control_last" not in history[0]
     assert Bundle.load(tmp_path / "bundle").sampler is not None
     stamps = [(tmp_path / "run" / d / "weights.safetensors").stat().st_mtime_ns for d in ("critic", "critic-acceleration")]
     (tmp_path / "run" / "sampler" / "checkpoint.json").unlink()  # retrain the sampler only
