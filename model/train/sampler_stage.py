@@ -162,11 +162,11 @@ def critic_logits(critics: Sequence[StyleClassifier], positions: Tensor, skeleto
 def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor,
                       length: int, cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool,
                       critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None,
-                      ground_truth: bool = True, ground: Tensor | None = None, frames: int | None = None,
+                      ground_truth: bool = True, ground: Tensor | None = None, duration: int | None = None,
                       target_shift: Tensor | None = None) -> dict[str, Tensor]:
     """Generate ``length`` frames for every window of ``batch`` and score them.
 
-    Changed controls (no ground truth): ``frames`` generates that many frames towards the window's
+    Changed controls (no ground truth): ``duration`` generates that many frames towards the window's
     target instead, and ``target_shift [B, 2]`` moves the target's root (x, z) in the canonical frame.
 
     With ``ground_truth`` False (style clips of another style than the content's) only what needs
@@ -179,9 +179,9 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     k = c.context
     s = batch.states
     b = s.rel.shape[0]
-    if (frames is not None or target_shift is not None) and ground_truth:
+    if (duration is not None or target_shift is not None) and ground_truth:
         raise ValueError("changed controls have no ground-truth in-between frames")
-    steps = length if frames is None else frames
+    steps = length if duration is None else duration
     feet = list(tensors.skeleton.feet)
     code = model.encode_style(style_feats)
     style = model.style_context(code)
@@ -323,7 +323,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         n = stage.control_batch
         cs, co, cclips = pairs.sample(n, gen)
         scale = math.exp((2 * float(torch.rand(1, generator=gen)) - 1) * math.log(stage.control_dt))
-        frames = max(stage.min_transition, min(c.max_transition, round(length * scale)))
+        duration = max(stage.min_transition, min(c.max_transition, round(length * scale)))
         x = (2 * torch.rand(n, 1, generator=gen) - 1) * stage.control_shift
         out: dict[str, list[Tensor]] = {}
         for rows, moved in ((slice(0, n // 2), False), (slice(n // 2, n), True)):
@@ -335,7 +335,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
                 travel = cb.states.root_xz[:, c.context + length - 1] - cb.states.root_xz[:, c.context - 1]
                 kw: dict = {"target_shift": travel * x[rows].to(travel.device)}
             else:
-                kw = {"frames": frames}
+                kw = {"duration": duration}
             losses = transition_losses(model, train, cb, features_of(cclips[rows], train), length, stage, gen, True,
                                        critics if use_critic else (), labels_of(train.style[co[rows]]),
                                        ground_truth=False, ground=ground, **kw)
