@@ -37,7 +37,8 @@ def _motion_args(parser: argparse.ArgumentParser) -> None:
                         help="the target: its last frame is the pose to arrive at")
     parser.add_argument("--frames", type=int, required=True, help="frames to generate (the last one arrives)")
     parser.add_argument("--style", required=True, metavar="ID|BVH",
-                        help="a style_id from `rsmt client styles add`, or a style clip .bvh (encoded on the fly)")
+                        help="a style_id from `rsmt client styles add`, or a style clip .bvh (sent with the request; "
+                             "`stream` registers it over HTTP first)")
     parser.add_argument("--seed", type=int, help="sampling seed (same inputs + seed give the same frames)")
     parser.add_argument("--deterministic", action="store_true", help="no sampling noise")
     parser.add_argument("--exact-arrival", action="store_true",
@@ -161,6 +162,11 @@ def _stream(args: argparse.Namespace) -> int:
 
     context, target = {"bvh": read_bvh(args.context)}, {"bvh": read_bvh(args.target)}
     style = _style_choice(args.style)
+    if "style" in style:
+        # A style clip of a few seconds is larger than a WebSocket message may be (64 KiB by default):
+        # register it over HTTP once and stream with its id.
+        with _client(args) as c:
+            style = {"style_id": c.register_style(Path(args.style), name=Path(args.style).stem)["style_id"]}
 
     def show(_client: Any, f: Any) -> None:
         if not args.quiet:

@@ -366,6 +366,10 @@ def test_cli_commands(server, motions, tmp_path, capsys):
     # A style clip path works in place of an id; errors print the server's code and exit 1.
     assert rsmt_main(["client", "transition", *motion[:6], "--style", str(motions["style2"]), *common]) == 0
     assert len(json.loads(capsys.readouterr().out)["root_positions"]) == 20
+    # Streamed, a style clip path is registered over HTTP first: inline, a 120-frame clip is more than
+    # a WebSocket message may carry (the server closes with 1009).
+    assert rsmt_main(["client", "stream", *motion[:6], "--style", str(motions["style"]), "--quiet", *common]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 20
     assert rsmt_main(["client", "transition", *motion[:6], "--style", "sty_missing", *common]) == 1
     assert "unknown_style" in capsys.readouterr().err
     assert rsmt_main(["client", "styles", "add", str(tmp_path / "missing.bvh"), *common]) == 2
