@@ -96,7 +96,7 @@ class FrameOutput:
     def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None) -> None:
         self.parents, self.root = list(skeleton.parents), skeleton.roles.root
         self.output, self.lock = output, lock
-        self.keys = ("prev_rot", "prev_root") + (tuple(f"lock_{f}" for f in FootLockState.FIELDS) if lock else ())
+        self.keys = ("prev_rot", "prev_root") + (FootLockState.MEMORY_KEYS if lock else ())
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
                  skip_idle: bool = True) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
@@ -112,9 +112,8 @@ class FrameOutput:
         # follows the network's motion.
         new = {"prev_rot": local, "prev_root": root}
         if self.lock is not None:
-            state = FootLockState(*(memory[f"lock_{f}"] for f in FootLockState.FIELDS))
-            local, state = self.lock.apply(local, root, remaining, state, skip_idle=skip_idle)
-            new.update({f"lock_{f}": getattr(state, f) for f in FootLockState.FIELDS})
+            local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle)
+            new.update(state.memory())
         return local, root, new
 
 

@@ -21,7 +21,7 @@ from model.bundle import Bundle
 from model.clip import Clip
 from model.compiled_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.features import CanonicalFrame, local_frame_features
-from model.foot_lock import FootLock, FootLockState
+from model.foot_lock import FootLock
 from model.kinematics import forward_kinematics, global_to_local_rotations
 from model.representation import PoseState, state_from_positions
 from model.rotations import quat_normalize, quat_to_sixd
@@ -251,7 +251,7 @@ class Engine:
         ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
         if self.foot_lock is not None:
             lock = self.foot_lock.start(crot, context.root_positions)
-            ch._post.update({f"lock_{f}": getattr(lock, f) for f in FootLockState.FIELDS})
+            ch._post.update(lock.memory())
         if exact_arrival:
             ch.arrival = ArrivalState()
             ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])

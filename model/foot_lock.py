@@ -61,7 +61,17 @@ class FootLockState:
     offset: Tensor
     previous: Tensor
 
-    FIELDS = ("ground", "locked", "anchor", "offset", "previous")  # the engine keeps them as rows of its batch
+    FIELDS = ("ground", "locked", "anchor", "offset", "previous")
+    # The engine keeps the fields as named rows of its batch's per-character memory, under these keys.
+    MEMORY_KEYS = tuple(f"lock_{f}" for f in FIELDS)
+
+    def memory(self) -> dict[str, Tensor]:
+        """The fields under :attr:`MEMORY_KEYS`."""
+        return {k: getattr(self, f) for k, f in zip(self.MEMORY_KEYS, self.FIELDS)}
+
+    @classmethod
+    def from_memory(cls, memory: dict[str, Tensor]) -> FootLockState:
+        return cls(*(memory[k] for k in cls.MEMORY_KEYS))
 
 
 class FootLock:

@@ -100,7 +100,7 @@ def test_traced_output_matches_eager_at_any_batch():
     def memory(rows: slice) -> dict[str, torch.Tensor]:
         starts = [output.lock.start(rot[:10, i], root[:10, i]) for i in range(3)[rows]]
         mem = {"prev_rot": rot[9, rows], "prev_root": root[9, rows]}
-        mem.update({f"lock_{f}": torch.cat([getattr(s, f) for s in starts]) for f in FootLockState.FIELDS})
+        mem.update({k: torch.cat([s.memory()[k] for s in starts]) for k in FootLockState.MEMORY_KEYS})
         return mem
 
     traced(states.index((slice(0, 1), 10)), yaw[:1], origin[:1], torch.tensor([20]), memory(slice(0, 1)))
