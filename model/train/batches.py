@@ -51,6 +51,12 @@ def make_batch(tensors: MotionTensors, starts: Tensor, owners: Tensor, length: i
 
 
 def foot_slide_loss(pred: PoseState, contacts: Tensor, feet: list[int]) -> Tensor:
-    """Squared foot speed where the ground truth's foot is planted (RSMT's foot loss, cm/frame)."""
-    speed2 = (pred.vel[:, feet] ** 2).sum(-1)
-    return (contacts * speed2).sum() / contacts.sum().clamp_min(1.0)
+    """Squared foot speed where the ground truth's foot is planted (RSMT's foot loss, cm/frame).
+
+    ``pred`` is one frame ``[B, J, *]`` with ``contacts [B, F]``, or frames ``[B, L, J, *]`` with
+    ``contacts [B, L, F]``: then each frame's contact-weighted mean is taken, and their mean over frames.
+    """
+    speed2 = (pred.vel[..., feet, :] ** 2).sum(-1)
+    dims = (0, -1)  # batch and feet; frames stay apart
+    per_frame = (contacts * speed2).sum(dims) / contacts.sum(dims).clamp_min(1.0)
+    return per_frame.mean()

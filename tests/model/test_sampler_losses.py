@@ -105,3 +105,20 @@ def test_critic_logits_match_the_critics_own_features_of_the_real_motion():
     assert len(got) == 2
     for critic, logits in zip(critics, got):
         assert torch.allclose(logits, critic(motion_features(pos[None], grot[None], sk)), atol=1e-5)
+
+
+def test_foot_slide_loss_over_frames_is_the_mean_of_its_per_frame_values():
+    # transition_losses scores all generated frames at once; each frame keeps its own contact weighting.
+    from model.representation import PoseState
+    from model.train.batches import foot_slide_loss
+
+    gen = torch.Generator().manual_seed(0)
+    b, frames, joints = 3, 4, 5
+    states = PoseState(torch.randn(b, frames, joints, 3, generator=gen), torch.randn(b, frames, joints, 3, generator=gen),
+                       torch.randn(b, frames, joints, 6, generator=gen), torch.randn(b, frames, 2, generator=gen))
+    contacts = torch.rand(b, frames, 2, generator=gen)
+    contacts[:, 1] = 0.0  # a frame with no planted foot counts as 0, not as a division by zero
+    feet = [2, 4]
+    per_frame = [foot_slide_loss(states.index((slice(None), t)), contacts[:, t], feet) for t in range(frames)]
+    assert per_frame[1] == 0
+    assert torch.isclose(foot_slide_loss(states, contacts, feet), torch.stack(per_frame).mean(), rtol=1e-6)
