@@ -200,6 +200,13 @@ def test_stream_errors_and_token_in_query(server, motions, style_id):
         with pytest.raises(RsmtError) as err:
             s.collect(c, timeout=20)
         assert err.value.code == "unknown_style" and err.value.character == c
+        # A 120-frame style clip inline is over the server's 64 KiB message limit: refused before it is sent
+        # (sent, the server would close the connection with 1009), and the connection stays usable.
+        with pytest.raises(RsmtError) as err:
+            s.start(motions["context"], motions["target"], 10, style=motions["style"], pace="asap")
+        assert err.value.code == "message_too_large" and "register_style" in err.value.message
+        c = s.start(motions["context"], motions["target"], 10, style_id=style_id, pace="asap")
+        assert s.collect(c, timeout=20).end["reason"] == "arrived"
     with pytest.raises(RsmtError) as err:
         StreamClient(server.url, api_key="wrong-key-wrong-key-wrong")
     assert err.value.code == "unauthorized" and err.value.status == 401
@@ -212,6 +219,9 @@ def test_async_stream(server, client, motions, style_id):
     async def go() -> Poses:
         async with await AsyncStreamClient.connect(server.url, api_key=API_KEY, encoding="binary") as s:
             assert s.model["fps"] == 30.0
+            with pytest.raises(RsmtError) as err:  # over the message limit: refused before it is sent
+                await s.start(motions["context"], motions["target"], 20, style=motions["style"])
+            assert err.value.code == "message_too_large"
             return await s.transition(motions["context"], motions["target"], 20, style_id=style_id, seed=SEED,
                                       deterministic=True)
 

@@ -9,7 +9,8 @@ class RsmtError(Exception):
     Attributes:
         code: the contract's machine code (``rate_limited``, ``unknown_style``, ...), or a client-side
             one: ``connection`` (no connection could be made), ``protocol`` (an unexpected message),
-            ``closed`` (the WebSocket closed), ``timeout``.
+            ``closed`` (the WebSocket closed), ``timeout``, ``message_too_large`` (a WebSocket message
+            over the server's ``hello.limits.max_message_bytes``, refused before it was sent).
         message: what went wrong and how to fix it, as the server wrote it.
         status: the HTTP status, when there was one.
         retry_after: seconds the server asked us to wait (``Retry-After``), when it did.

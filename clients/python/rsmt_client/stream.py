@@ -175,6 +175,21 @@ class _Session:
             return frame_from_json(msg)
         return msg
 
+    def encode(self, message: Message) -> str:
+        """The message as the server reads it, refused here when it is over the server's message limit.
+
+        Sent anyway, the server would close the whole connection (1009) and every character on it with it.
+        """
+        text = json.dumps(message, separators=(",", ":"))
+        limit = self.hello.get("limits", {}).get("max_message_bytes")
+        size = len(text.encode())
+        if limit is not None and size > int(limit):
+            hint = ("register the style clip with Client.register_style and pass style_id"
+                    if "style" in message else "send fewer context frames")
+            raise RsmtError("message_too_large", f"this {message.get('type')} message is {size} bytes, over the "
+                            f"server's limit of {int(limit)} per WebSocket message: {hint}")
+        return text
+
     @classmethod
     def new_id(cls) -> str:
         return f"py{next(cls._ids)}"
@@ -339,7 +354,7 @@ class StreamClient:
         from websockets.exceptions import ConnectionClosed
 
         try:
-            self._ws.send(json.dumps(message, separators=(",", ":")))
+            self._ws.send(self._session.encode(message))
         except ConnectionClosed as exc:
             raise _closed_error(exc) from exc
 
@@ -486,7 +501,7 @@ class AsyncStreamClient:
         from websockets.exceptions import ConnectionClosed
 
         try:
-            await self._ws.send(json.dumps(message, separators=(",", ":")))
+            await self._ws.send(self._session.encode(message))
         except ConnectionClosed as exc:
             raise _closed_error(exc) from exc
 
