@@ -103,7 +103,8 @@ class ArrivalCorrector:
             if not rows.any():
                 continue
             goal = goals[rows, f]
-            new_hip, new_knee = two_bone_ik(pos[rows, hip], pos[rows, knee], pos[rows, ankle], grot[rows, hip], grot[rows, knee], goal)
+            new_hip, new_knee = two_bone_ik(pos[rows, hip], pos[rows, knee], pos[rows, ankle],
+                                            grot[rows, hip], grot[rows, knee], goal)
             g = grot[rows].clone()
             g[:, hip], g[:, knee] = new_hip, new_knee
             # Children keep their world rotations (the foot stays flat); only the two bones change.

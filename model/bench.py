@@ -149,12 +149,14 @@ def machine_description() -> dict[str, str | int]:
 
 def format_table(results: list[BenchResult], probe: dict[str, float]) -> str:
     sizes = sorted({n for r in results for n in r.throughput})
-    head = ["model", "params/frame", "batch-1 median ms", "p99 ms", "style encode ms", "RSS MB"] + [f"{n} chars (char-frames/s)" for n in sizes]
+    head = (["model", "params/frame", "batch-1 median ms", "p99 ms", "style encode ms", "RSS MB"]
+            + [f"{n} chars (char-frames/s)" for n in sizes])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in results:
         row = [r.name, f"{r.parameters_per_frame / 1e6:.2f} M", f"{r.latency_ms['median']:.3f}", f"{r.latency_ms['p99']:.3f}",
                f"{r.style_encode_ms:.2f}", f"{r.rss_mb:.0f}"] + [f"{r.throughput.get(n, 0):,.0f}" for n in sizes]
         lines.append("| " + " | ".join(row) + " |")
     lines.append("")
-    lines.append(f"Machine probe: {probe['matmul_gflops']} GFLOP/s (512x512 fp32 matmul), {probe['memcpy_gbps']} GB/s (64 MiB copy).")
+    lines.append(f"Machine probe: {probe['matmul_gflops']} GFLOP/s (512x512 fp32 matmul), "
+                 f"{probe['memcpy_gbps']} GB/s (64 MiB copy).")
     return "\n".join(lines)

@@ -72,7 +72,8 @@ class BvhError(ValueError):
         where = source if line is None else f"{source}:{line}"
         super().__init__(f"{where}: {problem}")
 
-    def __reduce__(self) -> tuple[type[BvhError], tuple[str, int | None, str]]:  # keeps line and source when errors cross process boundaries
+    # Keeps line and source when errors cross process boundaries.
+    def __reduce__(self) -> tuple[type[BvhError], tuple[str, int | None, str]]:
         return (type(self), (self.problem, self.line, self.source))
 
 
@@ -262,7 +263,8 @@ class BvhDocument:
                 lines.append(f"{ind}}}")
                 continue
             order.append(j)
-            lines += [f"{ind}{'ROOT' if depth == 0 else 'JOINT'} {joint.name}", f"{ind}{{", f"{ind}\tOFFSET {_fmt3(joint.offset)}"]
+            lines += [f"{ind}{'ROOT' if depth == 0 else 'JOINT'} {joint.name}", f"{ind}{{",
+                      f"{ind}\tOFFSET {_fmt3(joint.offset)}"]
             lines.append(f"{ind}\tCHANNELS {len(joint.channels)}" + "".join(" " + c for c in joint.channels))
             stack.append((j, depth, True))
             stack.extend((k, depth + 1, False) for k in reversed(kids[j]))
@@ -411,7 +413,8 @@ class _Parser:
         while True:
             tok = self.peek()
             if tok is None:
-                raise self.error(f"unexpected end of file: {kind} {name} (line {line}) is never closed with '}}'", self.last_line())
+                raise self.error(f"unexpected end of file: {kind} {name} (line {line}) is never closed with '}}'",
+                                 self.last_line())
             word, wline = tok
             up = word.upper()
             self.pos += 1

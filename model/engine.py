@@ -183,7 +183,8 @@ class Engine:
                 raise EngineError("skeleton_mismatch", f"{what} lacks joint(s) of the model's skeleton: {', '.join(missing)}")
             _, grot = clip.global_transforms()
             local = global_to_local_rotations(grot[:, idx], sk.parents)
-            root = forward_kinematics(clip.rotations, clip.root_positions, src.offsets_tensor(clip.rotations.dtype), src.parents)[0][:, idx[0]]
+            root = forward_kinematics(clip.rotations, clip.root_positions, src.offsets_tensor(clip.rotations.dtype),
+                                      src.parents)[0][:, idx[0]]
             out = Clip(sk, local, root, clip.fps, clip.name)
         out = out.to(torch.float32)
         if abs(out.fps - self.config.fps) > 1e-6:
@@ -213,7 +214,8 @@ class Engine:
         with torch.inference_mode():
             code = self.sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
             ctx = self.sampler.style_context(code)
-        nbytes = sum(getattr(ctx, f).numel() * 4 for f in ("keys1", "values1", "keys2", "values2", "gamma1", "beta1", "gamma2", "beta2"))
+        nbytes = sum(getattr(ctx, f).numel() * 4
+                     for f in ("keys1", "values1", "keys2", "values2", "gamma1", "beta1", "gamma2", "beta2"))
         style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, nbytes)
         self.styles.put(sid, style)
         return style, False
@@ -296,7 +298,8 @@ class Engine:
             tstate = self._target_state(target, ch._frame)
             with torch.inference_mode():
                 emb = self.sampler.target_encoder(tstate.vector())
-            updates = {"target_vec": tstate.vector(), "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
+            updates = {"target_vec": tstate.vector(), "target_pos": tstate.positions(), "target_rot": tstate.rot,
+                       "target_emb": emb}
         else:
             updates = {}
         if frames is not None:

@@ -81,7 +81,8 @@ class ManifoldDecoder(nn.Module):
         self.l3 = MixtureLinear(c.hidden, c.joints * 9, c.experts)
         self.act = nn.ELU()
 
-    def forward(self, state_vec: Tensor, root_velocity: Tensor, root_rot6d: Tensor, z: Tensor, phase: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, state_vec: Tensor, root_velocity: Tensor, root_rot6d: Tensor, z: Tensor,
+                phase: Tensor) -> tuple[Tensor, Tensor]:
         alpha = torch.softmax(self.gate(torch.cat([phase.flatten(1), z], dim=-1)), dim=-1)
         h = self.act(self.l1(torch.cat([state_vec, root_velocity, root_rot6d, z], dim=-1), alpha))
         h = self.act(self.l2(torch.cat([h, z], dim=-1), alpha))

@@ -217,7 +217,8 @@ def _index_100style(root: Path, cuts_file: Path) -> TakeIndex:
         rel = relative_path(path, root)
         m = pattern.fullmatch(path.stem)
         if m is None:
-            index.problems.append(Problem(rel, "unlabelled", f"file name is not <Style>_<CT>.bvh with CT in {' '.join(STYLE100_CONTENTS)}"))
+            index.problems.append(Problem(rel, "unlabelled",
+                                          f"file name is not <Style>_<CT>.bvh with CT in {' '.join(STYLE100_CONTENTS)}"))
             continue
         style = m["style"] if m["style"] in cuts else by_lower.get(m["style"].lower())
         if style is None:

@@ -34,7 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
         p.add_argument("--out", type=Path, help="bundle folder to write when the sampler is trained")
         p.add_argument("--config", type=Path, help="training config JSON (see configs/*.json); overrides --preset")
-        p.add_argument("--preset", default="default", help="a config in model/train/configs/ by name: default, paper, smoke, the default model's "
+        p.add_argument("--preset", default="default",
+                       help="a config in model/train/configs/ by name: default, paper, smoke, the default model's "
                             "continuations default-continue-*, ... (default: default)")
         p.add_argument("--run", type=Path, help="run folder for checkpoints and stage weights (default: ~/.cache/rsmt/runs/NAME)")
         p.add_argument("--time-limit", type=float, default=0.0, metavar="S",

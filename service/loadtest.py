@@ -338,7 +338,8 @@ def spawn(bundle: Path | None, threads: int, env: dict[str, str]) -> tuple[subpr
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m service.loadtest", description=__doc__.split("\n\n")[0])
     p.add_argument("--url", help="a running service (default: start one with --spawn)")
-    p.add_argument("--spawn", action="store_true", help="start `rsmt serve` on a free port (random-weight bundle unless --bundle)")
+    p.add_argument("--spawn", action="store_true",
+                   help="start `rsmt serve` on a free port (random-weight bundle unless --bundle)")
     p.add_argument("--bundle", type=Path, help="bundle for --spawn and for the in-process engine timing")
     p.add_argument("--threads", type=int, default=1, help="torch threads of the spawned server (default 1)")
     p.add_argument("--characters", type=int, default=64)

@@ -128,7 +128,8 @@ class ModelList(BaseModel):
 class StyleCreate(BaseModel):
     """``POST /v1/styles``."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"name": "proud", "motion": {"bvh": _EXAMPLE_BVH}}]})
+    model_config = ConfigDict(extra="forbid",
+                              json_schema_extra={"examples": [{"name": "proud", "motion": {"bvh": _EXAMPLE_BVH}}]})
 
     name: str = Field(min_length=1, max_length=200)
     motion: Motion

@@ -42,7 +42,8 @@ class Settings(BaseSettings):
     output_smoothing: float | None = Field(
         None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
     output_root_smoothing: float | None = Field(
-        None, ge=0, lt=1, description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
+        None, ge=0, lt=1,
+        description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
     foot_lock: bool | None = Field(None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
 
     # ------------------------------------------------------------------ style cache
@@ -81,7 +82,8 @@ class Settings(BaseSettings):
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="accepted API keys; empty: no authentication"
     )
-    rate_limit_per_s: float = Field(0.0, ge=0, description="requests per second per key (per client address without keys); 0: off")
+    rate_limit_per_s: float = Field(0.0, ge=0,
+                                    description="requests per second per key (per client address without keys); 0: off")
     rate_limit_burst: int = Field(20, ge=1, description="token-bucket size of the per-key rate limit")
 
     # ------------------------------------------------------------------ logs and lifecycle

@@ -223,7 +223,8 @@ class CaseSet:
         for c in cases:
             sk = cache.skeleton(c.take)
             if not sk.same_rig(first):
-                raise ValueError(f"take {cache.takes[c.take].take_id} is on another rig than {cache.takes[cases[0].take].take_id}")
+                raise ValueError(f"take {cache.takes[c.take].take_id} is on another rig than "
+                                 f"{cache.takes[cases[0].take].take_id}")
             rot = quat_normalize(cache.rotations(c.take)[c.start:c.start + SPAN].float())
             rots.append(quat_make_continuous(rot, dim=0))
             roots.append(cache.root_positions(c.take)[c.start:c.start + SPAN].float())

@@ -243,7 +243,8 @@ def train_loop(
                 entry = {"step": step, "lr": lr, **{f"train_{k}": round(v, 6) for k, v in running.items()},
                          **{f"val_{k}": round(v, 6) for k, v in figures.items()}}
                 history.append(entry)
-                bar.write(f"{name} step {step}/{cfg.iterations}: " + ", ".join(f"{k} {v:.4g}" for k, v in entry.items() if k.startswith(("val_", "train_"))))
+                bar.write(f"{name} step {step}/{cfg.iterations}: "
+                          + ", ".join(f"{k} {v:.4g}" for k, v in entry.items() if k.startswith(("val_", "train_"))))
             now = time.monotonic()
             if epoch_end or now - last_ckpt > cfg.checkpoint_every_s:
                 save_checkpoint(folder, model, optimizer, step, history)

@@ -103,7 +103,8 @@ class MotionTensors:
 
         def add(clip: Clip, style: int, content: str, source: str) -> None:
             sk = clip.skeleton
-            p, r = forward_kinematics(clip.rotations.double(), clip.root_positions.double(), sk.offsets_tensor(torch.float64), sk.parents)
+            p, r = forward_kinematics(clip.rotations.double(), clip.root_positions.double(), sk.offsets_tensor(torch.float64),
+                                      sk.parents)
             if source == "mirror":
                 p, r = mirror_global(p, r, sk, reflections)
             if content not in contents:

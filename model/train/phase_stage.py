@@ -19,7 +19,8 @@ Tensor = torch.Tensor
 
 @dataclass
 class PhaseStageConfig:
-    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=1500, epoch_iterations=250, lr=1e-3, weight_decay=1e-4))
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=1500, epoch_iterations=250, lr=1e-3,
+                                                                weight_decay=1e-4))
     batch: int = 64
 
 
@@ -83,7 +84,8 @@ def train_phase(train: MotionTensors, val: MotionTensors, config: PhaseConfig, s
     def validate() -> dict[str, float]:
         x = _window_batch(vel_val, val_idx, config.window)
         recon, params = model(x)
-        return {"mse": torch.nn.functional.mse_loss(recon, x).item(), "explained": 1.0 - ((recon - x) ** 2).mean().item() / x.var().item(),
+        return {"mse": torch.nn.functional.mse_loss(recon, x).item(),
+                "explained": 1.0 - ((recon - x) ** 2).mean().item() / x.var().item(),
                 "mean_freq_hz": params["frequency"].mean().item()}
 
     result = train_loop("phase", folder, model, list(model.named_parameters()), stage.loop, step, validate, progress)

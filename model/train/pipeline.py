@@ -186,7 +186,8 @@ def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progre
     it (sums in another order) and are then made again; the file always holds CPU tensors.
     """
     weights = torch.cat([p.detach().flatten() for p in pae.state_dict().values() if p.is_floating_point()])
-    key = f"{weights.double().sum().item():.12e}:{weights.numel()}:{len(tensors.positions)}:{tensors.positions.double().sum().item():.9e}"
+    key = (f"{weights.double().sum().item():.12e}:{weights.numel()}:{len(tensors.positions)}:"
+           f"{tensors.positions.double().sum().item():.9e}")
     if path.is_file():
         stored = load_file(str(path))
         if bytes(stored["key"].tolist()).decode() == key:

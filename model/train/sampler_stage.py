@@ -33,7 +33,8 @@ CRITIC_INPUTS = ("velocity", "dynamics", "acceleration")  # input selections tha
 
 @dataclass
 class SamplerStageConfig:
-    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=3000, epoch_iterations=300, lr=1e-3, weight_decay=1e-4))
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=3000, epoch_iterations=300, lr=1e-3,
+                                                                weight_decay=1e-4))
     batch: int = 32
     min_transition: int = 5
     max_transition: int = 60

@@ -50,7 +50,8 @@ def _rot_close(a: np.ndarray, b: np.ndarray, atol: float) -> bool:
     """Rotations equal up to the quaternion sign."""
     import torch
 
-    return float(quat_angle(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64))).max()) < atol
+    return float(quat_angle(torch.from_numpy(np.asarray(a, np.float64)),
+                            torch.from_numpy(np.asarray(b, np.float64))).max()) < atol
 
 
 # ---------------------------------------------------------------------- HTTP, sync

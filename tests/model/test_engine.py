@@ -124,7 +124,8 @@ def test_retarget_changes_arrival(engine, walk):
             out = batch.step()
             roots.append(out.root_positions[0])
             if retarget and ch.seq == 10:
-                far = Clip(walk.skeleton, walk.rotations[40:42], walk.root_positions[40:42] + torch.tensor([300.0, 0, 0]), walk.fps)
+                far = Clip(walk.skeleton, walk.rotations[40:42], walk.root_positions[40:42] + torch.tensor([300.0, 0, 0]),
+                           walk.fps)
                 engine.retarget(ch, batch, target=far, frames=15)
         results.append(torch.stack(roots))
         batch.drop_finished()
@@ -184,7 +185,8 @@ def test_traced_step_matches_eager(walk):
         long, _ = eng.encode_style(walk.window(10, 150))
         # Traced at batch 1 with one style length, then run at batch 3 with mixed lengths.
         first = eng.generate([eng.prepare(walk.window(0, 10), walk.window(40, 42), 8, short, seed=1)])
-        chars = [eng.prepare(walk.window(i, i + 10), walk.window(40, 42), 12, s, seed=i) for i, s in enumerate((short, long, short))]
+        chars = [eng.prepare(walk.window(i, i + 10), walk.window(40, 42), 12, s, seed=i)
+                 for i, s in enumerate((short, long, short))]
         results.append((first, eng.generate(chars)))
         if compiled:
             assert not eng.step_fn.failed and eng.step_fn._graph is not None

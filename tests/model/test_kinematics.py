@@ -25,7 +25,8 @@ OFFSETS = torch.tensor([[0, 0, 0], [0, 10, 0], [0, 10, 0], [0, 5, 0], [5, 0, 0],
 def test_chain_known_values():
     rot = quat_identity((6,), torch.float64)
     # Bend joint 1 by 90 degrees about +Z: its children swing from +Y to -X.
-    rot[1] = axis_angle_to_quat(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), torch.tensor(math.pi / 2, dtype=torch.float64))
+    rot[1] = axis_angle_to_quat(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64),
+                                torch.tensor(math.pi / 2, dtype=torch.float64))
     pos, grot = forward_kinematics(rot, torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64), OFFSETS, PARENTS)
     assert torch.allclose(pos[1], torch.tensor([1.0, 12.0, 3.0], dtype=torch.float64))
     assert torch.allclose(pos[2], torch.tensor([-9.0, 12.0, 3.0], dtype=torch.float64), atol=1e-12)

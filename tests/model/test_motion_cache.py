@@ -129,7 +129,8 @@ def test_reuse_and_rebuild(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
     assert built == [1]
     load(tmp_path / "data", tmp_path / "cache", fps=15)
     assert built == [1, 1]
-    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == sorted([first.key, cache_key(index_takes(tmp_path / "data"), fps=15)])
+    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == sorted(
+        [first.key, cache_key(index_takes(tmp_path / "data"), fps=15)])
 
 
 def test_killed_build_leaves_no_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -166,7 +166,8 @@ def test_slerp(a, b, t):
 
 def test_slerp_per_element_t():
     a = R.quat_identity((3,), torch.float64)
-    b = R.axis_angle_to_quat(torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand(3, 3), torch.full((3,), 1.0, dtype=torch.float64))
+    b = R.axis_angle_to_quat(torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand(3, 3),
+                             torch.full((3,), 1.0, dtype=torch.float64))
     t = torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64)
     out = R.quat_slerp(a, b, t)
     assert torch.allclose(R.quat_angle(a, out), t, atol=1e-9)

@@ -50,7 +50,8 @@ def test_health(client):
 
 def test_model_description(client):
     m = client.get("/v1/model").json()
-    assert m["fps"] == 30 and m["context_frames"] == 10 and m["max_transition_frames"] == 120  # twice the 60-frame training horizon
+    # max_transition_frames: twice the 60-frame training horizon.
+    assert m["fps"] == 30 and m["context_frames"] == 10 and m["max_transition_frames"] == 120
     assert m["style_clip_frames"] == {"min": 16, "max": 240}
     sk = m["skeleton"]
     assert len(sk["joints"]) == 21 and sk["joints"][0] == {"name": "Hips", "parent": -1, "offset": [0.0, 0.0, 0.0]}

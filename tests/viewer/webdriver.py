@@ -46,7 +46,8 @@ class WebDriverError(RuntimeError):
 class Browser:
     """One headless chromium session; close it with :meth:`quit`."""
 
-    def __init__(self, chromium: str, chromedriver: str, size: tuple[int, int] = (1280, 800), log_dir: Path | None = None) -> None:
+    def __init__(self, chromium: str, chromedriver: str, size: tuple[int, int] = (1280, 800),
+                 log_dir: Path | None = None) -> None:
         self.profile = tempfile.mkdtemp(prefix="rsmt-chromium-")  # a fresh, empty profile every time
         self.port = free_port()
         log = (log_dir or Path(self.profile)) / "chromedriver.log"
@@ -65,7 +66,8 @@ class Browser:
                 raise WebDriverError(f"chromedriver did not start (log: {log})")
             time.sleep(0.1)
         args = [*CHROMIUM_FLAGS, f"--user-data-dir={self.profile}", f"--window-size={size[0]},{size[1]}"]
-        caps = {"capabilities": {"alwaysMatch": {"browserName": "chrome", "goog:chromeOptions": {"binary": chromium, "args": args}}}}
+        caps = {"capabilities": {"alwaysMatch": {"browserName": "chrome",
+                                                 "goog:chromeOptions": {"binary": chromium, "args": args}}}}
         try:
             self.session = self._call("POST", "/session", caps)["sessionId"]
         except Exception:

@@ -148,7 +148,10 @@ class Client(_Common):
         return self.request("GET", "/v1/models").json()
 
     def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> dict[str, Any]:
-        """``POST /v1/styles``: a BVH path or text, payload, Poses or Clip; returns ``{"style_id", "name", "frames", "cached"}``."""
+        """``POST /v1/styles``: register a style clip (a BVH path or text, payload, Poses or Clip).
+
+        Returns ``{"style_id", "name", "frames", "cached"}``.
+        """
         body: dict[str, Any] = {"name": name or _default_name(motion), "motion": motion_payload(motion)}
         if model is not None:
             body["model"] = model
