@@ -68,15 +68,19 @@ class PeriodicAutoencoder(nn.Module):
         self.register_buffer("freqs", torch.arange(1, c.window // 2 + 1, dtype=torch.float32) / duration, persistent=False)
         self.register_buffer("tau", (torch.arange(c.window, dtype=torch.float32) - c.window // 2) / c.fps, persistent=False)
 
-    def encode(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    def encode(self, x: Tensor, fft: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """Latent curves and their sinusoid parameters.
+
+        ``fft`` runs the two encoder convolutions through FFTs (:func:`same_conv_fft`): the same
+        result to float rounding and several times faster, since each kernel spans the whole window.
 
         Returns:
             ``latent [B, M, W]``, ``amplitude [B, M]``, ``frequency [B, M]`` (Hz),
             ``offset [B, M]``, ``shift [B, M]`` (cycles, in (-0.5, 0.5]).
         """
-        h = torch.tanh(self.enc_norm1(self.enc1(x)))
-        latent = torch.tanh(self.enc_norm2(self.enc2(h)))
+        conv = same_conv_fft if fft else (lambda inputs, layer: layer(inputs))
+        h = torch.tanh(self.enc_norm1(conv(x, self.enc1)))
+        latent = torch.tanh(self.enc_norm2(conv(h, self.enc2)))
         spec = torch.fft.rfft(latent, dim=-1)
         power = spec[..., 1:].abs() ** 2
         total = power.sum(-1).clamp_min(1e-8)
@@ -96,6 +100,25 @@ class PeriodicAutoencoder(nn.Module):
         curves = a.unsqueeze(-1) * torch.sin(2 * math.pi * (f.unsqueeze(-1) * tau + s.unsqueeze(-1))) + b.unsqueeze(-1)
         h = torch.tanh(self.dec_norm1(self.dec1(curves)))
         return self.dec2(h), {"latent": latent, "curves": curves, "amplitude": a, "frequency": f, "offset": b, "shift": s}
+
+
+def same_conv_fft(x: Tensor, conv: nn.Conv1d) -> Tensor:
+    """``conv(x)`` for a "same"-padded ``nn.Conv1d`` (odd kernel, padding ``kernel // 2``, stride 1, no
+    groups or dilation) on ``x [B, C, W]``, computed as a product of spectra.
+
+    The phase model's kernels are as long as its windows (61 frames), so a direct convolution costs
+    ``C * O * W * K`` multiply-adds per window and the spectral product about ``C * O * W``: labelling
+    every frame of the data is several times faster this way.
+    """
+    k = conv.kernel_size[0]
+    if conv.padding != (k // 2,) or conv.stride != (1,) or conv.groups != 1 or conv.dilation != (1,) or k % 2 != 1:
+        raise ValueError("same_conv_fft takes an odd-kernel, stride-1, 'same'-padded convolution without groups")
+    w = x.shape[-1]
+    n = 1 << (w + k - 2).bit_length()  # at least w + k - 1 points: the circular product is the linear one
+    # nn.Conv1d correlates; the flipped kernel turns that into a convolution, whose middle w samples are the output.
+    spectrum = torch.einsum("bcf,ocf->bof", torch.fft.rfft(x, n=n), torch.fft.rfft(conv.weight.flip(-1), n=n))
+    y = torch.fft.irfft(spectrum, n=n)[..., k // 2: k // 2 + w]
+    return y if conv.bias is None else y + conv.bias.view(1, -1, 1)
 
 
 def phase_vectors(amplitude: Tensor, shift: Tensor, scale: float) -> Tensor:
@@ -124,7 +147,7 @@ def label_phases(model: PeriodicAutoencoder, velocities: Tensor, batch: int = 51
     """
     model.eval()
     windows = velocity_windows(velocities, model.config.window)
-    parts = [model.encode(windows[i : i + batch]) for i in range(0, len(windows), batch)]
+    parts = [model.encode(windows[i : i + batch], fft=True) for i in range(0, len(windows), batch)]
     amp = torch.cat([p[1] for p in parts])
     freq = torch.cat([p[2] for p in parts])
     shift = torch.cat([p[4] for p in parts])

@@ -16,6 +16,7 @@ from model.phase import (
     blend_phase,
     label_phases,
     phase_vectors,
+    same_conv_fft,
 )
 from model.representation import PoseState, state_dim, state_from_positions
 from model.sampler import SamplerConfig, SamplerState, StyleContext, TransitionSampler
@@ -82,6 +83,20 @@ def test_pae_shapes_and_labels():
     labels = label_phases(pae, torch.randn(40, J * 3))
     assert labels["phase"].shape == (40, 4, 2)
     assert torch.allclose(labels["phase"].norm(dim=-1), labels["amplitude"] * cfg.amplitude_scale, atol=1e-4)
+
+
+@pytest.mark.parametrize("window", [15, 61])
+def test_fft_encoder_matches_the_convolutions(window):
+    # Labelling runs the encoder's convolutions as spectral products; they must give the conv's numbers.
+    torch.manual_seed(0)
+    pae = PeriodicAutoencoder(PhaseConfig(channels=J * 3, phases=4, window=window, hidden=8)).eval()
+    x = torch.randn(5, J * 3, window)
+    assert torch.allclose(same_conv_fft(x, pae.enc1), pae.enc1(x), atol=1e-5)
+    with torch.no_grad():
+        for direct, spectral in zip(pae.encode(x), pae.encode(x, fft=True)):
+            assert torch.allclose(direct, spectral, atol=1e-5)
+    with pytest.raises(ValueError, match="same"):
+        same_conv_fft(x, torch.nn.Conv1d(J * 3, 2, 3))  # no padding: not a "same" convolution
 
 
 def test_phase_update_rotates_at_frequency():
