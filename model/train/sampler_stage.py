@@ -160,39 +160,41 @@ def critic_logits(critics: Sequence[StyleClassifier], positions: Tensor, skeleto
     return [critic(features) for critic in critics]
 
 
-def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor,
-                      length: int, cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool,
-                      critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None,
-                      ground_truth: bool = True, ground: Tensor | None = None, duration: int | None = None,
-                      target_shift: Tensor | None = None) -> dict[str, Tensor]:
-    """Generate ``length`` frames for every window of ``batch`` and score them.
+@dataclass
+class Rollout:
+    """A batch of generated transitions and what scoring them needs (:func:`rollout`)."""
 
-    Changed controls (no ground truth): ``duration`` generates that many frames towards the window's
-    target instead, and ``target_shift [B, 2]`` moves the target's root (x, z) in the canonical frame.
+    batch: WindowBatch
+    context: int  # context frames of each window
+    root: int  # the root joint's index
+    length: int  # ground-truth frames of each window's transition
+    steps: int  # frames generated
+    target: PoseState  # [B, J, *]
+    last: PoseState  # the last generated frame
+    estimate: tuple[Tensor, Tensor, Tensor]  # the phase estimator's (phase, amplitude, frequency) of the last context frame
+    gen_states: PoseState  # [B, steps, J, *]
+    aux: dict[str, Tensor]  # per-frame phase predictions, [B, steps, ...]
+    pred_fk: Tensor  # [B, steps, J, 3] joint positions
+    before: Tensor  # [B, 2, J, 3] the two context frames before the transition
 
-    With ``ground_truth`` False (style clips of another style than the content's) only what needs
-    no ground-truth in-between is scored: reaching the target, and the critics' style loss (their
-    mean cross-entropy; ``style_acc`` is their mean accuracy). ``critic_labels`` are the critics'
-    class per window (-1: a style they do not know; all critics share one style list). ``ground``
-    (the foot joints' ground levels, cm) adds the ``foot_height`` loss, which needs no ground truth.
-    """
+
+def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor, length: int,
+            cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool, duration: int | None = None,
+            target_shift: Tensor | None = None) -> Rollout:
+    """Generate ``length`` frames (``duration`` if given) for every window of ``batch`` towards its target,
+    moved by ``target_shift [B, 2]`` (root x, z in the canonical frame) if given."""
     c = model.config
     k = c.context
     s = batch.states
     b = s.rel.shape[0]
-    if (duration is not None or target_shift is not None) and ground_truth:
-        raise ValueError("changed controls have no ground-truth in-between frames")
     steps = length if duration is None else duration
-    feet = list(tensors.skeleton.feet)
-    code = model.encode_style(style_feats)
-    style = model.style_context(code)
+    style = model.style_context(model.encode_style(style_feats))
     assert batch.phase is not None and batch.amplitude is not None and batch.frequency is not None
     ctx = s.index((slice(None), slice(0, k)))
     est_p, est_a, est_f = model.phase_estimator(ctx.vector())
-    gt_p, gt_a, gt_f = batch.phase[:, k - 1], batch.amplitude[:, k - 1], batch.frequency[:, k - 1]
-    est_loss = (est_p - gt_p).pow(2).mean() + (est_a - gt_a).pow(2).mean() + (est_f - gt_f).pow(2).mean()
     dev = s.rel.device
     if training and gen is not None:
+        gt_p, gt_a, gt_f = batch.phase[:, k - 1], batch.amplitude[:, k - 1], batch.frequency[:, k - 1]
         # Drawn from the step's CPU generator, then moved: the same draws on every device.
         use_gt = (torch.rand(b, generator=gen) < cfg.gt_phase_probability).view(b, 1).to(dev)
         start_phase = (torch.where(use_gt.unsqueeze(-1), gt_p, est_p.detach()), torch.where(use_gt, gt_a, est_a.detach()),
@@ -210,12 +212,26 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
         state, aux = model.step(state, style)
         poses.append(state.pose)
         auxes.append(aux)
-    # The generated frames stacked once ([B, steps, J, *]) for every loss below.
+    # The generated frames stacked once ([B, steps, J, *]) for every loss.
     gen_states = PoseState(*(torch.stack([getattr(p, name) for p in poses], 1) for name in ("rel", "vel", "rot", "root_xz")))
-    pred_fk = _fk_from_states(gen_states.rot, gen_states.positions()[:, :, c.root], tensors)
-    # The two context frames before the transition, for velocities and the critic's first frame.
-    before = _fk_from_states(s.rot[:, k - 2:k], s.positions()[:, k - 2:k, c.root], tensors)
-    last = state.pose
+    return Rollout(
+        batch=batch, context=k, root=c.root, length=length, steps=steps, target=target, last=state.pose,
+        estimate=(est_p, est_a, est_f), gen_states=gen_states,
+        aux={name: torch.stack([a[name] for a in auxes], 1) for name in ("phase", "phase_hat", "amplitude", "frequency")},
+        pred_fk=_fk_from_states(gen_states.rot, gen_states.positions()[:, :, c.root], tensors),
+        before=_fk_from_states(s.rot[:, k - 2:k], s.positions()[:, k - 2:k, c.root], tensors),
+    )
+
+
+def score_rollout(r: Rollout, tensors: MotionTensors, cfg: SamplerStageConfig, rows: slice = slice(None),
+                  critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None, ground_truth: bool = True,
+                  ground: Tensor | None = None) -> dict[str, Tensor]:
+    """The losses of the windows ``rows`` of a rollout (``critic_labels`` are those rows' own); see
+    :func:`transition_losses`. Every loss is a mean over the given rows only."""
+    k = r.context
+    feet = list(tensors.skeleton.feet)
+    target, last = r.target.index(rows), r.last.index(rows)
+    pred_fk, before = r.pred_fk[rows], r.before[rows]
     out = {
         "last_pos": ((last.positions() - target.positions()).abs() / EDGE_CM).mean(),
         "last_rot": (last.rot - target.rot).abs().mean(),
@@ -223,7 +239,7 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     frames = torch.cat([before[:, 1:], pred_fk], 1)  # the last context frame, then the generated ones
     if ground is not None:
         out["foot_height"] = planted_foot_speed(frames, feet, ground)
-    if critics and critic_labels is not None and steps >= cfg.style_loss_min_frames:
+    if critics and critic_labels is not None and r.steps >= cfg.style_loss_min_frames:
         known = critic_labels >= 0
         if known.any():
             labels = critic_labels[known]
@@ -232,14 +248,21 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
             out["style_acc"] = torch.stack([(x.argmax(-1) == labels).float().mean() for x in logits]).mean()
     if not ground_truth:
         return out
+    batch, length = r.batch, r.length
+    assert batch.phase is not None and batch.amplitude is not None and batch.frequency is not None
+    s = batch.states.index(rows)
+    est_p, est_a, est_f = (e[rows] for e in r.estimate)
+    gp, ga, gf = batch.phase[rows, k - 1], batch.amplitude[rows, k - 1], batch.frequency[rows, k - 1]
+    est_loss = (est_p - gp).pow(2).mean() + (est_a - ga).pow(2).mean() + (est_f - gf).pow(2).mean()
     # All frames at once: each per-frame term averages the same number of elements, so the mean over
     # frames of per-frame means is the mean over the stacked frames (far fewer autograd nodes).
+    gen_states = r.gen_states.index(rows)
+    aux = {name: v[rows] for name, v in r.aux.items()}
     gt_states = s.index((slice(None), slice(k, k + length)))
-    gp, ga, gf = batch.phase[:, k:k + length], batch.amplitude[:, k:k + length], batch.frequency[:, k:k + length]
-    aux = {name: torch.stack([a[name] for a in auxes], 1) for name in ("phase", "phase_hat", "amplitude", "frequency")}
+    gp, ga, gf = batch.phase[rows, k:k + length], batch.amplitude[rows, k:k + length], batch.frequency[rows, k:k + length]
     phase_loss = ((aux["phase"] - gp).pow(2).mean() + (aux["phase_hat"] - gp).pow(2).mean()
                   + (aux["amplitude"] - ga).pow(2).mean() + (aux["frequency"] - gf).pow(2).mean())
-    gt_fk = _fk_from_states(gt_states.rot, gt_states.positions()[:, :, c.root], tensors)
+    gt_fk = _fk_from_states(gt_states.rot, gt_states.positions()[:, :, r.root], tensors)
     pred_vel = torch.diff(torch.cat([before, pred_fk], 1), dim=1)
     gt_vel = torch.diff(torch.cat([before, gt_fk], 1), dim=1)
     return {
@@ -247,7 +270,7 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
         "pos": ((gen_states.positions() - gt_states.positions()).abs() / EDGE_CM).mean(),
         "rot": (gen_states.rot - gt_states.rot).abs().mean(),
         "phase": phase_loss,
-        "foot": foot_slide_loss(gen_states, batch.contacts[:, k:k + length], feet),
+        "foot": foot_slide_loss(gen_states, batch.contacts[rows, k:k + length], feet),
         "fk": ((pred_fk - gt_fk).abs() / EDGE_CM).mean(),
         "estimator": est_loss,
         "vel": ((pred_vel[:, 1:] - gt_vel[:, 1:]).abs() / EDGE_CM).mean(),
@@ -256,6 +279,40 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
         "fk_error_cm": (pred_fk - gt_fk).norm(dim=-1).mean(),
         "last_fk_error_cm": (pred_fk[:, -1] - gt_fk[:, -1]).norm(dim=-1).mean(),
     }
+
+
+def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor,
+                      length: int, cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool,
+                      critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None,
+                      ground_truth: bool = True, ground: Tensor | None = None, duration: int | None = None,
+                      target_shift: Tensor | None = None) -> dict[str, Tensor]:
+    """Generate ``length`` frames for every window of ``batch`` and score them.
+
+    Changed controls (no ground truth): ``duration`` generates that many frames towards the window's
+    target instead, and ``target_shift [B, 2]`` moves the target's root (x, z) in the canonical frame.
+
+    With ``ground_truth`` False (style clips of another style than the content's) only what needs
+    no ground-truth in-between is scored: reaching the target, and the critics' style loss (their
+    mean cross-entropy; ``style_acc`` is their mean accuracy). ``critic_labels`` are the critics'
+    class per window (-1: a style they do not know; all critics share one style list). ``ground``
+    (the foot joints' ground levels, cm) adds the ``foot_height`` loss, which needs no ground truth.
+    """
+    if (duration is not None or target_shift is not None) and ground_truth:
+        raise ValueError("changed controls have no ground-truth in-between frames")
+    r = rollout(model, tensors, batch, style_feats, length, cfg, gen, training, duration, target_shift)
+    return score_rollout(r, tensors, cfg, critics=critics, critic_labels=critic_labels,
+                         ground_truth=ground_truth, ground=ground)
+
+
+def concat_batches(a: WindowBatch, b: WindowBatch) -> WindowBatch:
+    """The windows of ``a`` then those of ``b`` (same length), to generate in one rollout."""
+    def cat(x: Tensor | None, y: Tensor | None) -> Tensor | None:
+        return None if x is None or y is None else torch.cat([x, y])
+
+    states = PoseState(*(torch.cat([getattr(a.states, n), getattr(b.states, n)]) for n in ("rel", "vel", "rot", "root_xz")))
+    return WindowBatch(states, cat(a.phase, b.phase), cat(a.amplitude, b.amplitude), cat(a.frequency, b.frequency),
+                       torch.cat([a.contacts, b.contacts]), torch.cat([a.style, b.style]),
+                       torch.cat([a.rotations, b.rotations]))
 
 
 def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSampler, stage: SamplerStageConfig,
@@ -350,20 +407,28 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         batch = make_batch(train, starts, owners, c.context + length, c.context - 1)
         extra = i >= stage.extra_losses_from
         styled = use_critic and extra
-        losses = transition_losses(model, train, batch, features_of(style_starts, train), length, stage, gen, True,
-                                   critics if styled else (), labels_of(train.style[owners]),
-                                   ground=ground if extra else None)
+        labels = labels_of(train.style[owners])
+        feats = features_of(style_starts, train)
+        cross = styled and stage.cross_batch > 0 and length >= stage.style_loss_min_frames
+        if cross:
+            # Windows with a style clip of another style, generated in the same rollout as the batch's own:
+            # the recurrent loop's cost is mostly per operation, not per window (about 0.2 s a step saved).
+            xs, xo, xclips, xstyle = pairs.sample_cross(stage.cross_batch, gen)
+            xlabels = labels_of(torch.full((len(xs),), xstyle))
+            batch = concat_batches(batch, make_batch(train, xs, xo, c.context + length, c.context - 1))
+            feats = torch.cat([feats, features_of(xclips, train)])
+        r = rollout(model, train, batch, feats, length, stage, gen, True)
+        own = slice(0, stage.batch)
+        losses = score_rollout(r, train, stage, own, critics if styled else (), labels,
+                               ground=ground if extra else None)
         total = weighted_sum(losses, weights if extra else base_weights)
         shown = {k: v.item() for k, v in losses.items() if k in ("pos", "fk_error_cm", "last_fk_error_cm", "foot", "phase",
                                                                   "acc", "style_acc", "foot_height", "spectrum")}
-        if styled and stage.cross_batch > 0 and length >= stage.style_loss_min_frames:
-            xs, xo, xclips, xstyle = pairs.sample_cross(stage.cross_batch, gen)
-            xb = make_batch(train, xs, xo, c.context + length, c.context - 1)
-            xl = transition_losses(model, train, xb, features_of(xclips, train), length, stage, gen, True, critics,
-                                   labels_of(torch.full((len(xs),), xstyle)), ground_truth=False, ground=ground)
+        if cross:
+            xl = score_rollout(r, train, stage, slice(stage.batch, None), critics, xlabels, ground_truth=False, ground=ground)
             if "style_acc" in xl:
                 shown["cross_acc"] = xl["style_acc"].item()
-            total = total + weighted_sum(xl, weights) * (len(xs) / stage.batch)
+            total = total + weighted_sum(xl, weights) * (stage.cross_batch / stage.batch)
         if extra and stage.control_batch > 0:
             cl = control_losses(length, gen)
             if "style_acc" in cl:

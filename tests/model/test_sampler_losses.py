@@ -122,3 +122,66 @@ def test_foot_slide_loss_over_frames_is_the_mean_of_its_per_frame_values():
     per_frame = [foot_slide_loss(states.index((slice(None), t)), contacts[:, t], feet) for t in range(frames)]
     assert per_frame[1] == 0
     assert torch.isclose(foot_slide_loss(states, contacts, feet), torch.stack(per_frame).mean(), rtol=1e-6)
+
+
+def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their_own():
+    """The sampler stage generates its cross-style windows in the same rollout as the batch's own windows;
+    each group's losses must be those of a separate rollout (windows do not interact)."""
+    from model.features import local_frame_features
+    from model.manifold import ManifoldConfig, ManifoldDecoder
+    from model.phase import PeriodicAutoencoder, PhaseConfig
+    from model.sampler import SamplerConfig, TransitionSampler
+    from model.style_classifier import StyleClassifier, StyleClassifierConfig
+    from model.synthetic import synthetic_walk
+    from model.train.batches import make_batch
+    from model.train.motion_tensors import MotionTensors
+    from model.train.phase_stage import label_tensors
+    from model.train.sampler_stage import (
+        SamplerStageConfig,
+        concat_batches,
+        rollout,
+        score_rollout,
+        style_statistics,
+        transition_losses,
+    )
+
+    walks = [synthetic_walk(frames=80, speed_cm_s=v, cadence_hz=f) for v, f in ((100.0, 0.8), (160.0, 1.2))]
+    sk = walks[0].skeleton
+    tensors = MotionTensors.from_clips([(w, i, "walk") for i, w in enumerate(walks)], ["slow", "fast"], sk, augment=False,
+                                       progress=False)
+    torch.manual_seed(0)
+    j = sk.num_joints
+    label_tensors(PeriodicAutoencoder(PhaseConfig(channels=j * 3, phases=4, window=15, hidden=8)).eval(), tensors, False)
+    sampler = TransitionSampler(SamplerConfig(joints=j, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32,
+                                              root=sk.roles.root),
+                                ManifoldDecoder(ManifoldConfig(joints=j, phases=4, latent=8, experts=3, hidden=32,
+                                                               gate_hidden=16, encoder_hidden=32, root=sk.roles.root)))
+    stage = SamplerStageConfig(style_frames=20, style_loss_min_frames=5)
+    mean, std = style_statistics(tensors, 20)
+    sampler.style_mean.copy_(mean)
+    sampler.style_std.copy_(std)
+    critics = [StyleClassifier(StyleClassifierConfig(styles=["slow", "fast"], joints=j, inputs="dynamics")).eval()]
+    length, k = 12, sampler.config.context
+    take_starts = [int(tensors.take_slice(i).start) for i in range(2)]
+    own = make_batch(tensors, torch.tensor([take_starts[0] + 3, take_starts[0] + 9]), torch.tensor([0, 0]), k + length, k - 1)
+    cross = make_batch(tensors, torch.tensor([take_starts[1] + 4]), torch.tensor([1]), k + length, k - 1)
+
+    def clips(starts: list[int]) -> torch.Tensor:
+        pos, rot = tensors.gather(torch.tensor(starts), 20)
+        return local_frame_features(pos, rot, sk)
+
+    own_clips, cross_clips = clips([take_starts[0] + 40, take_starts[0] + 50]), clips([take_starts[0] + 30])
+    ground = torch.tensor([0.0] * len(sk.feet))
+    labels, xlabels = torch.tensor([0, 0]), torch.tensor([0])  # the cross window asks for the clip's style: slow
+    with torch.no_grad():
+        alone = transition_losses(sampler, tensors, own, own_clips, length, stage, None, False, critics, labels, ground=ground)
+        xalone = transition_losses(sampler, tensors, cross, cross_clips, length, stage, None, False, critics, xlabels,
+                                   ground_truth=False, ground=ground)
+        r = rollout(sampler, tensors, concat_batches(own, cross), torch.cat([own_clips, cross_clips]), length, stage, None, False)
+        together = score_rollout(r, tensors, stage, slice(0, 2), critics, labels, ground=ground)
+        xtogether = score_rollout(r, tensors, stage, slice(2, None), critics, xlabels, ground_truth=False, ground=ground)
+    assert together.keys() == alone.keys() and xtogether.keys() == xalone.keys() == {"last_pos", "last_rot", "foot_height",
+                                                                                     "style", "style_acc"}
+    for a, b in ((alone, together), (xalone, xtogether)):
+        for key in a:
+            assert torch.allclose(a[key], b[key], rtol=1e-4, atol=1e-6), key
