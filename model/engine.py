@@ -265,8 +265,8 @@ class Engine:
         inits = [c._init for c in characters]
         if any(i is None for i in inits):
             raise ValueError("character was not prepared by Engine.prepare, or has begun already")
-        ctx = _cat_pose([i[0] for i in inits])  # type: ignore[index]
-        tgt = _cat_pose([i[1] for i in inits])  # type: ignore[index]
+        ctx = PoseState.cat([i[0] for i in inits])  # type: ignore[index]
+        tgt = PoseState.cat([i[1] for i in inits])  # type: ignore[index]
         frames = torch.tensor([i[2] for i in inits])  # type: ignore[index]
         noise = torch.cat([i[3] for i in inits])  # type: ignore[index]
         style = StyleContext.stack([c.style.context for c in characters])
@@ -326,9 +326,6 @@ class Engine:
             batch.drop_finished()
         return [(torch.stack(rots[ch.id]), torch.stack(roots[ch.id])) for ch in characters]
 
-
-def _cat_pose(items: list[PoseState]) -> PoseState:
-    return PoseState(*(torch.cat([getattr(p, k) for p in items]) for k in ("rel", "vel", "rot", "root_xz")))
 
 
 class CharacterBatch:

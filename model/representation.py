@@ -51,6 +51,19 @@ class PoseState:
     def index(self, idx) -> PoseState:
         return PoseState(self.rel[idx], self.vel[idx], self.rot[idx], self.root_xz[idx])
 
+    @staticmethod
+    def cat(items: list[PoseState], dim: int = 0) -> PoseState:
+        """Join states along an existing batch or time axis ``dim`` (counted before the joint axis)."""
+        return PoseState(*(torch.cat([getattr(p, name) for p in items], dim) for name in _FIELDS))
+
+    @staticmethod
+    def stack(items: list[PoseState], dim: int) -> PoseState:
+        """Stack states along a new axis ``dim`` (counted before the joint axis), e.g. frames into ``[B, T, J, *]``."""
+        return PoseState(*(torch.stack([getattr(p, name) for p in items], dim) for name in _FIELDS))
+
+
+_FIELDS = ("rel", "vel", "rot", "root_xz")
+
 
 def state_dim(num_joints: int) -> int:
     return num_joints * 12

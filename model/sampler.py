@@ -212,7 +212,7 @@ class SamplerState:
         for f in fields(SamplerState):
             parts = [getattr(i, f.name) for i in items]
             if isinstance(parts[0], PoseState):
-                vals[f.name] = PoseState(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rel", "vel", "rot", "root_xz")))
+                vals[f.name] = PoseState.cat(parts)
             else:
                 vals[f.name] = torch.cat(parts)
         return SamplerState(**vals)

@@ -213,7 +213,7 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
         poses.append(state.pose)
         auxes.append(aux)
     # The generated frames stacked once ([B, steps, J, *]) for every loss.
-    gen_states = PoseState(*(torch.stack([getattr(p, name) for p in poses], 1) for name in ("rel", "vel", "rot", "root_xz")))
+    gen_states = PoseState.stack(poses, 1)
     return Rollout(
         batch=batch, context=k, root=c.root, length=length, steps=steps, target=target, last=state.pose,
         estimate=(est_p, est_a, est_f), gen_states=gen_states,
@@ -309,8 +309,8 @@ def concat_batches(a: WindowBatch, b: WindowBatch) -> WindowBatch:
     def cat(x: Tensor | None, y: Tensor | None) -> Tensor | None:
         return None if x is None or y is None else torch.cat([x, y])
 
-    states = PoseState(*(torch.cat([getattr(a.states, n), getattr(b.states, n)]) for n in ("rel", "vel", "rot", "root_xz")))
-    return WindowBatch(states, cat(a.phase, b.phase), cat(a.amplitude, b.amplitude), cat(a.frequency, b.frequency),
+    return WindowBatch(PoseState.cat([a.states, b.states]), cat(a.phase, b.phase), cat(a.amplitude, b.amplitude),
+                       cat(a.frequency, b.frequency),
                        torch.cat([a.contacts, b.contacts]), torch.cat([a.style, b.style]),
                        torch.cat([a.rotations, b.rotations]))
 

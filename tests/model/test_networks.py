@@ -198,3 +198,11 @@ def test_half_precision_bundle_loads_as_float32(tmp_path):
         assert torch.allclose(q, ref[n], atol=1e-3, rtol=1e-3)
     with pytest.raises(BundleError):
         bundle.save(tmp_path / "x", weights_dtype="int8")
+
+
+def test_pose_state_cat_and_stack_round_trip():
+    a, b = _pose(2, seed=1), _pose(3, seed=2)
+    joined = PoseState.cat([a, b])
+    assert torch.equal(joined.index(slice(2, None)).rot, b.rot) and torch.equal(joined.index(slice(0, 2)).root_xz, a.root_xz)
+    frames = PoseState.stack([a, a.index(slice(None))], 1)  # [B, 2, J, *]
+    assert frames.rel.shape == (2, 2, J, 3) and torch.equal(frames.index((slice(None), 1)).vel, a.vel)
