@@ -51,6 +51,10 @@ class PoseState:
     def index(self, idx) -> PoseState:
         return PoseState(self.rel[idx], self.vel[idx], self.rot[idx], self.root_xz[idx])
 
+    def contiguous(self) -> PoseState:
+        """The same states in contiguous memory (views of windows of any length get one layout)."""
+        return PoseState(*(getattr(self, name).contiguous() for name in _FIELDS))
+
     @staticmethod
     def cat(items: list[PoseState], dim: int = 0) -> PoseState:
         """Join states along an existing batch or time axis ``dim`` (counted before the joint axis)."""

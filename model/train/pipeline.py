@@ -203,13 +203,16 @@ def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progre
 
 
 def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...], out: Path | None,
-        progress: bool = True, command: str | None = None, device: torch.device | str = "auto") -> Bundle | None:
+        progress: bool = True, command: str | None = None, device: torch.device | str = "auto",
+        compile: bool = False) -> Bundle | None:
     """Run the given stages (in recipe order) and write the bundle when the sampler is done.
 
     ``device`` (``auto``: CUDA when there is a GPU, else the CPU) is where the networks train and
     the motion tensors live. It is a property of the machine, not of the recipe, so it is not part
     of ``cfg`` or of the saved ``train_config.json``: a run can resume on another device. Random
     draws stay on the CPU's generators, so the CPU path's numbers do not depend on this option.
+    ``compile`` (also not part of the recipe) trains the sampler's per-frame functions through
+    ``torch.compile`` (:mod:`model.train.step_compiler`).
     """
     dev = resolve_device(device)
     log.info("training on %s", dev)
@@ -268,7 +271,7 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
         torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
         sampler = TransitionSampler(cfg.sampler, manifold.decoder)
         sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev,
-                                        critics)
+                                        critics, compile=compile)
         if not result.finished:
             return None
         timings["sampler_s"] = round(time.monotonic() - t0, 1)

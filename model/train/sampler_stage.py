@@ -26,6 +26,7 @@ from model.style_classifier import StyleClassifier, motion_features
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
 from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
+from model.train.step_compiler import compiled_steps
 
 Tensor = torch.Tensor
 
@@ -190,7 +191,9 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
     steps = length if duration is None else duration
     style = model.style_context(model.encode_style(style_feats))
     assert batch.phase is not None and batch.amplitude is not None and batch.frequency is not None
-    ctx = s.index((slice(None), slice(0, k)))
+    # Contiguous copies: a view's strides depend on the window's length, and compiled steps
+    # (model.train.step_compiler) are specialised to strides.
+    ctx = s.index((slice(None), slice(0, k))).contiguous()
     est_p, est_a, est_f = model.phase_estimator(ctx.vector())
     dev = s.rel.device
     if training and gen is not None:
@@ -203,7 +206,7 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
     else:
         start_phase = None
         noise = torch.zeros(b, 2 * c.width, device=dev)
-    target = s.index((slice(None), k + length - 1))
+    target = s.index((slice(None), k + length - 1)).contiguous()
     if target_shift is not None:
         target = PoseState(target.rel, target.vel, target.rot, target.root_xz + target_shift)
     state = model.begin(ctx, target, torch.full((b,), steps, device=dev), noise, style, start_phase)
@@ -317,13 +320,14 @@ def concat_batches(a: WindowBatch, b: WindowBatch) -> WindowBatch:
 
 def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSampler, stage: SamplerStageConfig,
                   folder: Path, progress: bool = True, device: torch.device | str = "auto",
-                  critics: Sequence[StyleClassifier] = ()) -> tuple[TransitionSampler, LoopResult]:
+                  critics: Sequence[StyleClassifier] = (), compile: bool = False) -> tuple[TransitionSampler, LoopResult]:
     """Train every sampler module except the decoder, which stays frozen (gradients flow through it).
 
     ``model`` is moved to ``device`` (in place) and stays there. With ``stage.w_style`` above 0,
     ``critics`` (style classifiers trained on the training split, frozen) add a style loss on the
     generated frames, and ``stage.cross_batch`` windows per step get a style clip of another style
-    (no ground truth: only the target and the critic's loss apply to them).
+    (no ground truth: only the target and the critic's loss apply to them). ``compile`` runs the
+    per-frame functions through ``torch.compile`` (:mod:`model.train.step_compiler`).
     """
     c = model.config
     if stage.max_transition > c.max_transition:
@@ -450,7 +454,8 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         return {k: sums[k] for k in ("fk_error_cm", "last_fk_error_cm", "foot", "phase", "estimator", "acc", "style_acc",
                                      "foot_height", "spectrum") if k in sums}
 
-    result = train_loop("sampler", folder, model, params, stage.loop, step, validate, progress)
+    with compiled_steps(model, compile):
+        result = train_loop("sampler", folder, model, params, stage.loop, step, validate, progress)
     model.eval()
     return model, result
 

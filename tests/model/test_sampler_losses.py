@@ -1,4 +1,4 @@
-"""The sampler's motion losses that need no network: acceleration profile and planted-foot speed."""
+"""The sampler stage: its motion losses, how rollouts are grouped, and compiled training steps."""
 
 from __future__ import annotations
 
@@ -124,26 +124,16 @@ def test_foot_slide_loss_over_frames_is_the_mean_of_its_per_frame_values():
     assert torch.isclose(foot_slide_loss(states, contacts, feet), torch.stack(per_frame).mean(), rtol=1e-6)
 
 
-def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their_own():
-    """The sampler stage generates its cross-style windows in the same rollout as the batch's own windows;
-    each group's losses must be those of a separate rollout (windows do not interact)."""
-    from model.features import local_frame_features
+def _tiny_setup():
+    """Two synthetic walk styles, a tiny sampler with labelled phases, a critic, and a 12-frame length."""
     from model.manifold import ManifoldConfig, ManifoldDecoder
     from model.phase import PeriodicAutoencoder, PhaseConfig
     from model.sampler import SamplerConfig, TransitionSampler
     from model.style_classifier import StyleClassifier, StyleClassifierConfig
     from model.synthetic import synthetic_walk
-    from model.train.batches import make_batch
     from model.train.motion_tensors import MotionTensors
     from model.train.phase_stage import label_tensors
-    from model.train.sampler_stage import (
-        SamplerStageConfig,
-        concat_batches,
-        rollout,
-        score_rollout,
-        style_statistics,
-        transition_losses,
-    )
+    from model.train.sampler_stage import SamplerStageConfig, style_statistics
 
     walks = [synthetic_walk(frames=80, speed_cm_s=v, cadence_hz=f) for v, f in ((100.0, 0.8), (160.0, 1.2))]
     sk = walks[0].skeleton
@@ -161,16 +151,30 @@ def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their
     sampler.style_mean.copy_(mean)
     sampler.style_std.copy_(std)
     critics = [StyleClassifier(StyleClassifierConfig(styles=["slow", "fast"], joints=j, inputs="dynamics")).eval()]
-    length, k = 12, sampler.config.context
     take_starts = [int(tensors.take_slice(i).start) for i in range(2)]
+    return tensors, sampler, stage, critics, take_starts, 12
+
+
+def _clips(tensors, starts: list[int]) -> torch.Tensor:
+    from model.features import local_frame_features
+
+    pos, rot = tensors.gather(torch.tensor(starts), 20)
+    return local_frame_features(pos, rot, tensors.skeleton)
+
+
+def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their_own():
+    """The sampler stage generates its cross-style windows in the same rollout as the batch's own windows;
+    each group's losses must be those of a separate rollout (windows do not interact)."""
+    from model.train.batches import make_batch
+    from model.train.sampler_stage import concat_batches, rollout, score_rollout, transition_losses
+
+    tensors, sampler, stage, critics, take_starts, length = _tiny_setup()
+    sk, k = tensors.skeleton, sampler.config.context
     own = make_batch(tensors, torch.tensor([take_starts[0] + 3, take_starts[0] + 9]), torch.tensor([0, 0]), k + length, k - 1)
     cross = make_batch(tensors, torch.tensor([take_starts[1] + 4]), torch.tensor([1]), k + length, k - 1)
 
-    def clips(starts: list[int]) -> torch.Tensor:
-        pos, rot = tensors.gather(torch.tensor(starts), 20)
-        return local_frame_features(pos, rot, sk)
-
-    own_clips, cross_clips = clips([take_starts[0] + 40, take_starts[0] + 50]), clips([take_starts[0] + 30])
+    own_clips = _clips(tensors, [take_starts[0] + 40, take_starts[0] + 50])
+    cross_clips = _clips(tensors, [take_starts[0] + 30])
     ground = torch.tensor([0.0] * len(sk.feet))
     labels, xlabels = torch.tensor([0, 0]), torch.tensor([0])  # the cross window asks for the clip's style: slow
     with torch.no_grad():
@@ -185,3 +189,46 @@ def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their
     for a, b in ((alone, together), (xalone, xtogether)):
         for key in a:
             assert torch.allclose(a[key], b[key], rtol=1e-4, atol=1e-6), key
+
+
+def test_compiled_steps_give_the_eager_losses_and_gradients_and_restore_the_model():
+    """Training with ``--compile`` runs the per-frame functions through torch.compile; the losses and the
+    gradients must be those of eager execution (to float rounding), and the model must be plain afterwards."""
+    import pytest
+
+    from model.train.batches import make_batch
+    from model.train.sampler_stage import transition_losses, weighted_sum
+    from model.train.step_compiler import compile_unavailable, compiled_steps
+
+    reason = compile_unavailable(torch.device("cpu"))
+    if reason:
+        pytest.skip(reason)
+    tensors, sampler, stage, critics, take_starts, length = _tiny_setup()
+    k = sampler.config.context
+    batch = make_batch(tensors, torch.tensor([take_starts[0] + 3, take_starts[1] + 9]), torch.tensor([0, 1]), k + length, k - 1)
+    clips = _clips(tensors, [take_starts[0] + 40, take_starts[1] + 30])
+    for p in sampler.decoder.parameters():
+        p.requires_grad_(False)
+    params = [p for p in sampler.parameters() if p.requires_grad]
+    weights = {"pos": 1.0, "rot": 1.0, "fk": 0.5, "foot": 0.1, "phase": 0.5, "last_pos": 1.0, "style": 0.1}
+
+    def run() -> tuple[dict[str, torch.Tensor], list[torch.Tensor]]:
+        losses = transition_losses(sampler, tensors, batch, clips, length, stage, torch.Generator().manual_seed(3), True,
+                                   critics, torch.tensor([0, 1]))
+        grads = torch.autograd.grad(weighted_sum(losses, weights), params, allow_unused=True)
+        return {key: v.detach() for key, v in losses.items()}, [torch.zeros_like(p) if g is None else g
+                                                                 for p, g in zip(params, grads)]
+
+    eager_losses, eager_grads = run()
+    with compiled_steps(sampler) as compiled:
+        assert compiled
+        assert "step" in vars(sampler)
+        losses, grads = run()
+    assert "step" not in vars(sampler) and "_core" not in vars(sampler)
+    for key, value in eager_losses.items():
+        assert torch.allclose(value, losses[key], rtol=1e-4, atol=1e-6), key
+    scale = max(g.abs().max() for g in eager_grads)
+    for a, b in zip(eager_grads, grads):
+        assert (a - b).abs().max() <= 1e-4 * scale
+    with compiled_steps(sampler, enabled=False) as compiled:
+        assert not compiled and "step" not in vars(sampler)
