@@ -22,6 +22,7 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
+from model.inference_config import InferenceConfig
 from model.manifold import ManifoldConfig, ManifoldDecoder
 from model.output_config import OutputConfig
 from model.phase import PeriodicAutoencoder, PhaseConfig
@@ -61,6 +62,7 @@ class Bundle:
     meta: BundleMeta = field(default_factory=BundleMeta)
     version: str = "unsaved"
     output: OutputConfig = field(default_factory=OutputConfig)  # the engine's post-processing of frames
+    inference: InferenceConfig = field(default_factory=InferenceConfig)  # how the engine runs the network
 
     @property
     def config(self) -> SamplerConfig:
@@ -120,6 +122,7 @@ class Bundle:
             "phase": self.phase_config.to_dict(),
             "has_phase_model": self.phase_model is not None,
             "output": self.output.to_dict(),
+            "inference": self.inference.to_dict(),
             "meta": self.meta.__dict__,
         }
         (path / "config.json").write_text(json.dumps(config, indent=1))
@@ -151,6 +154,10 @@ class Bundle:
             bundle.output = OutputConfig.from_dict(config.get("output", {}))
         except (TypeError, ValueError) as exc:
             raise BundleError(f"{path}/config.json: bad output settings: {exc}") from exc
+        try:
+            bundle.inference = InferenceConfig.from_dict(config.get("inference", {}))
+        except (TypeError, ValueError) as exc:
+            raise BundleError(f"{path}/config.json: bad inference settings: {exc}") from exc
         if not config.get("has_phase_model", True):
             bundle.phase_model = None
         tensors = load_file(str(path / "weights.safetensors"))

@@ -23,6 +23,7 @@ from model.compiled_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.features import CanonicalFrame, local_frame_features
 from model.foot_lock import FootLock
 from model.kinematics import forward_kinematics, global_to_local_rotations
+from model.quantized_step import int8_lstm_sampler
 from model.representation import PoseState, state_from_positions
 from model.rotations import quat_normalize, quat_to_sixd
 from model.sampler import SamplerState, StyleContext
@@ -100,11 +101,14 @@ class Engine:
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
                  cache_bytes: int = 256 << 20, compiled: bool | None = None, smoothing: float | None = None,
-                 foot_lock: bool | None = None, root_smoothing: float | None = None) -> None:
+                 foot_lock: bool | None = None, root_smoothing: float | None = None,
+                 int8_lstm: bool | None = None) -> None:
         """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
         the root, :mod:`model.output_filter`) and ``foot_lock`` (:mod:`model.foot_lock`) override the
-        bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too."""
+        bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
+        ``int8_lstm`` overrides the bundle's inference setting (:mod:`model.quantized_step`)."""
         self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock)
+        self.inference = bundle.inference.with_overrides(int8_lstm)
         if threads:
             torch.set_num_threads(threads)
         if compiled is None:
@@ -118,8 +122,13 @@ class Engine:
         self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
         self._offsets = self.skeleton.offsets_tensor()
         self.arrival = ArrivalCorrector(self.skeleton)
-        # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager.
-        self.step_fn = CompiledStep(self.sampler) if compiled else (lambda st, sty: self.sampler.step(st, sty)[0])
+        # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with
+        # an int8 LSTM cell where the bundle asks for one (the float32 sampler still warms up on the context).
+        stepper = int8_lstm_sampler(self.sampler) if self.inference.int8_lstm else None
+        if stepper is None:
+            self.inference = self.inference.with_overrides(int8_lstm=False)
+            stepper = self.sampler
+        self.step_fn = CompiledStep(stepper) if compiled else (lambda st, sty: stepper.step(st, sty)[0])
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
         self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock), traced=compiled)

@@ -54,7 +54,7 @@ def average_bundles(bundles: Sequence[Bundle], weights: Sequence[float] | None =
                     name: str | None = None) -> Bundle:
     """A new bundle whose every float weight is ``sum_i w_i * weight_i`` (weights normalised to sum 1).
 
-    The skeleton, configs and output settings are the first bundle's; its meta too, with ``notes``
+    The skeleton, configs, output and inference settings are the first bundle's; its meta too, with ``notes``
     naming the sources and their weights. The inputs are left unchanged.
     """
     if len(bundles) < 2:
@@ -80,5 +80,6 @@ def average_bundles(bundles: Sequence[Bundle], weights: Sequence[float] | None =
         out.phase_model.load_state_dict(_mix([b.phase_model.state_dict() for b in bundles], weights),  # type: ignore[union-attr]
                                         strict=True)
     out.output = first.output
+    out.inference = first.inference
     out.sampler.eval()
     return out

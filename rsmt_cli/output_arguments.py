@@ -1,4 +1,4 @@
-"""The engine's output-step flags, shared by ``rsmt eval`` and ``rsmt bench``."""
+"""The engine's per-bundle setting flags (output steps, int8 LSTM), shared by ``rsmt eval`` and ``rsmt bench``."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
-    """``--smoothing``, ``--root-smoothing`` and ``--foot-lock``; ``owner`` names whose settings they
+    """``--smoothing``, ``--root-smoothing``, ``--foot-lock`` and ``--int8-lstm``; ``owner`` names whose settings they
     override in the help ("each bundle", "the bundle")."""
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help=f"output-filter strength, in [0, 1) (default: {owner}'s own setting; 0 gives the network's "
@@ -16,6 +16,9 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
                         f"else {owner}'s own)")
     p.add_argument("--foot-lock", choices=("on", "off"), default=None,
                    help=f"foot locking on or off (default: {owner}'s own setting)")
+    p.add_argument("--int8-lstm", choices=("on", "off"), default=None,
+                   help=f"run the LSTM cell of the per-frame step with int8 weights, on or off (default: {owner}'s "
+                        "own setting)")
 
 
 def output_overrides(args: argparse.Namespace) -> dict[str, float | bool | None]:
@@ -25,4 +28,5 @@ def output_overrides(args: argparse.Namespace) -> dict[str, float | bool | None]
         if value is not None and not 0.0 <= value < 1.0:
             raise ValueError(f"{flag} must be in [0, 1)")
     return {"smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
-            "foot_lock": None if args.foot_lock is None else args.foot_lock == "on"}
+            "foot_lock": None if args.foot_lock is None else args.foot_lock == "on",
+            "int8_lstm": None if args.int8_lstm is None else args.int8_lstm == "on"}

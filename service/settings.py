@@ -45,6 +45,8 @@ class Settings(BaseSettings):
         None, ge=0, lt=1,
         description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
     foot_lock: bool | None = Field(None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
+    int8_lstm: bool | None = Field(
+        None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
 
     # ------------------------------------------------------------------ style cache
     style_cache_entries: int = Field(1024, ge=1)

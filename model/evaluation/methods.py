@@ -93,13 +93,15 @@ class BundleMethod(Method):
     stochastic = True
 
     def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
-                 smoothing: float | None = None, foot_lock: bool | None = None, root_smoothing: float | None = None) -> None:
+                 smoothing: float | None = None, foot_lock: bool | None = None, root_smoothing: float | None = None,
+                 int8_lstm: bool | None = None) -> None:
         from model.bundle import Bundle
         from model.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)
-        self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock, root_smoothing=root_smoothing)
+        self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock, root_smoothing=root_smoothing,
+                             int8_lstm=int8_lstm)
         self.name = name or self.path.name
         self.batch = batch
         self.exact_arrival = exact_arrival
@@ -108,7 +110,7 @@ class BundleMethod(Method):
         d = super().describe()
         d.update(path=str(self.path), version=self.bundle.version, bundle_name=self.bundle.meta.name,
                  max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival,
-                 output=self.engine.output.to_dict())
+                 output=self.engine.output.to_dict(), inference=self.engine.inference.to_dict())
         return d
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
@@ -139,11 +141,12 @@ class BundleMethod(Method):
 
 
 def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smoothing: float | None = None,
-                   foot_lock: bool | None = None, root_smoothing: float | None = None) -> Method:
+                   foot_lock: bool | None = None, root_smoothing: float | None = None,
+                   int8_lstm: bool | None = None) -> Method:
     """``interp``, ``zerovel``, ``gt`` or the path of a model bundle.
 
-    ``exact_arrival``, ``smoothing``, ``root_smoothing`` and ``foot_lock`` (None: the bundle's own) are the
-    engine's options for bundles.
+    ``exact_arrival``, ``smoothing``, ``root_smoothing``, ``foot_lock`` and ``int8_lstm`` (None: the bundle's
+    own) are the engine's options for bundles.
     """
     if spec in BASELINES:
         return BaselineMethod(spec)
@@ -153,4 +156,4 @@ def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smo
     if not path.is_dir():
         raise FileNotFoundError(f"--model {spec!r} is neither {', '.join([*BASELINES, GROUND_TRUTH])} nor a bundle folder")
     return BundleMethod(path, batch, exact_arrival=exact_arrival, smoothing=smoothing, foot_lock=foot_lock,
-                        root_smoothing=root_smoothing)
+                        root_smoothing=root_smoothing, int8_lstm=int8_lstm)
