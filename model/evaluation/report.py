@@ -90,19 +90,22 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
     # 3. style
     if clf:
         chance = 1.0 / max(1, len(clf["styles"]))
-        header = ["method", "style acc (same-style clip)", "style acc (other-style clip)", "FMD", "FMD (other style)"]
+        header = ["method", "style acc (same-style clip)", "style acc (other-style clip)",
+                  "other-style clip read as the context's style", "FMD", "FMD (other style)"]
         gt = report["ground_truth"].get("gap40", {})
         floor = gt.get("fmd_split_half")
-        rows = [[GT_NAME, _fmt(gt.get("style_accuracy")), "–", "0" if floor is None else f"0 (split halves {floor:.2f})",
+        rows = [[GT_NAME, _fmt(gt.get("style_accuracy")), "–", "–", "0" if floor is None else f"0 (split halves {floor:.2f})",
                  "–"]]
         for name, m in methods.items():
             r = m["variants"].get("gap40", {})
-            rows.append([name, _fmt(r.get("style_accuracy")), _fmt(r.get("style_accuracy_cross")), _fmt(r.get("fmd"), 2),
-                         _fmt(r.get("fmd_cross"), 2)])
+            rows.append([name, _fmt(r.get("style_accuracy")), _fmt(r.get("style_accuracy_cross")),
+                         _fmt(r.get("style_cross_as_context")), _fmt(r.get("fmd"), 2), _fmt(r.get("fmd_cross"), 2)])
         lines += [f"### Style on the 40-frame gap (classifier `{clf['path']}`, inputs `{clf['inputs']}`, "
                   f"chance {chance:.3f})", "", *_table(header, rows), "",
                   "Style accuracy: share of transitions classified as the requested style (the style clip's). "
-                  "Baselines ignore the style clip. FMD: Fréchet distance of the classifier's pooled features to the "
+                  "Baselines ignore the style clip. With an other-style clip, the next column is the share of "
+                  "transitions classified as the context's own style instead (the clip not followed). "
+                  "FMD: Fréchet distance of the classifier's pooled features to the "
                   "ground truth of the same cases (other style: to ground truth of cases in the requested style); "
                   "the ground-truth row gives the distance between two halves of the ground truth, the floor at "
                   "this number of cases.", ""]
@@ -112,6 +115,12 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
         if names:
             rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in by_style.items() if d]
             lines += ["Same-style accuracy per requested style (40-frame gap):", "", *_table(["method", *names], rows), ""]
+        cross = {name: m["variants"].get("gap40", {}).get("style_accuracy_cross_by_style") for name, m in methods.items()}
+        names = sorted({s for d in cross.values() if d for s in d})
+        if names:
+            rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in cross.items() if d]
+            lines += ["Other-style accuracy per requested style (the clip's; 40-frame gap):", "",
+                      *_table(["method", *names], rows), ""]
     else:
         lines += ["No style classifier given (`--classifier DIR`): no style accuracy or FMD.", ""]
     lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]

@@ -175,11 +175,17 @@ def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bun
         assert rows[v]["diversity_cm"] > 0 and rows[v]["diversity_cases"] == 2
         assert rows[v]["l2p"] > 0 and rows[v]["last_frame_cm"] >= 0
     gap40 = rows["gap40"]
-    for key in ("style_accuracy", "style_accuracy_cross"):
+    for key in ("style_accuracy", "style_accuracy_cross", "style_cross_as_context"):
         assert 0.0 <= gap40[key] <= 1.0
+    # The clip and the context are of different styles, so a transition is read as at most one of them.
+    assert gap40["style_accuracy_cross"] + gap40["style_cross_as_context"] <= 1.0 + 1e-6
+    assert "read as the context's style" in stdout
     per_style = gap40["style_accuracy_by_style"]
     assert set(per_style) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_style.values())
     assert "Same-style accuracy per requested style" in stdout
+    per_clip = gap40["style_accuracy_cross_by_style"]
+    assert set(per_clip) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_clip.values())
+    assert "Other-style accuracy per requested style" in stdout
     assert gap40["fmd"] >= 0 and gap40["fmd_cross"] >= 0
     assert 0.0 <= report["ground_truth"]["gap40"]["style_accuracy"] <= 1.0
     interp = report["methods"]["interp"]["variants"]
