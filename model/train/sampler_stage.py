@@ -56,6 +56,9 @@ class SamplerStageConfig:
     w_foot_height: float = 0.0  # horizontal speed of generated feet at their ground height (planted_foot_speed)
     w_style: float = 0.0  # cross-entropy of the style critic on generated frames (0: no critic)
     cross_batch: int = 0  # windows per step with a style clip of another style (need w_style)
+    # Those windows have no ground truth: this weighs each joint's mean acceleration over the transition
+    # against the style clip's own (acceleration_profile), the clip being the only example of its style at hand.
+    w_clip_acc: float = 0.0
     # Windows per step with changed controls, scored without ground truth (reaching the target, feet,
     # critics): half get a duration scaled by a factor in [1/control_dt, control_dt], half a target
     # moved by x times the window's own root travel, x in [-control_shift, control_shift] (the
@@ -228,9 +231,10 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
 
 def score_rollout(r: Rollout, tensors: MotionTensors, cfg: SamplerStageConfig, rows: slice = slice(None),
                   critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None, ground_truth: bool = True,
-                  ground: Tensor | None = None) -> dict[str, Tensor]:
+                  ground: Tensor | None = None, clip_acc: Tensor | None = None) -> dict[str, Tensor]:
     """The losses of the windows ``rows`` of a rollout (``critic_labels`` are those rows' own); see
-    :func:`transition_losses`. Every loss is a mean over the given rows only."""
+    :func:`transition_losses`. Every loss is a mean over the given rows only. ``clip_acc [rows, J]``, the
+    acceleration profile of each row's style clip, adds the ``clip_acc`` loss (no ground truth needed)."""
     k = r.context
     feet = list(tensors.skeleton.feet)
     target, last = r.target.index(rows), r.last.index(rows)
@@ -240,6 +244,9 @@ def score_rollout(r: Rollout, tensors: MotionTensors, cfg: SamplerStageConfig, r
         "last_rot": (last.rot - target.rot).abs().mean(),
     }
     frames = torch.cat([before[:, 1:], pred_fk], 1)  # the last context frame, then the generated ones
+    pred_vel = torch.diff(torch.cat([before, pred_fk], 1), dim=1)
+    if clip_acc is not None:
+        out["clip_acc"] = (acceleration_profile(pred_vel) - clip_acc).abs().mean() / EDGE_CM
     if ground is not None:
         out["foot_height"] = planted_foot_speed(frames, feet, ground)
     if critics and critic_labels is not None and r.steps >= cfg.style_loss_min_frames:
@@ -266,7 +273,6 @@ def score_rollout(r: Rollout, tensors: MotionTensors, cfg: SamplerStageConfig, r
     phase_loss = ((aux["phase"] - gp).pow(2).mean() + (aux["phase_hat"] - gp).pow(2).mean()
                   + (aux["amplitude"] - ga).pow(2).mean() + (aux["frequency"] - gf).pow(2).mean())
     gt_fk = _fk_from_states(gt_states.rot, gt_states.positions()[:, :, r.root], tensors)
-    pred_vel = torch.diff(torch.cat([before, pred_fk], 1), dim=1)
     gt_vel = torch.diff(torch.cat([before, gt_fk], 1), dim=1)
     return {
         **out,
@@ -369,7 +375,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     base_weights = {"pos": stage.w_pos, "rot": stage.w_rot, "last_pos": stage.w_last_pos, "last_rot": stage.w_last_rot,
                     "phase": stage.w_phase, "foot": stage.w_foot, "fk": stage.w_fk, "estimator": stage.w_estimator}
     weights = {**base_weights, "vel": stage.w_vel, "acc": stage.w_acc, "spectrum": stage.w_spectrum,
-               "foot_height": stage.w_foot_height, "style": stage.w_style}
+               "foot_height": stage.w_foot_height, "style": stage.w_style, "clip_acc": stage.w_clip_acc}
 
     def labels_of(style_ids: Tensor) -> Tensor | None:
         return class_of[style_ids.cpu()].to(dev) if use_critic else None
@@ -429,9 +435,16 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         shown = {k: v.item() for k, v in losses.items() if k in ("pos", "fk_error_cm", "last_fk_error_cm", "foot", "phase",
                                                                   "acc", "style_acc", "foot_height", "spectrum")}
         if cross:
-            xl = score_rollout(r, train, stage, slice(stage.batch, None), critics, xlabels, ground_truth=False, ground=ground)
+            clip_acc = None
+            if stage.w_clip_acc > 0:
+                clip_pos, _ = train.gather(xclips, stage.style_frames)
+                clip_acc = acceleration_profile(torch.diff(clip_pos, dim=1))
+            xl = score_rollout(r, train, stage, slice(stage.batch, None), critics, xlabels, ground_truth=False, ground=ground,
+                               clip_acc=clip_acc)
             if "style_acc" in xl:
                 shown["cross_acc"] = xl["style_acc"].item()
+            if "clip_acc" in xl:
+                shown["clip_acc"] = xl["clip_acc"].item()
             total = total + weighted_sum(xl, weights) * (stage.cross_batch / stage.batch)
         if extra and stage.control_batch > 0:
             cl = control_losses(length, gen)

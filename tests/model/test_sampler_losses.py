@@ -232,3 +232,25 @@ def test_compiled_steps_give_the_eager_losses_and_gradients_and_restore_the_mode
         assert (a - b).abs().max() <= 1e-4 * scale
     with compiled_steps(sampler, enabled=False) as compiled:
         assert not compiled and "step" not in vars(sampler)
+
+
+def test_clip_acceleration_loss_needs_no_ground_truth_and_reaches_the_sampler():
+    """Other-style windows have no ground truth; ``clip_acc`` compares each joint's mean acceleration over
+    the generated transition with the style clip's, and its gradient reaches the sampler."""
+    from model.train.batches import make_batch
+    from model.train.sampler_stage import acceleration_profile, rollout, score_rollout
+
+    tensors, sampler, stage, critics, take_starts, length = _tiny_setup()
+    k = sampler.config.context
+    batch = make_batch(tensors, torch.tensor([take_starts[0] + 3, take_starts[1] + 9]), torch.tensor([0, 1]), k + length, k - 1)
+    r = rollout(sampler, tensors, batch, _clips(tensors, [take_starts[1] + 30, take_starts[0] + 40]), length, stage, None, False)
+    own = acceleration_profile(torch.diff(torch.cat([r.before, r.pred_fk], 1), dim=1)).detach()
+    same = score_rollout(r, tensors, stage, ground_truth=False, clip_acc=own)
+    assert set(same) == {"last_pos", "last_rot", "clip_acc"} and float(same["clip_acc"]) < 1e-6
+    clip_pos, _ = tensors.gather(torch.tensor([take_starts[1] + 30, take_starts[0] + 40]), 20)
+    clip_acc = acceleration_profile(torch.diff(clip_pos, dim=1))
+    assert clip_acc.shape == own.shape
+    loss = score_rollout(r, tensors, stage, ground_truth=False, clip_acc=clip_acc)["clip_acc"]
+    assert float(loss) > 0
+    loss.backward()
+    assert sampler.head_out[-1].weight.grad is not None and sampler.head_out[-1].weight.grad.abs().sum() > 0
