@@ -3,10 +3,10 @@
 At batch 1 a frame reads every per-frame weight once (7.8 MB in float32 for the default model),
 and on a shared 2-core machine those reads, not the arithmetic, set the latency. The LSTM cell
 is the largest layer (3.4 MB); PyTorch's dynamic quantisation stores it as int8 (0.85 MB) and
-quantises its inputs per call (fbgemm kernels). Measured with the default model on the development
-machine, ``rsmt bench`` batch-1 medians went from 0.88-1.59 to 0.70-0.93 ms (three interleaved
-runs each) and 128-character throughput from 13-15 to 19-22 thousand character-frames/s, with
-validation figures unchanged to the third digit (docs/benchmarks.md).
+quantises its inputs per call (fbgemm kernels). With the default model on the development machine,
+alternating a float32 and an int8-LSTM engine in one process (five pairs, one thread), batch-1
+medians went from 0.94-1.83 to 0.70-1.17 ms and 128 characters from 10.7-12.0 to 13.4-15.4
+thousand character-frames/s; test figures are unchanged to the third digit (docs/benchmarks.md).
 
 The warm-up on the context frames (``begin``) keeps the float32 cell: it runs once per transition.
 """
