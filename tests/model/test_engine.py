@@ -25,11 +25,6 @@ def engine() -> Engine:
     return Engine(Bundle.create(synthetic_skeleton(), cfg, man, seed=1))
 
 
-@pytest.fixture(scope="module")
-def walk() -> Clip:
-    return synthetic_walk(frames=150, turn_deg_s=20.0)
-
-
 def _run(engine, walk, frames=20, seed=5, deterministic=False, style_clip=None):
     style, _ = engine.encode_style(style_clip or walk.window(30, 150))
     ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), frames, style, seed=seed, deterministic=deterministic)

@@ -13,7 +13,7 @@ from model.output_config import OutputConfig
 from model.output_filter import smooth_frame, smoothing_weight
 from model.rotations import quat_normalize
 from model.sampler import SamplerConfig
-from model.synthetic import synthetic_skeleton, synthetic_walk
+from model.synthetic import synthetic_skeleton
 
 J = 21
 
@@ -23,11 +23,6 @@ def bundle() -> Bundle:
     cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
     man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
     return Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
-
-
-@pytest.fixture(scope="module")
-def walk() -> Clip:
-    return synthetic_walk(frames=150, turn_deg_s=20.0)
 
 
 def _random_quats(*shape: int, seed: int = 0) -> torch.Tensor:

@@ -15,7 +15,7 @@ from model.inference_config import InferenceConfig
 from model.manifold import ManifoldConfig
 from model.quantized_step import int8_lstm_sampler
 from model.sampler import SamplerConfig
-from model.synthetic import synthetic_skeleton, synthetic_walk
+from model.synthetic import synthetic_skeleton
 
 J = 21
 
@@ -26,11 +26,6 @@ def bundle() -> Bundle:
     cfg = SamplerConfig(joints=J, phases=4, latent=8, width=64, rnn=128, head=64, style_channels=32, max_transition=40)
     man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
     return Bundle.create(synthetic_skeleton(), cfg, man, seed=4)
-
-
-@pytest.fixture(scope="module")
-def walk() -> Clip:
-    return synthetic_walk(frames=150, turn_deg_s=20.0)
 
 
 def _generate(engine: Engine, walk: Clip) -> tuple[torch.Tensor, torch.Tensor]:
