@@ -61,6 +61,9 @@ def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     monkeypatch.delenv("RSMT_FOOT_LOCK")
     engine = _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE)))
     assert engine.output == engine.bundle.output  # unset: the bundle's own
+    assert engine.inference.int8_lstm and engine.bundle.inference.int8_lstm  # the default bundle's setting
+    monkeypatch.setenv("RSMT_INT8_LSTM", "false")
+    assert not _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).inference.int8_lstm
 
 
 def _engine_of(registry):
