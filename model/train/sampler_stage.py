@@ -426,7 +426,8 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
             xs, xo, xclips, xstyle = pairs.sample_cross(stage.cross_batch, gen)
             xlabels = labels_of(torch.full((len(xs),), xstyle))
             batch = concat_batches(batch, make_batch(train, xs, xo, c.context + length, c.context - 1))
-            feats = torch.cat([feats, features_of(xclips, train)])
+            xpos, xrot = train.gather(xclips, stage.style_frames)
+            feats = torch.cat([feats, local_frame_features(xpos, xrot, train.skeleton)])
         r = rollout(model, train, batch, feats, length, stage, gen, True)
         own = slice(0, stage.batch)
         losses = score_rollout(r, train, stage, own, critics if styled else (), labels,
@@ -435,10 +436,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
         shown = {k: v.item() for k, v in losses.items() if k in ("pos", "fk_error_cm", "last_fk_error_cm", "foot", "phase",
                                                                   "acc", "style_acc", "foot_height", "spectrum")}
         if cross:
-            clip_acc = None
-            if stage.w_clip_acc > 0:
-                clip_pos, _ = train.gather(xclips, stage.style_frames)
-                clip_acc = acceleration_profile(torch.diff(clip_pos, dim=1))
+            clip_acc = acceleration_profile(torch.diff(xpos, dim=1)) if stage.w_clip_acc > 0 else None
             xl = score_rollout(r, train, stage, slice(stage.batch, None), critics, xlabels, ground_truth=False, ground=ground,
                                clip_acc=clip_acc)
             if "style_acc" in xl:
