@@ -124,10 +124,13 @@ class Engine:
         self.arrival = ArrivalCorrector(self.skeleton)
         # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with
         # an int8 LSTM cell where the bundle asks for one (the float32 sampler still warms up on the context).
-        stepper = int8_lstm_sampler(self.sampler) if self.inference.int8_lstm else None
-        if stepper is None:
-            self.inference = self.inference.with_overrides(int8_lstm=False)
-            stepper = self.sampler
+        stepper = self.sampler
+        if self.inference.int8_lstm:
+            quantized = int8_lstm_sampler(self.sampler)
+            if quantized is None:  # this torch cannot: say so in self.inference
+                self.inference = self.inference.with_overrides(int8_lstm=False)
+            else:
+                stepper = quantized
         self.step_fn = CompiledStep(stepper) if compiled else (lambda st, sty: stepper.step(st, sty)[0])
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
