@@ -121,6 +121,13 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
             rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in cross.items() if d]
             lines += ["Other-style accuracy per requested style (the clip's; 40-frame gap):", "",
                       *_table(["method", *names], rows), ""]
+        by_context = {name: m["variants"].get("gap40", {}).get("style_accuracy_cross_by_context")
+                      for name, m in methods.items()}
+        names = sorted({s for d in by_context.values() if d for s in d})
+        if names:
+            rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in by_context.items() if d]
+            lines += ["Other-style accuracy per context style (scored on the clip's style; 40-frame gap):", "",
+                      *_table(["method", *names], rows), ""]
     else:
         lines += ["No style classifier given (`--classifier DIR`): no style accuracy or FMD.", ""]
     lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]

@@ -168,6 +168,9 @@ def evaluate(
                     # Where the misses go: the share read as the context's own style (the clip ignored).
                     row["style_cross_as_context"] = scorer.accuracy(logits_x, scorer.labels(styles))
                     row["style_accuracy_cross_by_style"] = scorer.accuracy_by_style(logits_x, scorer.labels(cross_styles))
+                    # And by the context's style: a context that travels fast leaves a calm clip style little room.
+                    row["style_accuracy_cross_by_context"] = scorer.accuracy_by_style(
+                        logits_x, scorer.labels(cross_styles), groups=scorer.labels(styles))
                     ref, kept = matched_reference(gt_features, styles, cross_styles)
                     row["fmd_cross"] = scorer.fmd(feats_x[kept], ref)
             if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2

@@ -56,11 +56,13 @@ class StyleScorer:
             return None
         return float((logits[known].argmax(-1) == labels[known]).float().mean())
 
-    def accuracy_by_style(self, logits: Tensor, labels: Tensor) -> dict[str, float]:
-        """Accuracy per requested style (the classifier's styles that occur in ``labels``)."""
-        pred = logits.argmax(-1)
-        return {name: float((pred[labels == i] == i).float().mean())
-                for name, i in self.index.items() if bool((labels == i).any())}
+    def accuracy_by_style(self, logits: Tensor, labels: Tensor, groups: Tensor | None = None) -> dict[str, float]:
+        """Accuracy per requested style (the classifier's styles that occur in ``labels``), or, given
+        ``groups`` (class indices, e.g. the context's style), per group, each case scored on its label."""
+        groups = labels if groups is None else groups
+        hit = logits.argmax(-1) == labels
+        return {name: float(hit[(groups == i) & (labels >= 0)].float().mean())
+                for name, i in self.index.items() if bool(((groups == i) & (labels >= 0)).any())}
 
     @staticmethod
     def fmd(features: Tensor, reference: Tensor) -> float | None:

@@ -186,6 +186,9 @@ def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bun
     per_clip = gap40["style_accuracy_cross_by_style"]
     assert set(per_clip) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_clip.values())
     assert "Other-style accuracy per requested style" in stdout
+    per_context = gap40["style_accuracy_cross_by_context"]
+    assert set(per_context) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_context.values())
+    assert "Other-style accuracy per context style" in stdout
     assert gap40["fmd"] >= 0 and gap40["fmd_cross"] >= 0
     assert 0.0 <= report["ground_truth"]["gap40"]["style_accuracy"] <= 1.0
     interp = report["methods"]["interp"]["variants"]
@@ -260,3 +263,19 @@ def test_accuracy_by_style_agrees_with_the_overall_accuracy() -> None:
     assert per == pytest.approx({"a": 2 / 3, "b": 1 / 2, "c": 1.0})
     counts = {"a": 3, "b": 2, "c": 1}
     assert sum(per[s] * n for s, n in counts.items()) / 6 == pytest.approx(StyleScorer.accuracy(logits, labels))
+
+
+def test_accuracy_by_style_groups_cases_by_another_label() -> None:
+    from types import SimpleNamespace
+
+    from model.evaluation.style_scores import StyleScorer
+
+    scorer = SimpleNamespace(index={"a": 0, "b": 1, "c": 2})
+    logits = torch.eye(3)[[0, 1, 1, 2, 0]]  # predictions a, b, b, c, a
+    labels = torch.tensor([0, 1, 2, 2, -1])  # requested styles; the last is unknown to the classifier
+    by_label = StyleScorer.accuracy_by_style(scorer, logits, labels)
+    assert by_label == {"a": 1.0, "b": 1.0, "c": 0.5}
+    # The same hits grouped by context style: context a holds cases 0 and 2 (one hit), b holds case 1.
+    context = torch.tensor([0, 1, 0, 2, 1])
+    by_context = StyleScorer.accuracy_by_style(scorer, logits, labels, groups=context)
+    assert by_context == {"a": 0.5, "b": 1.0, "c": 1.0}  # case 4's unknown label is left out of group b
