@@ -168,7 +168,7 @@ def evaluate(
                     # Where the misses go: the share read as the context's own style (the clip ignored).
                     row["style_cross_as_context"] = scorer.accuracy(logits_x, scorer.labels(styles))
                     row["style_accuracy_cross_by_style"] = scorer.accuracy_by_style(logits_x, scorer.labels(cross_styles))
-                    # And by the context's style: a context that travels fast leaves a calm clip style little room.
+                    # And by the context's style: which contexts make another style's clip hard to follow.
                     row["style_accuracy_cross_by_context"] = scorer.accuracy_by_style(
                         logits_x, scorer.labels(cross_styles), groups=scorer.labels(styles))
                     ref, kept = matched_reference(gt_features, styles, cross_styles)
