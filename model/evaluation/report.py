@@ -109,29 +109,29 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
                   "ground truth of the same cases (other style: to ground truth of cases in the requested style); "
                   "the ground-truth row gives the distance between two halves of the ground truth, the floor at "
                   "this number of cases.", ""]
-        by_style = {GT_NAME: gt.get("style_accuracy_by_style"),
-                    **{name: m["variants"].get("gap40", {}).get("style_accuracy_by_style") for name, m in methods.items()}}
-        names = sorted({s for d in by_style.values() if d for s in d})
-        if names:
-            rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in by_style.items() if d]
-            lines += ["Same-style accuracy per requested style (40-frame gap):", "", *_table(["method", *names], rows), ""]
-        cross = {name: m["variants"].get("gap40", {}).get("style_accuracy_cross_by_style") for name, m in methods.items()}
-        names = sorted({s for d in cross.values() if d for s in d})
-        if names:
-            rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in cross.items() if d]
-            lines += ["Other-style accuracy per requested style (the clip's; 40-frame gap):", "",
-                      *_table(["method", *names], rows), ""]
-        by_context = {name: m["variants"].get("gap40", {}).get("style_accuracy_cross_by_context")
-                      for name, m in methods.items()}
-        names = sorted({s for d in by_context.values() if d for s in d})
-        if names:
-            rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in by_context.items() if d]
-            lines += ["Other-style accuracy per context style (scored on the clip's style; 40-frame gap):", "",
-                      *_table(["method", *names], rows), ""]
+
+        def gap40(key: str) -> dict[str, Any]:
+            return {name: m["variants"].get("gap40", {}).get(key) for name, m in methods.items()}
+
+        lines += _per_style_table("Same-style accuracy per requested style (40-frame gap):",
+                                  {GT_NAME: gt.get("style_accuracy_by_style"), **gap40("style_accuracy_by_style")})
+        lines += _per_style_table("Other-style accuracy per requested style (the clip's; 40-frame gap):",
+                                  gap40("style_accuracy_cross_by_style"))
+        lines += _per_style_table("Other-style accuracy per context style (scored on the clip's style; 40-frame gap):",
+                                  gap40("style_accuracy_cross_by_context"))
     else:
         lines += ["No style classifier given (`--classifier DIR`): no style accuracy or FMD.", ""]
     lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]
     return "\n".join(lines)
+
+
+def _per_style_table(title: str, per_method: dict[str, dict[str, float] | None]) -> list[str]:
+    """A titled table of per-style figures, a row per method that has them (none: no lines)."""
+    names = sorted({s for d in per_method.values() if d for s in d})
+    if not names:
+        return []
+    rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in per_method.items() if d]
+    return [title, "", *_table(["method", *names], rows), ""]
 
 
 def write_report(folder: str | Path, report: dict[str, Any], text: str) -> list[Path]:
