@@ -7,18 +7,12 @@ import json
 import torch
 
 from model.bundle import Bundle
-from model.manifold import ManifoldConfig
-from model.sampler import SamplerConfig
-from model.synthetic import synthetic_skeleton
 from rsmt_cli.main import main
-
-J = 21
-SAMPLER = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32)
-MANIFOLD = ManifoldConfig(joints=J, phases=4, latent=8, experts=3, hidden=32, gate_hidden=16, encoder_hidden=32)
+from tests.model.tiny_bundles import tiny_bundle
 
 
 def test_package_writes_float16_weights_and_the_settings(tmp_path, capsys):
-    source = Bundle.create(synthetic_skeleton(), SAMPLER, MANIFOLD, seed=3)
+    source = tiny_bundle(3)
     source.save(tmp_path / "trained")
     (tmp_path / "trained" / "train_config.json").write_text('{"name": "recipe"}')
     args = ["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "ship"), "--float16",
@@ -42,7 +36,7 @@ def test_package_writes_float16_weights_and_the_settings(tmp_path, capsys):
 
 
 def test_package_keeps_unset_settings_and_refuses_bad_ones(tmp_path, capsys):
-    source = Bundle.create(synthetic_skeleton(), SAMPLER, MANIFOLD, seed=4)
+    source = tiny_bundle(4)
     source.save(tmp_path / "trained")
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "copy")]) == 0
     copy = Bundle.load(tmp_path / "copy")

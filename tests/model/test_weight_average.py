@@ -9,20 +9,12 @@ import pytest
 import torch
 
 from model.bundle import Bundle, BundleError
-from model.manifold import ManifoldConfig
 from model.output_config import OutputConfig
 from model.sampler import SamplerConfig
-from model.synthetic import synthetic_skeleton
 from model.weight_average import average_bundles
 from rsmt_cli.main import main
-
-J = 21
-SAMPLER = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32)
-MANIFOLD = ManifoldConfig(joints=J, phases=4, latent=8, experts=3, hidden=32, gate_hidden=16, encoder_hidden=32)
-
-
-def _bundle(seed: int, sampler: SamplerConfig = SAMPLER) -> Bundle:
-    return Bundle.create(synthetic_skeleton(), sampler, MANIFOLD, seed=seed)
+from tests.model.tiny_bundles import SAMPLER
+from tests.model.tiny_bundles import tiny_bundle as _bundle
 
 
 def _floats(bundle: Bundle) -> dict[str, torch.Tensor]:
