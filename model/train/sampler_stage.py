@@ -59,6 +59,9 @@ class SamplerStageConfig:
     # Those windows have no ground truth: this weighs each joint's mean acceleration over the transition
     # against the style clip's own (acceleration_profile), the clip being the only example of its style at hand.
     w_clip_acc: float = 0.0
+    # The critics' loss on those other-style windows (None: w_style). They are the only windows that ask
+    # the sampler to follow a clip against its context, and they are scored on little else.
+    w_cross_style: float | None = None
     # Windows per step with changed controls, scored without ground truth (reaching the target, feet,
     # critics): half get a duration scaled by a factor in [1/control_dt, control_dt], half a target
     # moved by x times the window's own root travel, x in [-control_shift, control_shift] (the
@@ -86,6 +89,8 @@ class SamplerStageConfig:
                              f"got {list(self.critic_inputs)!r}")
         if self.cross_batch < 0 or self.control_batch < 0:
             raise ValueError("cross_batch and control_batch must be 0 or more")
+        if self.w_cross_style is not None and self.w_cross_style < 0:
+            raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
         if self.control_dt < 1.0 or self.control_shift < 0.0:
             raise ValueError("control_dt must be at least 1 and control_shift at least 0")
 
@@ -150,6 +155,11 @@ def _fk_from_states(rot6: Tensor, root_pos: Tensor, tensors: MotionTensors) -> T
     sk = tensors.skeleton
     local = global_to_local_rotations(sixd_to_quat(rot6), sk.parents)
     return forward_kinematics(local, root_pos, sk.offsets_tensor().to(rot6.device), sk.parents)[0]
+
+
+def cross_style_weights(weights: dict[str, float], stage: SamplerStageConfig) -> dict[str, float]:
+    """The loss weights of the other-style windows: ``weights`` with the critics' at ``w_cross_style``."""
+    return dict(weights) if stage.w_cross_style is None else {**weights, "style": stage.w_cross_style}
 
 
 def critic_logits(critics: Sequence[StyleClassifier], positions: Tensor, skeleton: Skeleton) -> list[Tensor]:
@@ -377,6 +387,8 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     weights = {**base_weights, "vel": stage.w_vel, "acc": stage.w_acc, "spectrum": stage.w_spectrum,
                "foot_height": stage.w_foot_height, "style": stage.w_style, "clip_acc": stage.w_clip_acc}
 
+    cross_weights = cross_style_weights(weights, stage)
+
     def labels_of(style_ids: Tensor) -> Tensor | None:
         return class_of[style_ids.cpu()].to(dev) if use_critic else None
 
@@ -443,7 +455,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
                 shown["cross_acc"] = xl["style_acc"].item()
             if "clip_acc" in xl:
                 shown["clip_acc"] = xl["clip_acc"].item()
-            total = total + weighted_sum(xl, weights) * (stage.cross_batch / stage.batch)
+            total = total + weighted_sum(xl, cross_weights) * (stage.cross_batch / stage.batch)
         if extra and stage.control_batch > 0:
             cl = control_losses(length, gen)
             if "style_acc" in cl:

@@ -87,6 +87,18 @@ def test_changed_control_settings_are_checked():
             SamplerStageConfig(**bad)
 
 
+def test_the_cross_style_critic_weight_defaults_to_w_style_and_is_checked():
+    import pytest
+
+    from model.train.sampler_stage import SamplerStageConfig, cross_style_weights
+
+    weights = {"pos": 1.0, "style": 0.15, "last_pos": 1.0}
+    assert cross_style_weights(weights, SamplerStageConfig(w_style=0.15)) == weights
+    assert cross_style_weights(weights, SamplerStageConfig(w_style=0.15, w_cross_style=0.6)) == {**weights, "style": 0.6}
+    with pytest.raises(ValueError, match="w_cross_style"):
+        SamplerStageConfig(w_cross_style=-0.1)
+
+
 def test_critic_logits_match_the_critics_own_features_of_the_real_motion():
     """The critics read velocities only, so the stand-in rotations of ``critic_logits`` must change
     nothing against the real rotations; and every critic of the list answers."""

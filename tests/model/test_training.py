@@ -126,7 +126,7 @@ def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypa
     cfg["sampler_stage"].update(w_style=0.5, cross_batch=4, critic_epochs=1, critic_iterations=5,
                                 critic_inputs=["dynamics", "acceleration"],
                                 style_loss_min_frames=3, w_vel=1.0, w_acc=1.0, w_foot_height=1.0, extra_losses_from=3,
-                                control_batch=4)
+                                control_batch=4, w_cross_style=2.0)
     path = tmp_path / "style.json"
     path.write_text(json.dumps(cfg))
     args = ["train", "all", "--config", str(path), "--data", str(data), "--out", str(tmp_path / "bundle"),
@@ -142,6 +142,8 @@ def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypa
     assert {"train_control_last", "train_control_acc"} <= set(history[-1])
     assert history[-1]["train_control_last"] > 0 and "train_control_last" not in history[0]
     assert Bundle.load(tmp_path / "bundle").sampler is not None
+    saved = json.loads((tmp_path / "bundle" / "train_config.json").read_text())["sampler_stage"]
+    assert saved["w_cross_style"] == 2.0 and saved["w_style"] == 0.5
     stamps = [(tmp_path / "run" / d / "weights.safetensors").stat().st_mtime_ns for d in ("critic", "critic-acceleration")]
     (tmp_path / "run" / "sampler" / "checkpoint.json").unlink()  # retrain the sampler only
     assert main(args) == 0
