@@ -16,7 +16,7 @@ CHAINS = {
     # The shipped model's recipe: the two-hour presets, then the three cross-style stages.
     "shipped": ["two-hour-1-frames", "two-hour-2-critics", "two-hour-3-accuracy", "two-hour-4-accuracy",
                 "cross-style-1-critics", "cross-style-2-arrival", "cross-style-3-accuracy"],
-    # The same recipe with a shorter first stage and no D, to fit about two hours.
+    # The same recipe with a shorter first stage and no D (tried for about two hours; not shipped).
     "fast": ["fast-1-frames", "fast-2-critics", "fast-3-accuracy", "fast-4-cross-critics",
              "fast-5-cross-arrival", "fast-6-cross-accuracy"],
 }
