@@ -18,7 +18,7 @@ RUN pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 # missing or does not load: the image must carry a working default model.
 COPY . /src
 RUN pip install /src && rm -rf /src
-RUN python -c "from model.bundle import DEFAULT_BUNDLE, Bundle; Bundle.load(DEFAULT_BUNDLE)" \
+RUN python -c "from model.inference.bundle import DEFAULT_BUNDLE, Bundle; Bundle.load(DEFAULT_BUNDLE)" \
  || { echo "model/default_bundle is missing or broken: train one (rsmt train all --out model/default_bundle) before docker build" >&2; exit 1; }
 
 RUN useradd --create-home --uid 10001 rsmt && mkdir /models && chown rsmt /models

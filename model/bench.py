@@ -13,14 +13,14 @@ from dataclasses import dataclass, field
 
 import torch
 
-from model.bundle import Bundle
-from model.engine import CharacterBatch, Engine
-from model.manifold import ManifoldConfig
-from model.sampler import SamplerConfig
-from model.synthetic import synthetic_walk
+from model.data.synthetic import synthetic_walk
+from model.inference.bundle import Bundle
+from model.inference.engine import CharacterBatch, Engine
+from model.nets.manifold import ManifoldConfig
+from model.nets.sampler import SamplerConfig
 
-PAPER_SAMPLER = dict(width=512, rnn=1024, head=1024, style_channels=512, phases=10, latent=32)
-PAPER_MANIFOLD = dict(experts=8, hidden=512, gate_hidden=128, encoder_hidden=512, phases=10, latent=32)
+PAPER_SAMPLER = {"width": 512, "rnn": 1024, "head": 1024, "style_channels": 512, "phases": 10, "latent": 32}
+PAPER_MANIFOLD = {"experts": 8, "hidden": 512, "gate_hidden": 128, "encoder_hidden": 512, "phases": 10, "latent": 32}
 
 
 def _rss_mb() -> float:

@@ -12,7 +12,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "average", help="average the weights of bundles fine-tuned from one parent (a model soup)",
         description="Write a bundle whose weights are the weighted mean of the given bundles' (same configs and "
                     "skeleton; the first bundle's output settings and model card fields). Only meaningful for "
-                    "a bundle and its own continuations: see model/weight_average.py.")
+                    "a bundle and its own continuations: see model/train/weight_average.py.")
     p.add_argument("--model", type=Path, action="append", required=True, metavar="BUNDLE",
                    help="a bundle folder; repeat, at least twice")
     p.add_argument("--weight", type=float, action="append", metavar="W",
@@ -24,8 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from model.bundle import Bundle
-    from model.weight_average import average_bundles
+    from model.inference.bundle import Bundle
+    from model.train.weight_average import average_bundles
 
     if args.out.resolve() in {m.resolve() for m in args.model}:
         raise ValueError("--out must not be one of the averaged bundles")

@@ -27,8 +27,8 @@ def _run(args: argparse.Namespace) -> int:
     import torch
 
     from model.bench import bench_engine, format_table, machine_description, machine_probe, paper_size_engine
-    from model.bundle import DEFAULT_BUNDLE, Bundle
-    from model.engine import Engine
+    from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+    from model.inference.engine import Engine
 
     if args.threads:
         torch.set_num_threads(args.threads)

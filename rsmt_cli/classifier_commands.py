@@ -7,12 +7,12 @@ import json
 import shlex
 from pathlib import Path
 
-from model.data_dir import find_data_dir
+from model.data.location import find_data_dir
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``classifier`` stage to ``rsmt train``."""
-    from model.style_classifier import INPUTS
+    from model.nets.style_classifier import INPUTS
 
     p = sub.add_parser(
         "classifier", help="the style classifier for evaluation (style accuracy, FMD)",
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout-style", action="append", default=[], metavar="S",
                    help="hold a style out of the split and of the classes (repeatable), as for a few-shot model")
     p.add_argument("--inputs", default="acceleration", choices=INPUTS,
-                   help="what the classifier sees (default acceleration; see model/style_classifier.py)")
+                   help="what the classifier sees (default acceleration; see model/nets/style_classifier.py)")
     p.add_argument("--epochs", type=int, default=8, help="epochs (default 8)")
     p.add_argument("--iterations", type=int, default=150, help="batches per epoch (default 150)")
     p.add_argument("--batch", type=int, default=128, help="windows per batch (default 128)")
@@ -42,9 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def classifier_command(args: argparse.Namespace) -> int:
     import torch
 
-    from model.classifier_training import TrainSettings, build_windows, check_classifier, format_check, train_classifier
-    from model.motion_cache import load_motion_cache
-    from model.style_classifier import StyleClassifierConfig
+    from model.data.preprocessed import load_motion_cache
+    from model.nets.style_classifier import StyleClassifierConfig
+    from model.train.classifier_stage import TrainSettings, build_windows, check_classifier, format_check, train_classifier
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -11,9 +11,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from model.skeleton import SkeletonError, SkeletonProfile, detect_roles
-from model.splits import DEFAULT_RATIOS, SPLITS, parse_ratios, split_takes
-from model.takes import Problem, Take, TakeIndex, describe_layout, index_takes, read_bvh_header, relative_path
+from model.data.splits import DEFAULT_RATIOS, SPLITS, parse_ratios, split_takes
+from model.data.takes import Problem, Take, TakeIndex, describe_layout, index_takes, read_bvh_header, relative_path
+from model.motion.skeleton import SkeletonError, SkeletonProfile, detect_roles
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +107,7 @@ def inspect_data(
     prof = None if profile is None else SkeletonProfile.load(profile)
     cache_folder = None
     if use_cache:
-        from model.motion_cache import load_motion_cache  # torch-heavy; only needed with --cache
+        from model.data.preprocessed import load_motion_cache  # torch-heavy; only needed with --cache
 
         cache = load_motion_cache(folder, fps=fps, profile=prof, manifest=manifest)
         rows = [(t, n, cache.fps) for t, n in zip(cache.takes, cache.frame_counts)]

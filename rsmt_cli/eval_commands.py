@@ -7,7 +7,7 @@ import json
 import shlex
 from pathlib import Path
 
-from model.data_dir import find_data_dir
+from model.data.location import find_data_dir
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 
 
@@ -50,10 +50,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def eval_command(args: argparse.Namespace) -> int:
     import torch
 
+    from model.data.preprocessed import load_motion_cache
     from model.evaluation import EvalSettings, evaluate, resolve_method
     from model.evaluation.report import markdown
-    from model.motion_cache import load_motion_cache
-    from model.style_classifier import StyleClassifier
+    from model.nets.style_classifier import StyleClassifier
 
     if args.threads:
         torch.set_num_threads(args.threads)

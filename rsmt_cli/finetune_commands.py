@@ -29,9 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _run(args: argparse.Namespace) -> int:
     import torch
 
-    from model.bundle import Bundle
-    from model.bvh import load_clip
-    from model.engine import Engine
+    from model.inference.bundle import Bundle
+    from model.inference.engine import Engine
+    from model.motion.bvh_clip import load_clip
     from model.train.finetune import FinetuneConfig, finetune_style
 
     device = resolve_cli_device(args.device)  # first, so a missing GPU fails before anything is loaded

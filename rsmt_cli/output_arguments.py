@@ -22,7 +22,7 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
 
 
 def output_overrides(args: argparse.Namespace) -> dict[str, float | bool | None]:
-    """The flags as :class:`model.engine.Engine` keyword arguments (None: the bundle's own), checked
+    """The flags as :class:`model.inference.engine.Engine` keyword arguments (None: the bundle's own), checked
     here so that an error names the flag."""
     for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
         if value is not None and not 0.0 <= value < 1.0:

@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from model.bundle import Bundle
+    from model.inference.bundle import Bundle
 
     if args.out.resolve() == args.model.resolve():
         raise ValueError("--out must not be the --model folder")

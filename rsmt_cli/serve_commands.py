@@ -45,12 +45,12 @@ def _run(args: argparse.Namespace) -> int:
 
     from service.logconfig import log_config
 
-    common = dict(
-        host=settings.host, port=settings.port, log_config=log_config(settings.log_level, settings.log_format),
-        access_log=settings.access_log, ws_max_size=settings.ws_max_message_bytes,
-        ws_per_message_deflate=settings.ws_per_message_deflate,
-        timeout_graceful_shutdown=settings.shutdown_grace_s, lifespan="on",
-    )
+    common = {
+        "host": settings.host, "port": settings.port, "log_config": log_config(settings.log_level, settings.log_format),
+        "access_log": settings.access_log, "ws_max_size": settings.ws_max_message_bytes,
+        "ws_per_message_deflate": settings.ws_per_message_deflate,
+        "timeout_graceful_shutdown": settings.shutdown_grace_s, "lifespan": "on",
+    }
     if args.workers > 1:
         # Worker processes build their own app from the environment.
         for key, value in overrides.items():

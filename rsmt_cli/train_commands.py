@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from model.data_dir import find_data_dir
+from model.data.location import find_data_dir
 
 if TYPE_CHECKING:
     import torch

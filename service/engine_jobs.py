@@ -10,7 +10,7 @@ import secrets
 import time
 from typing import Any
 
-from model.engine import Character, EncodedStyle, EngineError
+from model.inference.engine import Character, EncodedStyle, EngineError
 from service.errors import ServiceError
 from service.motion import frames_bvh, frames_json, motion_to_clip
 from service.registry import LoadedModel

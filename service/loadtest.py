@@ -283,9 +283,9 @@ def _local_engine(bundle: Path, body: dict, style_motion: dict):
     like the server's default); returns milliseconds."""
     import torch
 
-    from model.bundle import Bundle
-    from model.clip import Clip
-    from model.engine import Engine
+    from model.inference.bundle import Bundle
+    from model.inference.engine import Engine
+    from model.motion.clip import Clip
 
     torch.set_num_threads(1)
     engine = Engine(Bundle.load(bundle), threads=1)
@@ -309,8 +309,8 @@ def _local_engine(bundle: Path, body: dict, style_motion: dict):
 # ---------------------------------------------------------------------- a server to test
 def spawn(bundle: Path | None, threads: int, env: dict[str, str]) -> tuple[subprocess.Popen, str, Path]:
     if bundle is None:
-        from model.bundle import Bundle
-        from model.synthetic import synthetic_skeleton
+        from model.data.synthetic import synthetic_skeleton
+        from model.inference.bundle import Bundle
 
         folder = tempfile.mkdtemp(prefix="rsmt-load-")
         atexit.register(shutil.rmtree, folder, ignore_errors=True)

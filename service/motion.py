@@ -13,11 +13,12 @@ import numpy as np
 import orjson
 import torch
 
-from model.bvh import BvhDocument, BvhError, dump_clip, to_clip
-from model.clip import Clip
-from model.engine import Engine, EngineError
-from model.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError
-from model.skeleton import plain_joint_name as _plain
+from model.inference.engine import Engine, EngineError
+from model.motion.bvh import BvhDocument, BvhError
+from model.motion.bvh_clip import dump_clip, to_clip
+from model.motion.clip import Clip
+from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError
+from model.motion.skeleton import plain_joint_name as _plain
 from service.errors import ServiceError
 from service.schemas import BvhMotion, PoseMotion
 

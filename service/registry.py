@@ -17,8 +17,8 @@ from typing import Any, TypeVar
 
 import torch
 
-from model.bundle import Bundle, BundleError
-from model.engine import Engine
+from model.inference.bundle import Bundle, BundleError
+from model.inference.engine import Engine
 from service.errors import ServiceError
 from service.metrics import Metrics
 from service.motion import MotionLimits
@@ -142,7 +142,7 @@ def load_registry(settings: Settings) -> Registry:
         max_transition = min(engine.max_frames, cap) if cap else engine.max_frames
         limits = MotionLimits(settings.max_clip_frames, settings.quaternion_tolerance, settings.max_abs_position)
         # torch's thread count is per OS thread once that thread has run an op: set it in each worker.
-        init = dict(initializer=torch.set_num_threads, initargs=(settings.threads,)) if settings.threads else {}
+        init = {"initializer": torch.set_num_threads, "initargs": (settings.threads,)} if settings.threads else {}
         models.append(LoadedModel(
             name=name, path=path, engine=engine, max_transition=max_transition, limits=limits,
             work=ThreadPoolExecutor(settings.request_threads, thread_name_prefix=f"work-{name}", **init),

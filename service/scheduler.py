@@ -1,7 +1,7 @@
 """Per-step batching across streams: one background task per model advances every live character of
 every connection with one batched engine step per tick.
 
-Characters are grouped by pace, each group in one :class:`~model.engine.CharacterBatch`:
+Characters are grouped by pace, each group in one :class:`~model.inference.engine.CharacterBatch`:
 
 * ``realtime`` characters step together once per frame period (1 / model fps), on a fixed clock;
 * ``asap`` characters step together back to back, as fast as the engine goes, while any waits.
@@ -33,8 +33,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from model.clip import Clip
-from model.engine import Character, CharacterBatch, EncodedStyle, Engine, EngineError
+from model.inference.engine import Character, CharacterBatch, EncodedStyle, Engine, EngineError
+from model.motion.clip import Clip
 from service.errors import ServiceError
 from service.frames import encode_binary, encode_json
 from service.metrics import Metrics

@@ -11,8 +11,8 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 def _default_models() -> Path:
-    # Imported lazily: model.bundle imports torch, and nothing heavy runs at import time.
-    from model.bundle import DEFAULT_BUNDLE
+    # Imported lazily: model.inference.bundle imports torch, and nothing heavy runs at import time.
+    from model.inference.bundle import DEFAULT_BUNDLE
 
     return DEFAULT_BUNDLE
 

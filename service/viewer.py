@@ -6,7 +6,7 @@ same reader and conforming as every other Motion payload (:mod:`service.motion`)
 JSON poses on the model's skeleton at its fps, ready for forward kinematics and for sending back as
 ``context``/``target`` of ``POST /v1/transition``.
 
-Demo takes are procedural walks on the synthetic rig (:mod:`model.synthetic`), generated at request
+Demo takes are procedural walks on the synthetic rig (:mod:`model.data.synthetic`), generated at request
 time, so no dataset file ships with the service. Their joint names are Bandai-Namco's, so they conform
 to any model on that rig; a model on another rig answers ``skeleton_mismatch`` and the viewer asks
 for an uploaded take instead.
@@ -21,9 +21,9 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from model.clip import Clip
-from model.engine import EngineError
-from model.synthetic import SYNTHETIC_STYLES, synthetic_walk
+from model.data.synthetic import SYNTHETIC_STYLES, synthetic_walk
+from model.inference.engine import EngineError
+from model.motion.clip import Clip
 from service.errors import ServiceError
 from service.motion import motion_to_clip
 from service.registry import LoadedModel

@@ -20,9 +20,9 @@ from typing import Any
 
 import torch
 
-from model.clip import Clip
-from model.engine import Character, CharacterBatch, Engine
-from model.style_cache import CacheStats
+from model.inference.engine import Character, CharacterBatch, Engine
+from model.inference.style_codes import CacheStats
+from model.motion.clip import Clip
 from service.motion import dumps, frames_bvh, frames_json
 from service.registry import LoadedModel
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.data_dir import ENV_VAR, find_data_dir
+from model.data.location import ENV_VAR, find_data_dir
 
 
 @pytest.fixture(scope="session")

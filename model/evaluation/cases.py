@@ -37,12 +37,12 @@ from functools import cached_property
 
 import torch
 
-from model.clip import Clip
-from model.features import CanonicalFrame
-from model.kinematics import forward_kinematics
-from model.motion_cache import MotionCache
-from model.rotations import quat_make_continuous, quat_normalize
-from model.skeleton import Skeleton
+from model.data.preprocessed import MotionCache
+from model.motion.clip import Clip
+from model.motion.features import CanonicalFrame
+from model.motion.kinematics import forward_kinematics
+from model.motion.rotations import quat_make_continuous, quat_normalize
+from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
 

@@ -4,10 +4,10 @@ A method turns a batch of requests (context, target, frame count, style clip, no
 generated frames ``1..N`` as world-space local rotations ``[B, N, J, 4]`` and root positions
 ``[B, N, 3]``; frame ``N`` is meant to be the target.
 
-* ``interp`` / ``zerovel``: :mod:`model.baselines` (interpolation from the last context pose to
+* ``interp`` / ``zerovel``: :mod:`model.evaluation.baselines` (interpolation from the last context pose to
   the target; hold the last context pose, then jump). They ignore the style clip.
 * ``gt``: the ground truth itself (only where it exists), a sanity check that must score 0.
-* a bundle folder: the trained model through :class:`model.engine.Engine`, noise off
+* a bundle folder: the trained model through :class:`model.inference.engine.Engine`, noise off
   (``deterministic=True``) for every score except diversity.
 """
 
@@ -21,9 +21,9 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from model.baselines import interpolate, zero_velocity
-from model.clip import Clip
+from model.evaluation.baselines import interpolate, zero_velocity
 from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
+from model.motion.clip import Clip
 
 Tensor = torch.Tensor
 
@@ -95,8 +95,8 @@ class BundleMethod(Method):
     def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
                  smoothing: float | None = None, foot_lock: bool | None = None, root_smoothing: float | None = None,
                  int8_lstm: bool | None = None) -> None:
-        from model.bundle import Bundle
-        from model.engine import Engine
+        from model.inference.bundle import Bundle
+        from model.inference.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)

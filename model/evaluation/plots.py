@@ -14,7 +14,7 @@ from typing import Any
 
 import torch
 
-from model.skeleton import Skeleton
+from model.motion.skeleton import Skeleton
 
 GT_NAME = "ground truth"
 GAP_METRICS = (

@@ -1,11 +1,11 @@
 """Statistics of the training split that the metrics need: L2P's position statistics and the feet's ground levels.
 
-* :class:`~model.metrics.PositionStats` for L2P are computed, like the reference benchmark's
+* :class:`~model.evaluation.metrics.PositionStats` for L2P are computed, like the reference benchmark's
   ``style100_benchmark_stat``, over the **training split** in the frame the metric is taken in:
   the training takes are cut into windows exactly as evaluation cases are (50 frames from frames
   0, 40, 80, ...), each window is put in the canonical frame of its frame 9, and the per-coordinate
   mean and std are taken over all frames of all windows.
-* Ground levels for foot skate (:func:`model.metrics.ground_levels`): per foot joint, the 5th
+* Ground levels for foot skate (:func:`model.evaluation.metrics.ground_levels`): per foot joint, the 5th
   percentile of its height over every frame of the training takes.
 """
 
@@ -19,12 +19,12 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
+from model.data.preprocessed import MotionCache
 from model.evaluation.cases import CASE_STEP, LAST_CONTEXT, SPAN
-from model.features import CanonicalFrame
-from model.kinematics import forward_kinematics
-from model.metrics import PositionStats, ground_levels
-from model.motion_cache import MotionCache
-from model.rotations import quat_normalize
+from model.evaluation.metrics import PositionStats, ground_levels
+from model.motion.features import CanonicalFrame
+from model.motion.kinematics import forward_kinematics
+from model.motion.rotations import quat_normalize
 
 Tensor = torch.Tensor
 
@@ -71,5 +71,5 @@ def reference_stats(cache: MotionCache, takes: Sequence[int], progress: bool = F
     if not windows:
         raise ValueError(f"no training take has the {SPAN} frames of an evaluation window")
     feet = tuple(sk0.feet)
-    ground = ground_levels([h for h in heights], range(len(feet)))
+    ground = ground_levels(list(heights), range(len(feet)))
     return ReferenceStats(PositionStats.from_positions(windows), feet, ground, len(takes), count)

@@ -19,7 +19,8 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
-from model import metrics
+from model.data.preprocessed import MotionCache
+from model.evaluation import metrics
 from model.evaluation.cases import (
     CASE_STEP,
     CONTEXT,
@@ -36,8 +37,7 @@ from model.evaluation.methods import BaselineMethod, Method, Request, Unavailabl
 from model.evaluation.reference import ReferenceStats, reference_stats
 from model.evaluation.scoring import ground_truth_transitions, score, to_canonical
 from model.evaluation.style_scores import StyleScorer, matched_reference
-from model.motion_cache import MotionCache
-from model.style_classifier import StyleClassifier
+from model.nets.style_classifier import StyleClassifier
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)

@@ -1,9 +1,9 @@
-"""Scores of one method's transitions on one variant of every case (definitions in :mod:`model.metrics`).
+"""Scores of one method's transitions on one variant of every case (definitions in :mod:`model.evaluation.metrics`).
 
 All positions and rotations are taken into the canonical frame of each case's last context
 frame before scoring. With ground truth (unchanged controls):
 
-* ``l2p``: standardised global positions (training-split :class:`~model.metrics.PositionStats`),
+* ``l2p``: standardised global positions (training-split :class:`~model.evaluation.metrics.PositionStats`),
   mean over cases and generated frames of the per-frame L2 norm; unitless;
 * ``l2q``: global quaternions, same averaging;
 * ``npss`` and ``npss_x100``: NPSS on global quaternions of the generated frames (LaFAN1 code's
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from model import metrics
+from model.evaluation import metrics
 from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
 from model.evaluation.reference import ReferenceStats
 

@@ -1,11 +1,11 @@
-"""Style accuracy and FMD of transitions, from the style classifier (:mod:`model.style_classifier`).
+"""Style accuracy and FMD of transitions, from the style classifier (:mod:`model.nets.style_classifier`).
 
 * ``style_accuracy``: the share of transitions the classifier assigns to the **requested** style
   (the style of the style clip the method was given). Baselines ignore the style clip, so for
   them the same-style figure only says what the classifier makes of their motion, and the
   cross-style figure should be low. Cases whose requested style the classifier does not know
   (a held-out style) are left out.
-* ``fmd``: the Fréchet distance (:func:`model.metrics.frechet_distance`) between the classifier's
+* ``fmd``: the Fréchet distance (:func:`model.evaluation.metrics.frechet_distance`) between the classifier's
   pooled features of the generated transitions and those of the ground-truth transitions of the
   same cases (RSMT's FMD, 40-frame gap, unchanged controls).
 * ``fmd_cross``: for style clips of another style there is no ground truth; the reference set is
@@ -23,10 +23,10 @@ from collections.abc import Sequence
 
 import torch
 
+from model.evaluation.metrics import frechet_distance
 from model.evaluation.scoring import Transitions
-from model.metrics import frechet_distance
-from model.skeleton import Skeleton
-from model.style_classifier import StyleClassifier, motion_features
+from model.motion.skeleton import Skeleton
+from model.nets.style_classifier import StyleClassifier, motion_features
 
 Tensor = torch.Tensor
 

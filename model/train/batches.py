@@ -6,9 +6,9 @@ from dataclasses import dataclass
 
 import torch
 
-from model.features import CanonicalFrame, soft_contacts
-from model.representation import PoseState, state_from_positions
-from model.rotations import quat_to_sixd
+from model.motion.features import CanonicalFrame, soft_contacts
+from model.motion.rotations import quat_to_sixd
+from model.nets.pose_state import PoseState, state_from_positions
 from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import torch
 
-from model.bundle import Bundle
-from model.clip import Clip
-from model.features import local_frame_features
+from model.inference.bundle import Bundle
+from model.motion.clip import Clip
+from model.motion.features import local_frame_features
 from model.train.batches import make_batch
 from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from model.manifold import ManifoldConfig, MotionManifold
+from model.nets.manifold import ManifoldConfig, MotionManifold
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
 from model.train.loop import LoopConfig, LoopResult, cpu_randn_like, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors

@@ -15,13 +15,13 @@ from dataclasses import dataclass, field
 import torch
 from tqdm import tqdm
 
-from model.clip import Clip
-from model.features import temporal_rescale
-from model.kinematics import forward_kinematics
-from model.mirror import mirror_global, mirror_reflections
-from model.motion_cache import MotionCache
-from model.rotations import quat_make_continuous, quat_normalize
-from model.skeleton import Skeleton
+from model.data.preprocessed import MotionCache
+from model.motion.clip import Clip
+from model.motion.features import temporal_rescale
+from model.motion.kinematics import forward_kinematics
+from model.motion.mirror import mirror_global, mirror_reflections
+from model.motion.rotations import quat_make_continuous, quat_normalize
+from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
@@ -85,7 +85,7 @@ class MotionTensors:
         if not takes:
             raise ValueError("no takes to train on")
         skeleton = skeleton or mean_skeleton(cache, takes)
-        # Typical motion settles the mirror convention of single-bone joints (see model.mirror).
+        # Typical motion settles the mirror convention of single-bone joints (see model.motion.mirror).
         sample = list(takes)[:: max(1, len(takes) // 200)]
         reference = torch.cat([cache.rotations(i)[::4] for i in sample])
         items = [(cache.clip(i), cache.style_id(i), cache.takes[i].content) for i in takes]

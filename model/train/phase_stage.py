@@ -8,9 +8,9 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from model.features import facing_yaw
-from model.phase import PeriodicAutoencoder, PhaseConfig, label_phases
-from model.rotations import quat_rotate, yaw_quat
+from model.motion.features import facing_yaw
+from model.motion.rotations import quat_rotate, yaw_quat
+from model.nets.phase import PeriodicAutoencoder, PhaseConfig, label_phases
 from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 

@@ -19,14 +19,14 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
-from model.bundle import Bundle, BundleMeta
-from model.classifier_training import TrainSettings, build_windows, train_classifier
-from model.manifold import ManifoldConfig, MotionManifold
-from model.motion_cache import MotionCache, load_motion_cache
-from model.phase import PeriodicAutoencoder, PhaseConfig
-from model.sampler import SamplerConfig, TransitionSampler
-from model.splits import Split
-from model.style_classifier import StyleClassifier, StyleClassifierConfig
+from model.data.preprocessed import MotionCache, load_motion_cache
+from model.data.splits import Split
+from model.inference.bundle import Bundle, BundleMeta
+from model.nets.manifold import ManifoldConfig, MotionManifold
+from model.nets.phase import PeriodicAutoencoder, PhaseConfig
+from model.nets.sampler import SamplerConfig, TransitionSampler
+from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig
+from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
 from model.train.loop import resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton

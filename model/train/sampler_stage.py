@@ -15,14 +15,14 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from model.features import local_frame_features
-from model.kinematics import forward_kinematics, global_to_local_rotations
-from model.metrics import ground_contact_weight, ground_levels
-from model.representation import PoseState
-from model.rotations import sixd_to_quat
-from model.sampler import TransitionSampler
-from model.skeleton import Skeleton
-from model.style_classifier import StyleClassifier, motion_features
+from model.evaluation.metrics import ground_contact_weight, ground_levels
+from model.motion.features import local_frame_features
+from model.motion.kinematics import forward_kinematics, global_to_local_rotations
+from model.motion.rotations import sixd_to_quat
+from model.motion.skeleton import Skeleton
+from model.nets.pose_state import PoseState
+from model.nets.sampler import TransitionSampler
+from model.nets.style_classifier import StyleClassifier, motion_features
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
 from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
@@ -69,7 +69,7 @@ class SamplerStageConfig:
     control_batch: int = 0
     control_dt: float = 2.0
     control_shift: float = 2.0
-    # Each critic's input selection (model.style_classifier.INPUTS, velocity-based); the style loss is
+    # Each critic's input selection (model.nets.style_classifier.INPUTS, velocity-based); the style loss is
     # their mean, so generated motion has to satisfy critics that read it differently, not one net's blind spots.
     critic_inputs: tuple[str, ...] = ("dynamics",)
     critic_epochs: int = 6
@@ -492,7 +492,7 @@ def weighted_sum(losses: dict[str, Tensor], weights: dict[str, float]) -> Tensor
 def planted_foot_speed(positions: Tensor, feet: list[int], ground: Tensor) -> Tensor:
     """Horizontal speed of foot joints weighted by how close each is to its ground level (cm/frame).
 
-    The weighting of :func:`model.metrics.foot_skate` (1 on the ground, 0 from 2.5 cm up), applied to
+    The weighting of :func:`model.evaluation.metrics.foot_skate` (1 on the ground, 0 from 2.5 cm up), applied to
     the generated motion itself: the ground-truth contact loss only holds feet still when the
     capture's feet were down, which misses a generated step that lands a few frames off. The weight
     is detached, so the loss slows a foot on the ground rather than lifting it off.

@@ -9,7 +9,7 @@ run once per rollout) about 20% faster: 0.39-0.46 -> 0.32 s, and 0.55-0.67 -> 0.
 later losses.
 
 Compilation is for training only: the inference engine has its own frozen TorchScript step
-(:mod:`model.compiled_step`). Numbers match eager execution to float rounding, not bit for bit.
+(:mod:`model.inference.traced_step`). Numbers match eager execution to float rounding, not bit for bit.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from contextlib import contextmanager
 
 import torch
 
-from model.sampler import TransitionSampler
+from model.nets.sampler import TransitionSampler
 
 log = logging.getLogger(__name__)
 

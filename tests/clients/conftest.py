@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.bundle import Bundle
-from model.bvh import dump_clip
-from model.synthetic import synthetic_skeleton, synthetic_walk
+from model.data.synthetic import synthetic_skeleton, synthetic_walk
+from model.inference.bundle import Bundle
+from model.motion.bvh_clip import dump_clip
 from tests.clients.helpers import API_KEY, build_core_test, build_harness
 from tests.service.server import Server
 

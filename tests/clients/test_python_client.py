@@ -27,8 +27,8 @@ from rsmt_client import (
     stream_url,
 )
 
-from model.bvh import load_clip
-from model.rotations import quat_angle
+from model.motion.bvh_clip import load_clip
+from model.motion.rotations import quat_angle
 from rsmt_cli.main import main as rsmt_main
 from tests.clients.conftest import serve_command
 from tests.clients.helpers import API_KEY, FRAMES, SEED

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from model.clip import Clip
-from model.synthetic import synthetic_walk
+from model.data.synthetic import synthetic_walk
+from model.motion.clip import Clip
 
 
 @pytest.fixture(scope="module")

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from model.bench import BenchResult, bench_engine, format_table, machine_probe, per_frame_parameters
-from model.bundle import Bundle
-from model.engine import Engine
-from model.manifold import ManifoldConfig
-from model.sampler import SamplerConfig
-from model.synthetic import synthetic_skeleton
+from model.data.synthetic import synthetic_skeleton
+from model.inference.bundle import Bundle
+from model.inference.engine import Engine
+from model.nets.manifold import ManifoldConfig
+from model.nets.sampler import SamplerConfig
 
 
 def test_bench_smoke():

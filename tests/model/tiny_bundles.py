@@ -3,10 +3,10 @@ mix or convert weights (their outputs are never judged as motion)."""
 
 from __future__ import annotations
 
-from model.bundle import Bundle
-from model.manifold import ManifoldConfig
-from model.sampler import SamplerConfig
-from model.synthetic import synthetic_skeleton
+from model.data.synthetic import synthetic_skeleton
+from model.inference.bundle import Bundle
+from model.nets.manifold import ManifoldConfig
+from model.nets.sampler import SamplerConfig
 
 J = 21
 SAMPLER = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32)

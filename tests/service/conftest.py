@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from model.bundle import Bundle
-from model.bvh import dump_clip
-from model.clip import Clip
-from model.synthetic import synthetic_skeleton, synthetic_walk
+from model.data.synthetic import synthetic_skeleton, synthetic_walk
+from model.inference.bundle import Bundle
+from model.motion.bvh_clip import dump_clip
+from model.motion.clip import Clip
 from tests.service.server import Server
 
 

@@ -23,8 +23,8 @@ def _schema():
     import tempfile
     from pathlib import Path
 
-    from model.bundle import Bundle
-    from model.synthetic import synthetic_skeleton
+    from model.data.synthetic import synthetic_skeleton
+    from model.inference.bundle import Bundle
 
     # Made at collection (schemathesis reads the schema then), so no fixture can own it: removed at exit.
     folder = tempfile.mkdtemp(prefix="rsmt-fuzz-")

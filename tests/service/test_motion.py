@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from model.bundle import Bundle
-from model.bvh import BvhDocument
-from model.engine import Engine
+from model.inference.bundle import Bundle
+from model.inference.engine import Engine
+from model.motion.bvh import BvhDocument
 from service.errors import ServiceError
 from service.motion import MotionLimits, frames_bvh, frames_json, motion_to_clip
 from service.schemas import BvhMotion, PoseMotion

@@ -9,7 +9,7 @@ import httpx
 import numpy as np
 import pytest
 
-from model.bvh import BvhDocument
+from model.motion.bvh import BvhDocument
 from tests.service.conftest import (
     bvh,
     context_clip,
@@ -170,7 +170,7 @@ def test_bad_requests(client, server, style_id):
     doc = BvhDocument.parse(bvh(context_clip())["bvh"])
     keep = [i for i, n in enumerate(doc.names) if n not in ("Hand_L",)]
     cols = [c for i in keep for c in range(doc.channel_slices()[i].start, doc.channel_slices()[i].stop)]
-    from model.bvh import BvhJoint
+    from model.motion.bvh import BvhJoint
     joints = []
     for i in keep:
         j = doc.joints[i]

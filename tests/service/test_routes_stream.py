@@ -248,9 +248,9 @@ def test_bad_messages_get_errors_and_the_connection_stays(server, styles):
             ws.send(message)
             err = ws.recv()
             assert err["type"] == "error" and err["code"] == code, (message, err)
-        for extra, code in ((dict(frames=0), "validation_error"), (dict(frames=121), "too_many_frames"),
-                            (dict(style_id="sty_unknown"), "unknown_style"),
-                            (dict(context=bvh(context_clip().window(0, 4))), "too_few_frames")):
+        for extra, code in (({"frames": 0}, "validation_error"), ({"frames": 121}, "too_many_frames"),
+                            ({"style_id": "sty_unknown"}, "unknown_style"),
+                            ({"context": bvh(context_clip().window(0, 4))}, "too_few_frames")):
             msg = {**start_message("x", 10, request_id=f"q{code}", style_id=styles["walk"]), **extra}
             ws.send(msg)
             err = ws.recv()

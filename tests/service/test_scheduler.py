@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import websockets
 
-from model.bundle import Bundle
-from model.engine import CharacterBatch, Engine
+from model.inference.bundle import Bundle
+from model.inference.engine import CharacterBatch, Engine
 from service.scheduler import Scheduler, Stream
 from tests.service.conftest import bvh, context_clip, target_clip, walk
 from tests.service.wsclient import start_message

@@ -8,7 +8,7 @@ import sys
 import pytest
 from pydantic import ValidationError
 
-from model.bundle import DEFAULT_BUNDLE
+from model.inference.bundle import DEFAULT_BUNDLE
 from service.settings import Settings
 
 
@@ -37,10 +37,10 @@ def test_environment(monkeypatch, tmp_path):
 def test_import_builds_nothing_and_model_stays_free_of_web_code():
     code = ("import sys, service.app; "
             "assert 'uvicorn' not in sys.modules; "
-            "import model.engine; "
+            "import model.inference.engine; "
             "print('ok')")
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120).stdout.strip() == "ok"
-    code = ("import sys, model.engine, model.bundle, model.bvh; "
+    code = ("import sys, model.inference.engine, model.inference.bundle, model.motion.bvh; "
             "assert not [m for m in sys.modules if m.startswith(('fastapi', 'starlette', 'uvicorn'))]")
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
 

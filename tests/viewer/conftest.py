@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from model.bundle import Bundle
-from model.synthetic import synthetic_skeleton
+from model.data.synthetic import synthetic_skeleton
+from model.inference.bundle import Bundle
 from tests.service.server import Server
 from tests.viewer.webdriver import Browser, find_browser
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from model.baselines import interpolate
-from model.bvh import dump_clip
-from model.synthetic import synthetic_walk
+from model.data.synthetic import synthetic_walk
+from model.evaluation.baselines import interpolate
+from model.motion.bvh_clip import dump_clip
 from tests.viewer.conftest import README_SCREENSHOT, UPDATE_SCREENSHOTS
 
 pytestmark = pytest.mark.slow

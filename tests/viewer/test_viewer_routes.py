@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from model.bvh import dump_clip
-from model.synthetic import synthetic_skeleton, synthetic_walk
+from model.data.synthetic import synthetic_skeleton, synthetic_walk
+from model.motion.bvh_clip import dump_clip
 from service.app import create_app
 from service.routes.viewer import STATIC_DIR
 from service.settings import Settings

@@ -4,7 +4,7 @@ A payload is what the contract calls a ``Motion``: ``{"bvh": text}`` or ``{"root
 "rotations"[, "joints", "fps"]}``. :func:`motion_payload` builds one from whatever is at hand.
 Results are :class:`Poses`: float32 arrays in the model's units and axes (see ``GET /v1/model``).
 
-BVH reading and writing use :mod:`model.bvh`, imported only when needed (it brings torch).
+BVH reading and writing use :mod:`model.motion.bvh`, imported only when needed (it brings torch).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 def read_bvh(path: str | Path) -> str:
     """The text of a BVH file, checked locally first (errors name the file and line)."""
-    from model.bvh import BvhDocument
+    from model.motion.bvh import BvhDocument
 
     path = Path(path)
     text = path.read_text(encoding="utf-8-sig")
@@ -33,7 +33,7 @@ def motion_payload(motion: Any) -> dict[str, Any]:
 
     - a dict already in payload form (passed through),
     - BVH text (starts with ``HIERARCHY``) or a path to a ``.bvh`` file,
-    - :class:`Poses`, a ``model.clip.Clip``, or a ``(root_positions [T,3], rotations [T,J,4])`` pair.
+    - :class:`Poses`, a ``model.motion.clip.Clip``, or a ``(root_positions [T,3], rotations [T,J,4])`` pair.
     """
     if isinstance(motion, Mapping):
         return dict(motion)
@@ -49,7 +49,7 @@ def motion_payload(motion: Any) -> dict[str, Any]:
         roots, rots = (np.asarray(a, dtype=np.float64) for a in motion)
         return {"root_positions": roots.tolist(), "rotations": rots.tolist()}
     if type(motion).__name__ == "Clip" and hasattr(motion, "skeleton"):
-        from model.bvh import dump_clip
+        from model.motion.bvh_clip import dump_clip
 
         return {"bvh": dump_clip(motion)}
     raise TypeError(f"cannot make a Motion payload from {type(motion).__name__}: give BVH text or a path, "
@@ -117,8 +117,8 @@ def poses_to_bvh(model_info: Mapping[str, Any], root_positions: np.ndarray, rota
     """
     import torch
 
-    from model.bvh import BvhDocument, BvhJoint
-    from model.rotations import DEG, quat_normalize, quat_to_euler
+    from model.motion.bvh import BvhDocument, BvhJoint
+    from model.motion.rotations import DEG, quat_normalize, quat_to_euler
 
     joints = model_info["skeleton"]["joints"]
     order = rotation_order.upper()
@@ -146,8 +146,8 @@ def poses_to_bvh(model_info: Mapping[str, Any], root_positions: np.ndarray, rota
 
 
 def load_bvh_poses(source: str | Path, fps: float | None = None) -> Poses:
-    """A BVH file (or text) as :class:`Poses` on its own rig (``model.bvh.load_clip``), resampled to ``fps`` if given."""
-    from model.bvh import load_clip
+    """A BVH file (or text) as :class:`Poses` on its own rig (``load_clip``), resampled to ``fps`` if given."""
+    from model.motion.bvh_clip import load_clip
 
     clip = load_clip(source if isinstance(source, str) else Path(source), fps=fps)
     return Poses(clip.root_positions.numpy(), clip.rotations.numpy(), float(clip.fps), joints=tuple(clip.skeleton.names))

@@ -129,7 +129,7 @@ export function motionPositions(skeleton, m) {
   return out;
 }
 
-// Facing as the model defines it (model/features.py): up x (right - left) of the hips and shoulders,
+// Facing as the model defines it (model/motion/features.py): up x (right - left) of the hips and shoulders,
 // so "face the clicked direction" means the same to the viewer and to the network.
 export function facingYaw(skeleton, positions, rootRotation) {
   const r = skeleton.roles;
@@ -143,7 +143,7 @@ export function facingYaw(skeleton, positions, rootRotation) {
 }
 
 // ------------------------------------------------------------------ transitions
-// The baseline of the paper's tables (model/baselines.py interpolate): frame k of N lerps the root and
+// The baseline of the paper's tables (model/evaluation/baselines.py interpolate): frame k of N lerps the root and
 // slerps every local rotation k/N of the way from the last context pose to the target; frame N is the target.
 export function interpolateBaseline(last, target, frames) {
   const j = last.rots.length / 4;

@@ -1,0 +1,372 @@
+"""Index of a folder of BVH takes: each file's style and content labels, frame cuts, and the problems found.
+
+Three layouts are understood, chosen in this order:
+
+1. ``manifest``: a CSV with columns ``file, style, content`` and optional ``start, stop`` (source
+   frames, ``[start, stop)``); file paths are relative to the manifest. BVH files under the folder
+   that the manifest does not list are reported as problems.
+2. ``100style``: a ``Frame_Cuts.csv`` (columns ``STYLE_NAME`` and ``<CT>_START``/``<CT>_STOP``) with
+   one folder per style holding ``<Style>_<CT>.bvh``. The cuts are in the files' own (60 fps)
+   frame numbering; ``N/A`` or an empty cell means the take is skipped.
+3. ``bandai-namco``: file names ``dataset-<N>_{content}_{style}_{NNN}.bvh`` (contents and styles may
+   hold hyphens, never underscores).
+
+BVH files are found recursively. A file the index cannot label becomes a :class:`Problem`, never an
+exception.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+FRAME_CUTS = "Frame_Cuts.csv"
+STYLE100_CONTENTS = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
+LAYOUTS = ("manifest", "100style", "bandai-namco")
+_BANDAI_NAME = re.compile(r"dataset-(?P<set>\d+)_(?P<content>[^_]+)_(?P<style>[^_]+)_(?P<num>\d+)", re.IGNORECASE)
+_MISSING_CUT = {"", "n/a", "na", "nan", "none", "-"}
+
+
+@dataclass(frozen=True)
+class Take:
+    """One motion-capture take and its labels.
+
+    Attributes:
+        path: the BVH file.
+        style: style label, e.g. ``"elderly"``.
+        content: content label, e.g. ``"walk-turn-left"``.
+        take_id: a stable identifier, unique in its index: the file's path relative to the indexed
+            folder (or the manifest), without suffix, plus ``@start-stop`` when a manifest cuts
+            one file into several takes. It never holds an absolute path, so hashes of it are the
+            same on every machine.
+        start / stop: optional cut ``[start, stop)`` in the file's own frame numbering.
+    """
+
+    path: Path
+    style: str
+    content: str
+    take_id: str
+    start: int | None = None
+    stop: int | None = None
+
+    @property
+    def key(self) -> str:
+        """The machine-independent key that splits hash."""
+        return f"{self.style}/{self.content}/{self.take_id}"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A file that was skipped, and why.
+
+    Attributes:
+        path: the file (relative to the indexed folder when it lies inside it).
+        kind: ``unlabelled``, ``missing``, ``skipped`` (no frame cut), ``unreadable`` (not valid
+            BVH), ``rig`` (the skeleton profile does not fit), ``too-short`` or ``bad-cut``.
+        message: what went wrong, for a person.
+    """
+
+    path: str
+    kind: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: [{self.kind}] {self.message}"
+
+
+@dataclass
+class TakeIndex:
+    """The result of :func:`index_takes`.
+
+    Attributes:
+        root: the folder that was indexed.
+        layout: one of :data:`LAYOUTS`.
+        takes: labelled takes, sorted by ``take_id``.
+        problems: files that could not be labelled.
+        manifest: the manifest used, if any.
+    """
+
+    root: Path
+    layout: str
+    takes: list[Take] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
+    manifest: Path | None = None
+
+    @property
+    def styles(self) -> list[str]:
+        return sorted({t.style for t in self.takes})
+
+    @property
+    def contents(self) -> list[str]:
+        return sorted({t.content for t in self.takes})
+
+
+def find_bvh_files(folder: Path) -> list[Path]:
+    """Every ``.bvh`` file under ``folder`` (any depth, any case of the suffix), sorted; hidden folders are skipped."""
+    found = []
+    for dirpath, dirnames, filenames in os.walk(folder):
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        found.extend(Path(dirpath) / f for f in filenames if f.lower().endswith(".bvh") and not f.startswith("."))
+    return sorted(found)
+
+
+def relative_path(path: Path, root: Path) -> str:
+    """``path`` relative to ``root`` in POSIX form (with ``..`` when it lies outside), for messages and keys."""
+    try:
+        return path.relative_to(root).as_posix()
+    except ValueError:
+        return Path(os.path.relpath(path, root)).as_posix()
+
+
+def _stem_id(path: Path, root: Path) -> str:
+    rel = relative_path(path, root)
+    return rel[: -len(path.suffix)] if path.suffix else rel
+
+
+def parse_bandai_namco_name(name: str) -> tuple[str, str] | None:
+    """``(content, style)`` from a Bandai-Namco file name, or ``None`` when it does not follow the pattern."""
+    m = _BANDAI_NAME.fullmatch(Path(name).stem)
+    return (m["content"].lower(), m["style"].lower()) if m else None
+
+
+def index_takes(folder: str | Path, manifest: str | Path | None = None) -> TakeIndex:
+    """Label every BVH take under ``folder``.
+
+    The layout is ``manifest`` when one is given, else ``100style`` when a ``Frame_Cuts.csv`` lies in
+    ``folder`` (or, failing that, anywhere below it), else ``bandai-namco``.
+
+    Raises:
+        FileNotFoundError: ``folder`` or ``manifest`` does not exist.
+        ValueError: the manifest or ``Frame_Cuts.csv`` lacks a required column.
+    """
+    root = Path(folder).expanduser().resolve()
+    if not root.is_dir():
+        raise FileNotFoundError(f"no such data folder: {folder}")
+    if manifest is not None:
+        return _index_manifest(root, Path(manifest).expanduser().resolve())
+    cuts = root / FRAME_CUTS
+    if not cuts.is_file():
+        below = sorted(root.rglob(FRAME_CUTS))
+        cuts = below[0] if below else cuts
+    if cuts.is_file():
+        return _index_100style(root, cuts)
+    return _index_bandai_namco(root)
+
+
+# ---------------------------------------------------------------------------------- layouts
+def _index_bandai_namco(root: Path) -> TakeIndex:
+    index = TakeIndex(root=root, layout="bandai-namco")
+    for path in find_bvh_files(root):
+        labels = parse_bandai_namco_name(path.name)
+        if labels is None:
+            index.problems.append(Problem(
+                relative_path(path, root), "unlabelled",
+                "file name does not follow dataset-<N>_{content}_{style}_{NNN}.bvh"))
+            continue
+        content, style = labels
+        index.takes.append(Take(path=path, style=style, content=content, take_id=_stem_id(path, root)))
+    index.takes.sort(key=lambda t: t.take_id)
+    return index
+
+
+def _parse_cut(value: str | None) -> int | None:
+    """A frame number, ``None`` for a missing cut; ``ValueError`` for anything else."""
+    text = (value or "").strip()
+    if text.lower() in _MISSING_CUT:
+        return None
+    number = float(text)  # some exports write "120.0"
+    if number != int(number) or number < 0:
+        raise ValueError(f"not a frame number: {text!r}")
+    return int(number)
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
+    """Column names and ``(line number, row)`` pairs; cells are stripped and a missing cell reads as ``""``."""
+    # utf-8-sig: spreadsheet exports often start with a byte-order mark that would rename the first column.
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"{path}: empty CSV file")
+        columns = [c.strip() for c in header]
+        records = []
+        for values in reader:
+            if not any(v.strip() for v in values):
+                continue
+            values = [v.strip() for v in values] + [""] * max(0, len(columns) - len(values))
+            records.append((reader.line_num, dict(zip(columns, values))))
+    return columns, records
+
+
+def _index_100style(root: Path, cuts_file: Path) -> TakeIndex:
+    index = TakeIndex(root=root, layout="100style")
+    columns, rows = _read_csv(cuts_file)
+    if "STYLE_NAME" not in columns:
+        raise ValueError(f"{cuts_file}: Frame_Cuts.csv has no STYLE_NAME column")
+    cuts: dict[str, dict[str, str]] = {}
+    for _, row in rows:
+        if row.get("STYLE_NAME"):
+            cuts[row["STYLE_NAME"]] = row
+    # Style folder names normally match STYLE_NAME exactly; case-insensitive matching forgives a renamed folder.
+    by_lower = {name.lower(): name for name in cuts}
+    pattern = re.compile(r"(?P<style>.+)_(?P<ct>" + "|".join(STYLE100_CONTENTS) + r")", re.IGNORECASE)
+    for path in find_bvh_files(root):
+        rel = relative_path(path, root)
+        m = pattern.fullmatch(path.stem)
+        if m is None:
+            index.problems.append(Problem(rel, "unlabelled",
+                                          f"file name is not <Style>_<CT>.bvh with CT in {' '.join(STYLE100_CONTENTS)}"))
+            continue
+        style = m["style"] if m["style"] in cuts else by_lower.get(m["style"].lower())
+        if style is None:
+            index.problems.append(Problem(rel, "unlabelled", f"style {m['style']!r} is not listed in {FRAME_CUTS}"))
+            continue
+        ct = m["ct"].upper()
+        row = cuts[style]
+        if f"{ct}_START" not in columns or f"{ct}_STOP" not in columns:
+            index.problems.append(Problem(rel, "unlabelled", f"{FRAME_CUTS} has no {ct}_START/{ct}_STOP columns"))
+            continue
+        try:
+            start, stop = _parse_cut(row[f"{ct}_START"]), _parse_cut(row[f"{ct}_STOP"])
+        except ValueError as exc:
+            index.problems.append(Problem(rel, "bad-cut", f"{FRAME_CUTS}, style {style}, {ct}: {exc}"))
+            continue
+        if start is None or stop is None:
+            index.problems.append(Problem(rel, "skipped", f"{FRAME_CUTS} gives no frame cut for {style} {ct}"))
+            continue
+        if stop <= start:
+            index.problems.append(Problem(rel, "bad-cut", f"{FRAME_CUTS}: {ct}_STOP {stop} is not after {ct}_START {start}"))
+            continue
+        index.takes.append(Take(path=path, style=style, content=ct, take_id=_stem_id(path, root), start=start, stop=stop))
+    index.takes.sort(key=lambda t: t.take_id)
+    return index
+
+
+def _index_manifest(root: Path, manifest: Path) -> TakeIndex:
+    if not manifest.is_file():
+        raise FileNotFoundError(f"no such manifest: {manifest}")
+    columns, rows = _read_csv(manifest)
+    missing = [c for c in ("file", "style", "content") if c not in columns]
+    if missing:
+        raise ValueError(f"{manifest}: manifest lacks the column(s) {', '.join(missing)} "
+                         "(expected file, style, content and optional start, stop)")
+    index = TakeIndex(root=root, layout="manifest", manifest=manifest)
+    base = manifest.parent
+    listed: set[Path] = set()
+    seen: dict[str, int] = {}
+    for line, row in rows:
+        where = f"{manifest.name}:{line}"
+        if not row.get("file"):
+            index.problems.append(Problem(where, "unlabelled", "row without a file"))
+            continue
+        path = (base / row["file"]).resolve()
+        listed.add(path)
+        rel = relative_path(path, root)
+        if not path.is_file():
+            index.problems.append(Problem(rel, "missing", f"listed in {where} but not found"))
+            continue
+        style, content = row.get("style", ""), row.get("content", "")
+        if not style or not content:
+            index.problems.append(Problem(rel, "unlabelled", f"{where} gives no {'style' if not style else 'content'}"))
+            continue
+        try:
+            start, stop = _parse_cut(row.get("start")), _parse_cut(row.get("stop"))
+        except ValueError as exc:
+            index.problems.append(Problem(rel, "bad-cut", f"{where}: {exc}"))
+            continue
+        if start is not None and stop is not None and stop <= start:
+            index.problems.append(Problem(rel, "bad-cut", f"{where}: stop {stop} is not after start {start}"))
+            continue
+        take_id = _stem_id(path, base)
+        # A manifest may cut one file into several takes; the cut then disambiguates the id.
+        if start is not None or stop is not None:
+            take_id += f"@{'' if start is None else start}-{'' if stop is None else stop}"
+        if take_id in seen:
+            index.problems.append(Problem(rel, "unlabelled", f"{where} repeats the take of line {seen[take_id]}"))
+            continue
+        seen[take_id] = line
+        index.takes.append(Take(path=path, style=style, content=content, take_id=take_id, start=start, stop=stop))
+    for path in find_bvh_files(root):
+        if path.resolve() not in listed:
+            index.problems.append(Problem(relative_path(path, root), "unlabelled", f"not listed in the manifest {manifest.name}"))
+    index.takes.sort(key=lambda t: t.take_id)
+    return index
+
+
+# ---------------------------------------------------------------------------------- header probe
+@dataclass(frozen=True)
+class BvhHeader:
+    """What the top of a BVH file says, read without parsing the motion.
+
+    Attributes:
+        joints: joint names in file order (ROOT and JOINT entries, End Sites excluded).
+        frames: the ``Frames:`` count.
+        frame_time: seconds per frame.
+    """
+
+    joints: tuple[str, ...]
+    frames: int
+    frame_time: float
+
+    @property
+    def fps(self) -> float:
+        """``1 / frame_time``, snapped to a whole number within 1e-4 (files write 1/30 s as 0.0333333)."""
+        fps = 1.0 / self.frame_time
+        whole = round(fps)
+        return float(whole) if whole >= 1 and abs(fps - whole) <= 1e-4 * fps else fps
+
+
+def read_bvh_header(path: str | Path) -> BvhHeader:
+    """Read a BVH file's hierarchy names and frame count, stopping before the motion data.
+
+    It is much cheaper than a full parse, which is what ``rsmt data inspect`` needs to count frames
+    over thousands of files; the full reader (:mod:`model.motion.bvh`) validates the rest.
+
+    Raises:
+        ValueError: the header is not valid BVH (the message names the file and line).
+    """
+    path = Path(path)
+    joints: list[str] = []
+    frames: int | None = None
+    with path.open("r", encoding="utf-8", errors="replace") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            words = raw.split()
+            if not words:
+                continue
+            head = words[0].upper()
+            if lineno == 1 and head != "HIERARCHY" and not joints:
+                raise ValueError(f"{path}:{lineno}: a BVH file starts with HIERARCHY, found {raw.strip()[:40]!r}")
+            if head in ("ROOT", "JOINT"):
+                if len(words) < 2:
+                    raise ValueError(f"{path}:{lineno}: {words[0]} without a name")
+                joints.append(" ".join(words[1:]))
+            elif head == "FRAMES:":
+                frames = _header_number(path, lineno, words, int)
+            elif head == "FRAME" and len(words) >= 2 and words[1].upper() == "TIME:":
+                if frames is None or not joints:
+                    raise ValueError(f"{path}:{lineno}: 'Frame Time' before the joints and 'Frames:'")
+                frame_time = _header_number(path, lineno, words[1:], float)
+                if frame_time <= 0 or frames < 0:
+                    raise ValueError(f"{path}:{lineno}: frame time and frame count must be positive")
+                return BvhHeader(joints=tuple(joints), frames=frames, frame_time=frame_time)
+    raise ValueError(f"{path}: no 'Frames:' and 'Frame Time:' lines (truncated file?)")
+
+
+def _header_number(path: Path, lineno: int, words: list[str], kind: type) -> int | float:
+    try:
+        return kind(words[1]) if kind is int else kind(words[-1])
+    except (IndexError, ValueError):
+        raise ValueError(f"{path}:{lineno}: expected a number after {words[0]!r}") from None
+
+
+def describe_layout(index: TakeIndex) -> str:
+    """One line naming the layout and where the labels came from."""
+    source = {
+        "manifest": f"manifest {index.manifest}",
+        "100style": f"{FRAME_CUTS} and style folders",
+        "bandai-namco": "file names dataset-<N>_{content}_{style}_{NNN}.bvh",
+    }[index.layout]
+    return f"{index.layout} (labels from {source})"

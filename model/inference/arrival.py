@@ -1,0 +1,132 @@
+"""Exact arrival: bend the last frames of a transition so its final frame *is* the target pose,
+keeping planted feet where they are while the correction is spread out.
+
+The network only learns to approach the target. Over the last ``window`` frames the body (local
+rotations by slerp, the root by lerp) is blended toward the target with a smoothstep weight that
+reaches 1 on the arrival frame. Blending moves the hips, which would drag planted feet along, so
+each foot's share of the correction advances only while that foot is in the air: a planted foot
+is held by two-bone IK on its leg where it was planted, and a swinging foot catches up. On the
+arrival frame every foot takes its target place, so the frame equals the target exactly; a foot
+planted through the whole window moves there on that frame.
+
+Works frame by frame with explicit per-character state, so streaming and whole transitions share it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from model.motion.kinematics import forward_kinematics, global_to_local_rotations, two_bone_ik
+from model.motion.rotations import quat_slerp
+from model.motion.skeleton import Skeleton
+
+Tensor = torch.Tensor
+
+DEFAULT_WINDOW = 10
+PLANT_SPEED_CM = 1.0  # cm/frame at 30 fps: slower feet count as planted
+
+
+@dataclass
+class ArrivalState:
+    """Per-character memory of the two ankles (world positions ``[2, 3]``)."""
+
+    previous: Tensor | None = None  # generated ankle positions of the previous frame
+    placed: Tensor | None = None  # where each ankle was put on the previous frame
+    progress: Tensor | None = None  # [2] share of each foot's correction applied so far
+
+
+def arrival_weight(remaining: Tensor, window: int) -> Tensor:
+    """Blend weight for frames with ``remaining`` frames after them: 0 before the window, 1 on arrival."""
+    u = ((window - remaining.float()) / window).clamp(0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+class ArrivalCorrector:
+    """Batched exact-arrival correction for one skeleton."""
+
+    def __init__(self, skeleton: Skeleton, window: int = DEFAULT_WINDOW, plant_speed_cm: float = PLANT_SPEED_CM) -> None:
+        if window < 1:
+            raise ValueError("the arrival window must be at least one frame")
+        self.skeleton = skeleton
+        self.window = window
+        self.plant_speed = plant_speed_cm
+        sk = skeleton
+        self.legs = sk.legs
+        self.offsets = sk.offsets_tensor()
+
+    def apply(self, rotations: Tensor, roots: Tensor, target_rotations: Tensor, target_roots: Tensor,
+              remaining: Tensor, states: list[ArrivalState]) -> tuple[Tensor, Tensor]:
+        """Correct one frame of ``N`` characters.
+
+        Args:
+            rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots as generated.
+            target_rotations, target_roots: the targets, same shapes.
+            remaining: ``[N]`` frames left after this one (0 on the arrival frame).
+            states: one :class:`ArrivalState` per character, updated in place.
+        """
+        sk = self.skeleton
+        w = arrival_weight(remaining, self.window)
+        gen_pos, _ = forward_kinematics(rotations, roots, self.offsets, sk.parents)
+        ankles = torch.stack([gen_pos[:, leg[2]] for leg in self.legs], dim=1)  # [N, 2, 3]
+        active = (w > 0).view(-1, 1)  # before the window the generated pose passes through untouched
+        rot = torch.where(active.unsqueeze(-1), quat_slerp(rotations, target_rotations, w.view(-1, 1)), rotations)
+        root = torch.where(active, torch.lerp(roots, target_roots, w.view(-1, 1)), roots)
+        pos, grot = forward_kinematics(rot, root, self.offsets, sk.parents)
+        goals = torch.zeros(len(states), len(self.legs), 3)
+        body = torch.stack([pos[:, leg[2]] for leg in self.legs], dim=1)  # ankles of the blended body
+        for i, st in enumerate(states):
+            planted = torch.zeros(len(self.legs), dtype=torch.bool)
+            if st.previous is not None:
+                planted = (ankles[i] - st.previous).norm(dim=-1) < self.plant_speed
+            if st.progress is None or st.placed is None:
+                st.progress = torch.zeros(len(self.legs))
+                st.placed = ankles[i].clone()
+            r = int(remaining[i])
+            if r == 0:
+                st.progress = torch.ones_like(st.progress)
+            elif w[i] > 0:
+                # A foot in the air catches up with the body so it is done by the end; a planted one waits.
+                step = (w[i] - st.progress).clamp_min(0.0)
+                st.progress = torch.where(planted, st.progress, st.progress + step)
+            goal = torch.lerp(ankles[i], body[i], st.progress.unsqueeze(-1))
+            # A planted foot stays exactly where it was put on the previous frame.
+            goal = torch.where((planted & (w[i] > 0) & (r > 0)).unsqueeze(-1), st.placed, goal)
+            st.previous, st.placed = ankles[i].clone(), goal.clone()
+            goals[i] = goal
+        adjusting = w > 0
+        if not adjusting.any():
+            return rot, root
+        for f, (hip, knee, ankle) in enumerate(self.legs):
+            rows = adjusting & ((goals[:, f] - pos[:, ankle]).norm(dim=-1) > 1e-4)
+            if not rows.any():
+                continue
+            goal = goals[rows, f]
+            new_hip, new_knee = two_bone_ik(pos[rows, hip], pos[rows, knee], pos[rows, ankle],
+                                            grot[rows, hip], grot[rows, knee], goal)
+            g = grot[rows].clone()
+            g[:, hip], g[:, knee] = new_hip, new_knee
+            # Children keep their world rotations (the foot stays flat); only the two bones change.
+            fixed = global_to_local_rotations(g, sk.parents)
+            sub = rot[rows].clone()
+            for j in (hip, knee, ankle):
+                sub[:, j] = fixed[:, j]
+            rot[rows] = sub
+            pos[rows], grot[rows] = forward_kinematics(rot[rows], root[rows], self.offsets, sk.parents)
+        return rot, root
+
+
+def exact_arrival(rotations: Tensor, roots: Tensor, target_rotation: Tensor, target_root: Tensor, skeleton: Skeleton,
+                  window: int = DEFAULT_WINDOW) -> tuple[Tensor, Tensor]:
+    """Correct a whole transition ``[T, J, 4]``, ``[T, 3]`` so its last frame equals the target."""
+    corrector = ArrivalCorrector(skeleton, window)
+    state = ArrivalState()
+    t = rotations.shape[0]
+    out_r, out_p = [], []
+    for i in range(t):
+        r, p = corrector.apply(rotations[i : i + 1], roots[i : i + 1], target_rotation.unsqueeze(0), target_root.unsqueeze(0),
+                               torch.tensor([t - 1 - i]), [state])
+        out_r.append(r[0])
+        out_p.append(p[0])
+    return torch.stack(out_r), torch.stack(out_p)

@@ -1,0 +1,489 @@
+"""The inference engine: style encoding with a cache, transitions as explicit per-character state,
+and a batch that advances every live character in one step.
+
+Motion comes in and goes out in the caller's world frame on the model's rig: local x,y,z,w
+rotations and the root position. Inside, each transition works in its own canonical frame (the
+last context frame facing +Z over the origin), fixed when it starts.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from model.inference.arrival import ArrivalCorrector, ArrivalState
+from model.inference.bundle import Bundle
+from model.inference.foot_lock import FootLock
+from model.inference.int8_step import int8_lstm_sampler
+from model.inference.style_codes import LRUCache, clip_content_hash
+from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
+from model.motion.clip import Clip
+from model.motion.features import CanonicalFrame, local_frame_features
+from model.motion.kinematics import forward_kinematics, global_to_local_rotations
+from model.motion.rotations import quat_normalize, quat_to_sixd
+from model.motion.skeleton import Skeleton
+from model.nets.pose_state import PoseState, state_from_positions
+from model.nets.sampler import SamplerState, StyleContext
+
+Tensor = torch.Tensor
+log = logging.getLogger(__name__)
+
+
+class EngineError(ValueError):
+    """A request the engine cannot serve; ``code`` is the contract's machine-readable error code."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass
+class EncodedStyle:
+    """A style clip encoded once: its id (content hash), name, length and per-frame context."""
+
+    style_id: str
+    name: str
+    frames: int
+    context: StyleContext
+    nbytes: int = 0
+
+
+@dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
+class Character:
+    """One transition in progress. The engine's batch owns its tensors while it is live."""
+
+    id: str
+    style: EncodedStyle
+    frames_total: int
+    seq: int = 0  # frames emitted so far
+    cancelled: bool = False
+    slot: int = 0
+    _row: SamplerState | None = field(default=None, repr=False)
+    _frame: CanonicalFrame | None = field(default=None, repr=False)
+    # Exact arrival (see model.inference.arrival): its per-character state and the target pose in world space.
+    arrival: ArrivalState | None = None
+    _target_pose: tuple[Tensor, Tensor] | None = field(default=None, repr=False)
+    # Memory of the output steps (smoothing, foot lock) while out of a batch: named rows [1, ...].
+    _post: dict[str, Tensor] | None = field(default=None, repr=False)
+    # Inputs of the recurrent warm-up, run batched when the character joins a batch.
+    _init: tuple[PoseState, PoseState, int, Tensor] | None = field(default=None, repr=False)
+
+    @property
+    def remaining(self) -> int:
+        return self.frames_total - self.seq
+
+    @property
+    def done(self) -> bool:
+        return self.cancelled or self.seq >= self.frames_total
+
+
+@dataclass
+class StepOutput:
+    """Poses of every character advanced by one :meth:`CharacterBatch.step`.
+
+    ``rotations [N, J, 4]`` local quaternions and ``root_positions [N, 3]`` in world space, row
+    ``i`` for ``characters[i]``; ``seq[i]`` is that frame's index within its transition.
+    """
+
+    characters: list[Character]
+    rotations: Tensor
+    root_positions: Tensor
+    seq: list[int]
+
+
+class Engine:
+    """Serves one bundle. Thread settings are process-wide torch settings, applied here once."""
+
+    def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
+                 cache_bytes: int = 256 << 20, compiled: bool | None = None, smoothing: float | None = None,
+                 foot_lock: bool | None = None, root_smoothing: float | None = None,
+                 int8_lstm: bool | None = None) -> None:
+        """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
+        the root, :mod:`model.inference.output_filter`) and ``foot_lock`` (:mod:`model.inference.foot_lock`) override the
+        bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
+        ``int8_lstm`` overrides the bundle's inference setting (:mod:`model.inference.int8_step`)."""
+        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock)
+        self.inference = bundle.inference.with_overrides(int8_lstm)
+        if threads:
+            torch.set_num_threads(threads)
+        if compiled is None:
+            compiled = os.environ.get("RSMT_EAGER", "") not in ("1", "true", "yes")
+        self.bundle = bundle
+        self.sampler = bundle.sampler.eval()
+        for p in self.sampler.parameters():
+            p.requires_grad_(False)
+        self.skeleton: Skeleton = bundle.skeleton
+        self.config = bundle.config
+        self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
+        self._offsets = self.skeleton.offsets_tensor()
+        self.arrival = ArrivalCorrector(self.skeleton)
+        # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with
+        # an int8 LSTM cell where the bundle asks for one (the float32 sampler still warms up on the context).
+        stepper = self.sampler
+        if self.inference.int8_lstm:
+            quantized = int8_lstm_sampler(self.sampler)
+            if quantized is None:  # this torch cannot: say so in self.inference
+                self.inference = self.inference.with_overrides(int8_lstm=False)
+            else:
+                stepper = quantized
+        self.step_fn = CompiledStep(stepper) if compiled else (lambda st, sty: stepper.step(st, sty)[0])
+        self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
+        # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
+        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock), traced=compiled)
+        self._ids = itertools.count()
+
+    # ------------------------------------------------------------------ description
+    @property
+    def name(self) -> str:
+        return self.bundle.meta.name
+
+    @property
+    def max_frames(self) -> int:
+        """Longest transition accepted: twice the training horizon. Beyond the horizon the
+        time-to-arrival code saturates (as RSMT's does), so the model walks on as if far from the
+        target until the remaining frames fall inside what it was trained on."""
+        return 2 * self.config.max_transition
+
+    @property
+    def version(self) -> str:
+        return self.bundle.version
+
+    def info(self) -> dict:
+        """The model description of ``GET /v1/model``."""
+        c = self.config
+        sk = self.skeleton
+        return {
+            "name": self.name,
+            "version": self.version,
+            "fps": c.fps,
+            "context_frames": c.context,
+            "max_transition_frames": self.max_frames,
+            "style_clip_frames": {"min": c.style_frames_min, "max": c.style_frames_max},
+            "skeleton": {
+                "joints": [{"name": n, "parent": p, "offset": list(o)} for n, p, o in zip(sk.names, sk.parents, sk.offsets)],
+                "units": sk.units,
+                "up_axis": sk.up_axis,
+                "handedness": sk.handedness,
+            },
+            "training_data": self.bundle.meta.training_data,
+            "license": self.bundle.meta.license,
+        }
+
+    # ------------------------------------------------------------------ input
+    def conform(self, clip: Clip, what: str = "motion") -> Clip:
+        """Map a clip onto the model's rig by joint name and resample it to the model's fps.
+
+        Joint rotations are matched in world space, so extra joints in the input's hierarchy
+        are ignored without bending the pose; missing joints are an error naming them.
+        """
+        sk = self.skeleton
+        src = clip.skeleton
+        if src.names == sk.names and src.parents == sk.parents:
+            out = clip
+        else:
+            lookup = {n.rsplit(":", 1)[-1].lower(): i for i, n in enumerate(src.names)}
+            idx, missing = [], []
+            for n in sk.names:
+                i = lookup.get(n.lower())
+                (missing.append(n) if i is None else idx.append(i))
+            if missing:
+                raise EngineError("skeleton_mismatch", f"{what} lacks joint(s) of the model's skeleton: {', '.join(missing)}")
+            _, grot = clip.global_transforms()
+            local = global_to_local_rotations(grot[:, idx], sk.parents)
+            root = forward_kinematics(clip.rotations, clip.root_positions, src.offsets_tensor(clip.rotations.dtype),
+                                      src.parents)[0][:, idx[0]]
+            out = Clip(sk, local, root, clip.fps, clip.name)
+        out = out.to(torch.float32)
+        if abs(out.fps - self.config.fps) > 1e-6:
+            out = out.resample(self.config.fps)
+        return out
+
+    def _global(self, clip: Clip) -> tuple[Tensor, Tensor]:
+        return forward_kinematics(quat_normalize(clip.rotations), clip.root_positions, self._offsets, self.skeleton.parents)
+
+    # ------------------------------------------------------------------ styles
+    def style_id(self, clip: Clip) -> str:
+        return clip_content_hash(self.conform(clip, "style clip"), self.version)
+
+    def encode_style(self, clip: Clip, name: str = "") -> tuple[EncodedStyle, bool]:
+        """Encode a style clip, or return the cached encoding; the bool says whether it was cached."""
+        clip = self.conform(clip, "style clip")
+        c = self.config
+        if not c.style_frames_min <= clip.num_frames <= c.style_frames_max:
+            code = "too_few_frames" if clip.num_frames < c.style_frames_min else "too_many_frames"
+            raise EngineError(code, f"a style clip needs {c.style_frames_min} to {c.style_frames_max} frames at "
+                                    f"{c.fps:g} fps; got {clip.num_frames}")
+        sid = clip_content_hash(clip, self.version)
+        cached = self.styles.get(sid)
+        if cached is not None:
+            return cached, True
+        pos, rot = self._global(clip)
+        with torch.inference_mode():
+            code = self.sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
+            ctx = self.sampler.style_context(code)
+        nbytes = sum(getattr(ctx, f).numel() * 4
+                     for f in ("keys1", "values1", "keys2", "values2", "gamma1", "beta1", "gamma2", "beta2"))
+        style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, nbytes)
+        self.styles.put(sid, style)
+        return style, False
+
+    # ------------------------------------------------------------------ transitions
+    def prepare(self, context: Clip, target: Clip, frames: int, style: EncodedStyle, seed: int | None = None,
+                deterministic: bool = False, character_id: str | None = None, exact_arrival: bool = False) -> Character:
+        """Validate a transition request and build its (unbatched) initial state.
+
+        With ``exact_arrival`` the last frames are bent so the arrival frame equals the target pose
+        exactly (:mod:`model.inference.arrival`); otherwise the network's own arrival is returned.
+        """
+        c = self.config
+        if not 1 <= frames <= self.max_frames:
+            raise EngineError("too_many_frames" if frames > self.max_frames else "validation_error",
+                              f"frames must be between 1 and {self.max_frames}; got {frames}")
+        context = self.conform(context, "context")
+        target = self.conform(target, "target")
+        if context.num_frames < c.context:
+            raise EngineError("too_few_frames", f"the context needs at least {c.context} frames at {c.fps:g} fps; "
+                                                 f"got {context.num_frames}")
+        context = context.window(context.num_frames - c.context, context.num_frames)
+        cpos, crot = self._global(context)
+        frame = CanonicalFrame.at_frame(cpos.unsqueeze(0), self.skeleton, c.context - 1)
+        cstate = state_from_positions(frame.positions_to(cpos.unsqueeze(0)),
+                                      quat_to_sixd(frame.rotations_to(crot.unsqueeze(0))), self.skeleton.roles.root)
+        tstate = self._target_state(target, frame)
+        noise = torch.zeros(1, 2 * c.width)
+        if not deterministic:
+            gen = torch.Generator().manual_seed(int(seed) if seed is not None else int(time.time_ns() % (2**62)))
+            noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
+        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames)
+        ch._init, ch._frame = (cstate, tstate, frames, noise), frame
+        crot = quat_normalize(context.rotations)
+        ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
+        if self.foot_lock is not None:
+            lock = self.foot_lock.start(crot, context.root_positions)
+            ch._post.update(lock.memory())
+        if exact_arrival:
+            ch.arrival = ArrivalState()
+            ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
+        return ch
+
+    @torch.inference_mode()
+    def begin(self, characters: list[Character]) -> SamplerState:
+        """Warm the recurrent core of prepared characters on their contexts, all in one batch."""
+        inits = [c._init for c in characters]
+        if any(i is None for i in inits):
+            raise ValueError("character was not prepared by Engine.prepare, or has begun already")
+        ctx = PoseState.cat([i[0] for i in inits])  # type: ignore[index]
+        tgt = PoseState.cat([i[1] for i in inits])  # type: ignore[index]
+        frames = torch.tensor([i[2] for i in inits])  # type: ignore[index]
+        noise = torch.cat([i[3] for i in inits])  # type: ignore[index]
+        style = StyleContext.stack([c.style.context for c in characters])
+        for c in characters:
+            c._init = None
+        return self.sampler.begin(ctx, tgt, frames, noise, style)
+
+    def _target_state(self, target: Clip, frame: CanonicalFrame) -> PoseState:
+        tail = target.window(max(0, target.num_frames - 2), target.num_frames)
+        pos, rot = self._global(tail)
+        pos = frame.positions_to(pos.unsqueeze(0))
+        rot6 = quat_to_sixd(frame.rotations_to(rot.unsqueeze(0)))
+        if tail.num_frames == 1:  # no frame before the target: it is reached at rest
+            pos, rot6 = torch.cat([pos, pos], dim=1), torch.cat([rot6, rot6], dim=1)
+        return state_from_positions(pos, rot6, self.skeleton.roles.root).index((slice(None), 1))
+
+    def retarget(self, ch: Character, batch: CharacterBatch | None = None, target: Clip | None = None,
+                 frames: int | None = None) -> None:
+        """Change where and/or when a live character arrives, from its next frame on."""
+        if frames is not None and not 1 <= frames <= self.max_frames:
+            raise EngineError("validation_error", f"frames must be between 1 and {self.max_frames}; got {frames}")
+        if batch is None and ch._row is None:
+            ch._row = self.begin([ch])
+        assert ch._frame is not None
+        if target is not None:
+            target = self.conform(target, "target")
+            if ch.arrival is not None:
+                ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
+            tstate = self._target_state(target, ch._frame)
+            with torch.inference_mode():
+                emb = self.sampler.target_encoder(tstate.vector())
+            updates = {"target_vec": tstate.vector(), "target_pos": tstate.positions(), "target_rot": tstate.rot,
+                       "target_emb": emb}
+        else:
+            updates = {}
+        if frames is not None:
+            updates["tta"] = torch.tensor([frames])
+            ch.frames_total = ch.seq + frames
+        if batch is not None:
+            batch.update_row(ch, updates)
+        else:
+            for k, v in updates.items():
+                setattr(ch._row, k, v)
+
+    def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
+        """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""
+        batch = CharacterBatch(self)
+        for ch in characters:
+            batch.add(ch)
+        rots: dict[str, list[Tensor]] = {ch.id: [] for ch in characters}
+        roots: dict[str, list[Tensor]] = {ch.id: [] for ch in characters}
+        while len(batch):
+            out = batch.step()
+            for i, ch in enumerate(out.characters):
+                rots[ch.id].append(out.rotations[i])
+                roots[ch.id].append(out.root_positions[i])
+            batch.drop_finished()
+        return [(torch.stack(rots[ch.id]), torch.stack(roots[ch.id])) for ch in characters]
+
+
+
+class CharacterBatch:
+    """Live characters whose states are stacked so one sampler step advances them all.
+
+    Stacking happens only when membership or a style changes, not every frame.
+    """
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+        self.members: list[Character] = []
+        self._state: SamplerState | None = None
+        self._style: StyleContext | None = None
+        self._yaw: Tensor | None = None
+        self._origin: Tensor | None = None
+        # The output steps' memory, a row per member (see Engine.prepare for the names).
+        self._post: dict[str, Tensor] | None = None
+        self._pending: list[Character] = []
+        self._style_dirty = False
+
+    def __len__(self) -> int:
+        return len(self.members) + len(self._pending)
+
+    def add(self, ch: Character) -> None:
+        if ch._row is None and ch._init is None:
+            raise ValueError("character was not prepared by Engine.prepare")
+        self._pending.append(ch)
+
+    def _sync(self) -> None:
+        if self._pending:
+            fresh = [c for c in self._pending if c._row is None]
+            resumed = [c for c in self._pending if c._row is not None]
+            rows = [self._state] if self._state is not None else []
+            if fresh:
+                rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
+            rows += [c._row for c in resumed]  # type: ignore[misc]
+            joined = fresh + resumed
+            frames = ([CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None else []) + [c._frame for c in joined]
+            self._state = SamplerState.stack(rows)  # type: ignore[arg-type]
+            self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
+            self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
+            posts = ([self._post] if self._post is not None else []) + [c._post for c in joined]
+            if any(p is None for p in posts):
+                raise ValueError("character was not prepared by Engine.prepare")
+            self._post = {k: torch.cat([p[k] for p in posts]) for k in posts[0]}  # type: ignore[index, union-attr]
+            for c in joined:
+                c._row = None
+                c._post = None
+            self.members.extend(joined)
+            self._pending = []
+            self._style_dirty = True
+        if self._style_dirty and self.members:
+            self._style = StyleContext.stack([m.style.context for m in self.members])
+            self._style_dirty = False
+
+    def set_style(self, ch: Character, style: EncodedStyle) -> None:
+        ch.style = style
+        self._style_dirty = True
+
+    def row_of(self, ch: Character) -> SamplerState:
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None
+        return self._state.index(slice(i, i + 1))
+
+    @torch.inference_mode()
+    def update_row(self, ch: Character, updates: dict[str, Tensor]) -> None:
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None
+        for k, v in updates.items():
+            getattr(self._state, k)[i : i + 1] = v
+
+    def remove(self, ch: Character) -> None:
+        if ch in self._pending:
+            self._pending.remove(ch)
+            return
+        self._keep([m for m in self.members if m is not ch])
+
+    def detach(self, ch: Character) -> None:
+        """Take a live character out of the batch but keep its state on it, so :meth:`add` resumes it.
+
+        :meth:`remove` discards the state; this lets a scheduler pause one character (its client is
+        not reading, say) while the others keep stepping. Costs one restack, like ``remove``.
+        """
+        if ch in self._pending:
+            self._pending.remove(ch)
+            return
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None and self._yaw is not None and self._origin is not None
+        row = torch.tensor([i])
+        ch._row = self._state.index(row)  # a copy: later steps never write into it
+        ch._frame = CanonicalFrame(self._yaw[row], self._origin[row])
+        assert self._post is not None
+        ch._post = {k: v[i : i + 1].clone() for k, v in self._post.items()}
+        self._keep([m for m in self.members if m is not ch])
+
+    def drop_finished(self) -> list[Character]:
+        done = [m for m in self.members if m.done] + [p for p in self._pending if p.cancelled]
+        if done:
+            self._pending = [p for p in self._pending if not p.cancelled]
+            self._keep([m for m in self.members if not m.done])
+        return done
+
+    def _keep(self, keep: list[Character]) -> None:
+        if len(keep) == len(self.members):
+            return
+        if not keep:
+            self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
+            self._post = None
+            return
+        idx = torch.tensor([self.members.index(k) for k in keep])
+        assert self._state is not None and self._yaw is not None and self._origin is not None
+        self._state = self._state.index(idx)
+        self._yaw, self._origin = self._yaw[idx], self._origin[idx]
+        assert self._post is not None
+        self._post = {k: v[idx] for k, v in self._post.items()}
+        self.members = keep
+        self._style_dirty = True
+
+    @torch.inference_mode()
+    def step(self) -> StepOutput:
+        """Advance every member by one frame and return their world-space poses."""
+        self._sync()
+        if not self.members:
+            raise ValueError("no live characters to step")
+        assert self._state is not None and self._style is not None
+        self._state = self.engine.step_fn(self._state, self._style)
+        post = self._post
+        assert post is not None
+        remaining = torch.tensor([m.remaining - 1 for m in self.members])
+        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post)  # type: ignore[arg-type]
+        post.update(memory)
+        exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
+        if exact:
+            idx = torch.tensor(exact)
+            chars = [self.members[i] for i in exact]
+            t_rot = torch.stack([c._target_pose[0] for c in chars])  # type: ignore[index]
+            t_root = torch.stack([c._target_pose[1] for c in chars])  # type: ignore[index]
+            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining[idx],
+                                                              [c.arrival for c in chars])  # type: ignore[misc]
+            local, root = local.clone(), root.clone()
+            local[idx], root[idx] = fixed_rot, fixed_root
+        seq = []
+        for m in self.members:
+            seq.append(m.seq)
+            m.seq += 1
+        return StepOutput(list(self.members), local, root, seq)

@@ -1,0 +1,158 @@
+"""Foot locking: hold a generated foot still while it is planted, by two-bone IK on its leg.
+
+The sampler's planted feet creep: slowly enough to pass as contact, fast enough to read as skating
+(the default model's foot skate was about 1.5x the capture's). Engines fix this with foot IK; the
+service does it before frames leave, frame by frame, with explicit per-character state, so a
+whole transition and a stream get the same frames.
+
+A foot locks when its ankle is within ``contact_cm`` of the ground and moving slower than
+``plant_speed_cm_s``; it is then held where it was (all three coordinates) by rotating the hip and
+knee, the foot keeping its own world rotation. It lets go when the generated ankle lifts more than
+``lift_cm`` above the ground or drifts ``release_cm`` away from the lock, and the held offset then
+shrinks by ``catch_up`` each frame, so the foot rejoins the generated motion (in the air, for a
+lift; a foot that drifted away locks again once within ``rejoin_cm`` of the generated one). The
+ground is the lowest ankle height of the context. Over the last ``fade`` frames no new lock starts
+and the offset fades to 0, so the arrival frame is the network's own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from model.motion.kinematics import two_bone_ik
+from model.motion.rotations import quat_conjugate, quat_mul, quat_rotate
+from model.motion.skeleton import Skeleton
+
+Tensor = torch.Tensor
+
+
+@dataclass(frozen=True)
+class FootLockConfig:
+    # Defaults chosen on the validation split with the default model (docs/evaluation.md): tighter
+    # contact and release than a first guess (3 / 5 / 10 cm, catch-up 0.5) hold the feet as well
+    # and no longer cost style accuracy, since the leg is bent less far and lets go more gently.
+    contact_cm: float = 1.5  # ankle height above the ground under which a slow foot locks
+    lift_cm: float = 3.0  # ankle height above the ground at which a locked foot lets go
+    plant_speed_cm_s: float = 60.0  # horizontal ankle speed under which a low foot counts as planted
+    release_cm: float = 3.0  # drift of the generated ankle from the lock at which it lets go
+    catch_up: float = 0.3  # share of the held offset removed each frame after a release
+    rejoin_cm: float = 1.0  # a released foot locks again only once it is this close to the generated one
+    fade: int = 5  # frames before arrival from which no lock starts and the offset fades out
+
+    def __post_init__(self) -> None:
+        if not 0 < self.contact_cm <= self.lift_cm:
+            raise ValueError("foot lock needs 0 < contact_cm <= lift_cm")
+        if not 0 < self.catch_up <= 1:
+            raise ValueError("foot lock catch_up must be in (0, 1]")
+        if self.plant_speed_cm_s <= 0 or self.release_cm <= 0 or self.rejoin_cm <= 0 or self.fade < 0:
+            raise ValueError("foot lock speeds and distances must be positive, fade 0 or more")
+
+
+@dataclass
+class FootLockState:
+    """Rows of characters: ``ground [N]`` (ankle ground height), ``locked [N, 2]``, ``anchor``,
+    ``offset`` (shown minus generated ankle) and ``previous`` (generated ankle) ``[N, 2, 3]``."""
+
+    ground: Tensor
+    locked: Tensor
+    anchor: Tensor
+    offset: Tensor
+    previous: Tensor
+
+    FIELDS = ("ground", "locked", "anchor", "offset", "previous")
+    # The engine keeps the fields as named rows of its batch's per-character memory, under these keys.
+    MEMORY_KEYS = tuple(f"lock_{f}" for f in FIELDS)
+
+    def memory(self) -> dict[str, Tensor]:
+        """The fields under :attr:`MEMORY_KEYS`."""
+        return {k: getattr(self, f) for k, f in zip(self.MEMORY_KEYS, self.FIELDS)}
+
+    @classmethod
+    def from_memory(cls, memory: dict[str, Tensor]) -> FootLockState:
+        return cls(*(memory[k] for k in cls.MEMORY_KEYS))
+
+
+class FootLock:
+    """Batched foot locking for one skeleton (Y up, cm) at ``fps``: both legs in one pass, no per-row branches."""
+
+    def __init__(self, skeleton: Skeleton, fps: float, config: FootLockConfig | None = None) -> None:
+        self.config = config or FootLockConfig()
+        self.fps = fps
+        sk = skeleton
+        chains = [sk.chain_to(ankle) for _, _, ankle in sk.legs]  # root ... hip, knee, ankle of each leg
+        for chain in chains:
+            if len(chain) < 4:  # the hip's parent turns its new world rotation into a local one
+                raise ValueError(f"the ankle {sk.names[chain[-1]]!r} has no two-bone leg below the root")
+        if len(chains[0]) != len(chains[1]):
+            raise ValueError("foot lock needs legs of the same depth below the root")
+        self.chain = torch.tensor(chains).T  # [depth, 2]: joint of each leg at each depth
+        offsets = skeleton.offsets_tensor()
+        self.chain_offsets = offsets[self.chain]  # [depth, 2, 3]
+        self.hip, self.knee, self.ankle = self.chain[-3], self.chain[-2], self.chain[-1]
+        self.leg_joints = self.chain[-3:].reshape(-1)  # hips, knees, ankles: the joints the lock rewrites
+
+    def _legs_fk(self, rotations: Tensor, roots: Tensor) -> tuple[Tensor, Tensor]:
+        """World positions ``[N, depth, 2, 3]`` and rotations ``[N, depth, 2, 4]`` along both legs' chains."""
+        local = rotations[:, self.chain]  # [N, depth, 2, 4]
+        pos = roots.unsqueeze(1).expand(-1, 2, -1)
+        rot = local[:, 0]
+        positions, rotations_w = [pos], [rot]
+        for d in range(1, self.chain.shape[0]):
+            pos = pos + quat_rotate(rot, self.chain_offsets[d].expand_as(pos))
+            rot = quat_mul(rot, local[:, d])
+            positions.append(pos)
+            rotations_w.append(rot)
+        return torch.stack(positions, 1), torch.stack(rotations_w, 1)
+
+    def ankles(self, rotations: Tensor, roots: Tensor) -> Tensor:
+        """World ankle positions ``[N, 2, 3]`` of local ``rotations [N, J, 4]`` and ``roots [N, 3]``."""
+        return self._legs_fk(rotations, roots)[0][:, -1]
+
+    def start(self, rotations: Tensor, roots: Tensor) -> FootLockState:
+        """State of one character from its context ``[T, J, 4]``, ``[T, 3]``."""
+        ank = self.ankles(rotations, roots)  # [T, 2, 3]
+        ground = ank[..., 1].min().view(1)
+        last, before = ank[-1], ank[-2] if ank.shape[0] > 1 else ank[-1]
+        speed = (last - before)[..., [0, 2]].norm(dim=-1) * self.fps
+        locked = ((last[..., 1] - ground) < self.config.contact_cm) & (speed < self.config.plant_speed_cm_s)
+        return FootLockState(ground, locked.view(1, 2), last.view(1, 2, 3).clone(), torch.zeros(1, 2, 3),
+                             last.view(1, 2, 3).clone())
+
+    def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState,
+              skip_idle: bool = True) -> tuple[Tensor, FootLockState]:
+        """Lock the feet of one frame of ``N`` characters; returns new local rotations and state.
+
+        Args:
+            rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots (world).
+            remaining: ``[N]`` frames left after this one (0 on the arrival frame).
+            skip_idle: return early when no foot needs moving (eager use); False keeps the
+                operations independent of the data, as a traced graph needs.
+        """
+        c = self.config
+        pos, grot = self._legs_fk(rotations, roots)
+        ank = pos[:, -1]  # [N, 2, 3]
+        height = ank[..., 1] - state.ground.unsqueeze(-1)
+        speed = (ank - state.previous)[..., [0, 2]].norm(dim=-1) * self.fps
+        open_time = (remaining >= c.fade).unsqueeze(-1)  # [N, 1]
+        drift = (ank - state.anchor)[..., [0, 2]].norm(dim=-1)
+        keep = state.locked & (height < c.lift_cm) & (drift < c.release_cm) & open_time
+        rejoined = state.offset.norm(dim=-1) < c.rejoin_cm  # no re-lock mid catch-up: the foot would hop
+        begin = ~state.locked & rejoined & (height < c.contact_cm) & (speed < c.plant_speed_cm_s) & open_time
+        anchor = torch.where(begin.unsqueeze(-1), ank + state.offset, state.anchor)
+        locked = keep | begin
+        fade = (remaining.float() / max(c.fade, 1)).clamp(0.0, 1.0).view(-1, 1, 1)
+        offset = torch.where(locked.unsqueeze(-1), anchor - ank, state.offset * (1.0 - c.catch_up) * fade)
+        new_state = FootLockState(state.ground, locked, anchor, offset, ank)
+        move = offset.norm(dim=-1) > 1e-4  # [N, 2]
+        if skip_idle and not bool(move.any()):
+            return rotations, new_state
+        hip_w, knee_w, ankle_w = grot[:, -3], grot[:, -2], grot[:, -1]
+        new_hip, new_knee = two_bone_ik(pos[:, -3], pos[:, -2], ank, hip_w, knee_w, ank + offset)
+        # Local rotations from the new world ones; the ankle keeps its world rotation (the foot stays flat).
+        parents_w = torch.cat([grot[:, -4], new_hip, new_knee], 1)  # [N, 6, 4]: hips, knees, ankles of both legs
+        local = quat_mul(quat_conjugate(parents_w), torch.cat([new_hip, new_knee, ankle_w], 1))
+        moved = torch.where(move.repeat(1, 3).unsqueeze(-1), local, rotations[:, self.leg_joints])
+        # index_copy rather than indexed assignment: a traced graph keeps it generic in the batch size.
+        return rotations.index_copy(1, self.leg_joints, moved), new_state

@@ -1,0 +1,55 @@
+"""What the engine does to the network's frames before they leave: a bundle setting.
+
+Both steps are causal and per character, so whole transitions and streams get the same frames;
+both hand the arrival frame back untouched (see :mod:`model.inference.output_filter`, :mod:`model.inference.foot_lock`).
+A bundle saved without this section gets the network's frames as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """``smoothing``: the causal output filter's weight of the previous emitted frame for the joint
+    rotations, in [0, 1) (0: off); ``root_smoothing``: the same for the root position (None: as
+    ``smoothing``). ``foot_lock``: hold planted feet by leg IK."""
+
+    smoothing: float = 0.0
+    foot_lock: bool = False
+    root_smoothing: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, value in (("output smoothing", self.smoothing), ("root smoothing", self.root_strength)):
+            if not 0.0 <= value < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {value}")
+
+    @property
+    def root_strength(self) -> float:
+        return self.smoothing if self.root_smoothing is None else self.root_smoothing
+
+    @property
+    def smooths(self) -> bool:
+        return self.smoothing > 0 or self.root_strength > 0
+
+    def with_overrides(self, smoothing: float | None = None, root_smoothing: float | None = None,
+                       foot_lock: bool | None = None) -> OutputConfig:
+        """These settings with a caller's overrides (None keeps a setting). Once either strength is
+        given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value."""
+        if smoothing is not None or root_smoothing is not None:
+            rot = self.smoothing if smoothing is None else float(smoothing)
+            root = None if root_smoothing is None else float(root_smoothing)
+        else:
+            rot, root = self.smoothing, self.root_smoothing
+        return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> OutputConfig:
+        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock"}
+        if unknown:
+            raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
+        return cls(**data)

@@ -1,0 +1,34 @@
+"""How the engine runs a bundle's network: a bundle setting, like the output steps (:mod:`model.inference.output_settings`).
+
+A bundle saved without this section runs its network in float32 throughout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    """``int8_lstm``: run the recurrent core's LSTM cell with int8 weights in the per-frame step
+    (:mod:`model.inference.int8_step`). The cell holds 43% of the weights a frame reads, and at batch 1 a
+    frame is bound by reading them; the rest of the network stays float32, because quantising all
+    of it cost same-style accuracy (docs/benchmarks.md)."""
+
+    int8_lstm: bool = False
+
+    def with_overrides(self, int8_lstm: bool | None = None) -> InferenceConfig:
+        """These settings with a caller's overrides (None keeps a setting)."""
+        return InferenceConfig(self.int8_lstm if int8_lstm is None else bool(int8_lstm))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> InferenceConfig:
+        unknown = set(data) - {"int8_lstm"}
+        if unknown:
+            raise ValueError(f"unknown inference settings: {', '.join(sorted(unknown))}")
+        if not isinstance(data.get("int8_lstm", False), bool):
+            raise ValueError("int8_lstm must be true or false")
+        return cls(**data)

@@ -1,0 +1,1 @@
+"""Motion maths and files: rotations, kinematics, skeletons from joint names, BVH, clips, features, mirroring."""

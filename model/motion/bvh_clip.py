@@ -1,0 +1,256 @@
+"""BVH documents to and from :class:`Clip`: how the model reads a file's rig and motion.
+
+
+:func:`to_clip` interprets a :class:`~model.motion.bvh.BvhDocument` for the model: the profile's
+root joint becomes joint 0 (joints above it are folded into it), position channels replace
+OFFSETs, and rotation channels are intrinsic Euler angles in degrees applied in the order they are
+listed. :func:`from_clip` goes back.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from model.motion.bvh import BvhDocument, BvhJoint
+from model.motion.bvh_parser import (
+    AXIS_INDEX,
+    BONE_TRANSLATION_TOLERANCE,
+    POSITION_CHANNELS,
+    ROTATION_CHANNELS,
+    Vec3,
+    fps_from_frame_time,
+)
+from model.motion.clip import Clip
+from model.motion.rotations import (
+    DEG,
+    axis_angle_to_quat,
+    euler_to_quat,
+    quat_identity,
+    quat_make_continuous,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+    quat_to_euler,
+)
+from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError, SkeletonProfile, plain_joint_name, resolve_roles
+
+logger = logging.getLogger(__name__)
+def _fit_profile(doc: BvhDocument, profile: SkeletonProfile | str | Path | None) -> tuple[SkeletonProfile, int, list[int]]:
+    """The profile, the file index of its root joint, and the joints kept (root then descendants)."""
+    names = doc.names
+    plain = [plain_joint_name(n) for n in names]
+    candidates = [profile] if profile is not None else list(BUILTIN_PROFILES)
+    errors: list[str] = []
+    for cand in candidates:
+        prof = cand if isinstance(cand, SkeletonProfile) else SkeletonProfile.load(cand)
+        try:
+            if plain_joint_name(prof.root) not in plain:
+                resolve_roles(names, prof)  # raises, listing every joint the rig lacks
+                raise SkeletonError(f"no joint {prof.root!r} (root of profile {prof.name!r})")
+            root = plain.index(plain_joint_name(prof.root))
+            inside = [False] * len(names)
+            inside[root] = True
+            # File order is topological, so one pass marks the whole subtree.
+            for i in range(root + 1, len(names)):
+                inside[i] = inside[doc.joints[i].parent]
+            kept = [i for i in range(len(names)) if inside[i]]
+            resolve_roles(tuple(names[i] for i in kept), prof)
+            return prof, root, kept
+        except SkeletonError as exc:
+            errors.append(str(exc))
+    if profile is not None:
+        raise SkeletonError(errors[0])
+    raise SkeletonError("no built-in skeleton profile fits this rig:\n  " + "\n  ".join(errors))
+
+
+def _local_rotations(doc: BvhDocument, joints: Sequence[int]) -> torch.Tensor:
+    """Local rotation quaternions ``[T, len(joints), 4]`` (float64) from the rotation channels.
+
+    Joints sharing an axis order are converted in one batched call: per-joint calls dominated
+    the import time of the real data set.
+    """
+    frames = doc.num_frames
+    out = quat_identity((frames, len(joints)), torch.float64)
+    slices = doc.channel_slices()
+    groups: dict[str, tuple[list[int], list[list[int]]]] = {}
+    eye = torch.eye(3, dtype=torch.float64)
+    for n, j in enumerate(joints):
+        start = slices[j].start
+        rot = [(c[0], start + k) for k, c in enumerate(doc.joints[j].channels) if c in ROTATION_CHANNELS]
+        axes = "".join(a for a, _ in rot)
+        if len(axes) == 3:
+            members, cols = groups.setdefault(axes, ([], []))
+            members.append(n)
+            cols.append([c for _, c in rot])
+        elif axes:
+            # One or two rotation channels: compose them in file order, like the three-channel case.
+            radians = torch.from_numpy(doc.motion[:, [c for _, c in rot]]) / DEG
+            q = out[:, n]
+            for m, a in enumerate(axes):
+                q = quat_mul(q, axis_angle_to_quat(eye[AXIS_INDEX[a]].expand(frames, 3), radians[:, m]))
+            out[:, n] = q
+    for axes, (members, cols) in groups.items():
+        radians = torch.from_numpy(doc.motion[:, cols]) / DEG  # [T, G, 3]
+        out[:, members] = euler_to_quat(radians, axes)
+    return out
+
+
+def _local_translation(doc: BvhDocument, j: int) -> torch.Tensor:
+    """Per-frame translation ``[T, 3]``: the OFFSET, with each position channel replacing its axis."""
+    joint = doc.joints[j]
+    t = np.tile(np.asarray(joint.offset, dtype=np.float64), (doc.num_frames, 1))
+    start = doc.channel_slices()[j].start
+    for k, c in enumerate(joint.channels):
+        if c in POSITION_CHANNELS:
+            t[:, AXIS_INDEX[c[0]]] = doc.motion[:, start + k]
+    return torch.from_numpy(t)
+
+
+def _static_offsets(doc: BvhDocument, joints: Sequence[int], clip_name: str) -> list[Vec3]:
+    """Fixed bone offsets: the OFFSET, with position channels replaced by their mean over frames."""
+    slices = doc.channel_slices()
+    offsets = []
+    for j in joints:
+        joint = doc.joints[j]
+        offset = list(joint.offset)
+        found = [(AXIS_INDEX[c[0]], slices[j].start + k, c) for k, c in enumerate(joint.channels) if c in POSITION_CHANNELS]
+        if found and doc.num_frames:
+            values = doc.motion[:, [col for _, col, _ in found]]
+            means = values.mean(axis=0)
+            deviations = np.abs(values - means).max(axis=0)
+            for (axis, _, channel), mean, deviation in zip(found, means.tolist(), deviations.tolist()):
+                offset[axis] = mean
+                if deviation > BONE_TRANSLATION_TOLERANCE:
+                    logger.warning(
+                        "%s: joint %s channel %s moves by up to %.4g from its mean %.4g; a Clip keeps "
+                        "one fixed offset per bone, so the mean is used",
+                        clip_name or "BVH", joint.name, channel, deviation, mean,
+                    )
+        offsets.append(tuple(offset))
+    return offsets  # type: ignore[return-value]
+
+
+def to_clip(
+    doc: BvhDocument,
+    profile: SkeletonProfile | str | Path | None = None,
+    name: str = "",
+    dtype: torch.dtype = torch.float32,
+) -> Clip:
+    """Interpret a BVH document as a :class:`Clip` on the rig that ``profile`` describes.
+
+    The profile's root joint (auto-detected from the built-in profiles when ``profile`` is None)
+    becomes joint 0: joints above it are folded into its world transform exactly, joints outside
+    its subtree are dropped. Position channels replace OFFSET components. A non-root joint's
+    position channels become its fixed offset (their mean); if they move by more than
+    ``BONE_TRANSLATION_TOLERANCE`` a warning is logged, since a Clip cannot animate bone lengths.
+    Everything is computed in float64 and converted to ``dtype`` at the end.
+    """
+    prof, root, kept = _fit_profile(doc, profile)
+    frames = doc.num_frames
+
+    lineage = [root]  # the root and its ancestors, file root last
+    while doc.joints[lineage[-1]].parent >= 0:
+        lineage.append(doc.joints[lineage[-1]].parent)
+    lineage.reverse()
+    local = _local_rotations(doc, lineage[:-1] + kept)  # ancestors, then the root and its subtree
+    ancestors = len(lineage) - 1
+    pos = torch.zeros(frames, 3, dtype=torch.float64)
+    rot = quat_identity((frames,), torch.float64)
+    for n, a in enumerate(lineage):
+        pos = pos + quat_rotate(rot, _local_translation(doc, a))
+        rot = quat_mul(rot, local[:, n])
+    quats = local[:, ancestors:].clone()
+    quats[:, 0] = rot
+    offsets: list[Vec3] = [(0.0, 0.0, 0.0)] + _static_offsets(doc, kept[1:], name)
+
+    new_index = {j: n for n, j in enumerate(kept)}
+    parents = [-1] + [new_index[doc.joints[j].parent] for j in kept[1:]]
+    end_sites = tuple((new_index[j], doc.joints[j].end_site) for j in kept if doc.joints[j].end_site is not None)
+    skeleton = Skeleton.build(
+        [doc.joints[j].name for j in kept], parents, offsets, profile=prof, end_sites=end_sites  # type: ignore[arg-type]
+    )
+    if frames:
+        # Sign continuity over time so finite differences and interpolation behave.
+        quats = quat_make_continuous(quat_normalize(quats), dim=0)
+    return Clip(
+        skeleton=skeleton,
+        rotations=quats.to(dtype),
+        root_positions=pos.to(dtype),
+        fps=fps_from_frame_time(doc.frame_time),
+        name=name,
+    )
+
+
+def _check_order(order: str) -> str:
+    up = order.upper()
+    if sorted(up) != ["X", "Y", "Z"]:
+        raise ValueError(f"rotation order {order!r} must use X, Y and Z once each, e.g. 'ZXY'")
+    return up
+
+
+def from_clip(clip: Clip, rotation_order: str | Mapping[str, str] = "ZXY") -> BvhDocument:
+    """A BVH document for ``clip``: root with 3 position + 3 rotation channels, others 3 rotations.
+
+    ``rotation_order`` is one axis string for every joint, or a mapping from joint name to axis
+    string (joints it does not name use ``"ZXY"``). OFFSETs are the skeleton's; leaf joints get
+    an End Site (the skeleton's, or zeros). Joints are written in nested (depth-first) order.
+    """
+    sk = clip.skeleton
+    if isinstance(rotation_order, str):
+        orders = [_check_order(rotation_order)] * sk.num_joints
+    else:
+        orders = [_check_order(rotation_order.get(n, "ZXY")) for n in sk.names]
+    ends = dict(sk.end_sites)
+    order: list[int] = []
+    stack = [0]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(sk.children[j]))
+    new_index = {j: n for n, j in enumerate(order)}
+
+    quats = clip.rotations.to(torch.float64)
+    columns = [clip.root_positions.to(torch.float64).numpy()]
+    joints = []
+    for j in order:
+        chans = tuple(f"{a}rotation" for a in orders[j])
+        if j == 0:
+            chans = POSITION_CHANNELS + chans
+        end = ends.get(j)
+        if end is None and not sk.children[j]:
+            end = (0.0, 0.0, 0.0)
+        offset = (0.0, 0.0, 0.0) if j == 0 else sk.offsets[j]
+        parent = -1 if j == 0 else new_index[sk.parents[j]]
+        joints.append(BvhJoint(sk.names[j], parent, offset, chans, end))
+        columns.append((quat_to_euler(quats[:, j], orders[j]) * DEG).numpy())
+    return BvhDocument(joints, 1.0 / clip.fps, np.concatenate(columns, axis=1))
+
+
+# ====================================================================== convenience
+
+
+def load_clip(
+    source: str | Path,
+    profile: SkeletonProfile | str | Path | None = None,
+    fps: float | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> Clip:
+    """A clip from a BVH path or BVH text (text starts with ``HIERARCHY``), resampled to ``fps`` if given."""
+    if isinstance(source, str) and source.lstrip("\ufeff \t\r\n")[:9].upper() == "HIERARCHY":
+        doc, name = BvhDocument.parse(source), ""
+    else:
+        path = Path(source)
+        doc, name = BvhDocument.read(path), path.stem
+    clip = to_clip(doc, profile=profile, name=name, dtype=torch.float64)
+    if fps is not None:
+        clip = clip.resample(fps)
+    return clip.to(dtype)
+
+
+def dump_clip(clip: Clip, rotation_order: str | Mapping[str, str] = "ZXY", precision: int | None = 6) -> str:
+    """BVH text for ``clip`` (see :func:`from_clip`)."""
+    return from_clip(clip, rotation_order).format(precision)

@@ -1,0 +1,1 @@
+"""The networks: the pose state they read and write, the phase model, the manifold, the sampler, the style classifier."""

@@ -1,0 +1,281 @@
+"""The evaluation (model/evaluation, rsmt eval) on a tiny synthetic dataset: cases, scores, report, pictures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from model.data.preprocessed import MotionCache, load_motion_cache
+from model.data.synthetic import synthetic_skeleton, write_synthetic_dataset
+from model.evaluation import VARIANTS, CaseSet, EvalSettings, build_cases, evaluate, resolve_method
+from model.evaluation.cases import CONTEXT, LAST_CONTEXT, SPAN, variant
+from model.evaluation.methods import BundleMethod
+from model.evaluation.reference import reference_stats
+from model.evaluation.report import markdown
+from model.evaluation.style_scores import matched_reference
+from model.inference.bundle import Bundle
+from model.nets.style_classifier import StyleClassifierConfig
+from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
+from rsmt_cli.main import main
+
+GAPS = ("gap10", "gap20", "gap40")
+CONTROLS = ("gap40-dt2", "gap40-dt0.5", "gap40-d2", "gap40-d-1")
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    root = tmp_path_factory.mktemp("evaldata")
+    write_synthetic_dataset(root / "data", takes_per_pair=3, frames=150)
+    return root / "data", root / "cache"
+
+
+@pytest.fixture(scope="module")
+def cache(dataset: tuple[Path, Path]) -> MotionCache:
+    data, root = dataset
+    return load_motion_cache(data, root=root, workers=1, progress=False)
+
+
+@pytest.fixture(scope="module")
+def stats(cache: MotionCache):
+    return reference_stats(cache, cache.split.train)
+
+
+@pytest.fixture(scope="module")
+def bundle_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return Bundle.create(synthetic_skeleton()).save(tmp_path_factory.mktemp("bundle") / "random")
+
+
+@pytest.fixture(scope="module")
+def classifier_dir(cache: MotionCache, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    train = build_windows(cache, cache.split.train, 40, 20)
+    cfg = StyleClassifierConfig(styles=cache.styles, joints=21, channels=16, feature_dim=8, layers=2)
+    result = train_classifier(train, None, cfg, TrainSettings(epochs=1, iterations=2, batch=8, normalisation_windows=32),
+                              progress=False)
+    return result.model.save(tmp_path_factory.mktemp("clf") / "clf")
+
+
+# ------------------------------------------------------------------ cases
+def test_cases_are_deterministic_and_paired(cache: MotionCache) -> None:
+    takes = cache.split.test
+    cases = build_cases(cache, takes)
+    assert cases == build_cases(cache, list(reversed(takes)))
+    assert len(cases) == len(takes) * 3  # 150-frame takes: windows at 0, 40, 80
+    for c in cases:
+        assert c.style == cache.takes[c.take].style
+        assert c.style_take != c.take and cache.takes[c.style_take].style == c.style
+        assert c.cross_style != c.style and cache.takes[c.cross_take].style == c.cross_style
+        assert c.style_frames == 120 == c.cross_frames
+        assert c.start + SPAN <= cache.num_frames(c.take)
+    limited = build_cases(cache, takes, limit=5)
+    assert len(limited) == 5 and limited[0] == cases[0] and set(limited) <= set(cases)
+    assert len({c.style for c in limited}) == len(cache.styles)
+    # A style filter keeps exactly that style's cases, unchanged (their clips still come from all takes).
+    one = cache.styles[0]
+    only = build_cases(cache, takes, only_styles=[one])
+    assert only and only == [c for c in cases if c.style == one]
+
+
+def test_variants_and_targets(cache: MotionCache) -> None:
+    cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=4))
+    assert [v.frames for v in VARIANTS] == [10, 20, 40, 80, 20, 40, 40]
+    assert [v.has_ground_truth for v in VARIANTS] == [True] * 3 + [False] * 4
+    base = variant("gap40")
+    assert base.target_frame == LAST_CONTEXT + 40 == SPAN - 1
+    torch.testing.assert_close(cs.target_positions(base), cs.positions[:, -1])
+    for name, d in (("gap40-d2", 2.0), ("gap40-d-1", -1.0)):
+        v = variant(name)
+        shift = cs.target_positions(v)[:, 0] - cs.positions[:, LAST_CONTEXT, 0]  # root relative to frame 9
+        travel = cs.positions[:, -1, 0] - cs.positions[:, LAST_CONTEXT, 0]
+        torch.testing.assert_close(shift[:, [0, 2]], d * travel[:, [0, 2]])
+        torch.testing.assert_close(shift[:, 1], travel[:, 1])  # heights unchanged
+        rot, root = cs.targets(v)
+        assert rot.shape[1] == 2 and torch.equal(rot, cs.rotations[:, -2:])
+        torch.testing.assert_close(root[:, 1] - root[:, 0], cs.roots[:, -1] - cs.roots[:, -2], atol=1e-3, rtol=0)
+    with pytest.raises(ValueError):
+        cs.ground_truth(variant("gap40-dt2"))
+    pos, _ = cs.ground_truth(variant("gap10"))
+    assert pos.shape[1] == 10 and torch.equal(pos, cs.positions[:, CONTEXT:CONTEXT + 10])
+    # The canonical frame is frame 9's: its root sits over the origin, facing +Z.
+    canon = cs.canonical_positions[:, LAST_CONTEXT, 0]
+    torch.testing.assert_close(canon[:, [0, 2]], torch.zeros(len(cs), 2), atol=1e-4, rtol=0)
+
+
+def test_reference_stats(stats, cache: MotionCache) -> None:
+    assert stats.positions.num_joints == 21 and stats.windows == len(cache.split.train) * 3
+    assert stats.ground.shape == (4,) and bool((stats.positions.std >= 0).all())
+
+
+def test_matched_reference_round_robin() -> None:
+    feats = torch.arange(4.0).unsqueeze(1)
+    ref, kept = matched_reference(feats, ["a", "b", "a", "b"], ["b", "b", "b", "c", "a"])
+    assert ref.flatten().tolist() == [1.0, 3.0, 1.0, 0.0] and kept.tolist() == [0, 1, 2, 4]
+
+
+# ------------------------------------------------------------------ whole runs
+def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
+    methods = [resolve_method(m) for m in ("interp", "zerovel", "gt")]
+    run = evaluate(cache, methods, EvalSettings(limit=9, render_cases=2), progress=False, stats=stats)
+    report = run.report
+    assert report["format"] == "rsmt-eval/1" and report["cases"] == 9 and report["classifier"] is None
+    assert [v["name"] for v in report["variants"]] == list(GAPS + CONTROLS)
+    assert set(report["methods"]) == {"interp", "zerovel", "gt"}
+    json.dumps(report)  # JSON-ready
+    for name in ("interp", "zerovel"):
+        rows = report["methods"][name]["variants"]
+        for v in GAPS + CONTROLS:
+            assert rows[v]["last_frame_cm"] < 1e-3, (name, v)
+            assert rows[v]["last_frame_l2p"] < 1e-3
+            assert rows[v]["foot_skate"] >= 0
+        for v in GAPS:
+            assert {"l2p", "l2q", "npss", "npss_x100", "mpjpe_cm", "foot_skate_gt"} <= set(rows[v])
+        for v in CONTROLS:
+            assert "l2p" not in rows[v]
+    for v in GAPS:
+        interp, zerovel = (report["methods"][m]["variants"][v] for m in ("interp", "zerovel"))
+        assert interp["l2p"] < zerovel["l2p"] and interp["mpjpe_cm"] < zerovel["mpjpe_cm"]
+        gt = report["methods"]["gt"]["variants"][v]
+        for key in ("l2p", "l2q", "npss", "mpjpe_cm", "last_frame_cm"):
+            assert gt[key] < 1e-4, (v, key)
+        assert gt["foot_skate"] == pytest.approx(gt["foot_skate_gt"]) == pytest.approx(report["ground_truth"][v]["foot_skate"])
+    for v in CONTROLS:
+        assert "no ground truth" in report["methods"]["gt"]["variants"][v]["unavailable"]
+    assert len(run.render_index) == 2 and run.render["interp"]["gap40"].shape == (2, 41, 21, 3)
+    text = markdown(report, "rsmt eval ...")
+    assert "| 40 | interp |" in text and "gap 40, d=-1" in text and "n/a" in text
+
+
+def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bundle_dir: Path, classifier_dir: Path,
+                                                 tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    data, root = dataset
+    monkeypatch.setenv("RSMT_CACHE", str(root))
+    out = tmp_path / "out"
+    code = main(["eval", "--model", str(bundle_dir), "--model", "interp", "--model", "zerovel", "--data", str(data),
+                 "--classifier", str(classifier_dir), "--out", str(out), "--limit", "4", "--diversity-cases", "2",
+                 "--diversity-samples", "2", "--render-cases", "2", "--quiet"])
+    assert code == 0
+    stdout = capsys.readouterr().out
+    assert "### Unchanged controls" in stdout and "| 10 | random |" in stdout and "### Style on the 40-frame gap" in stdout
+    for name in ("report.json", "report.md", "reference_stats.json", "metrics_over_gap.png", "controls.png",
+                 "contact_sheet.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    assert (out / "metrics_over_gap.png").read_bytes()[:4] == b"\x89PNG"
+    report = json.loads((out / "report.json").read_text())
+    assert report["command"].startswith("rsmt eval --model") and "--limit 4" in report["command"]
+    model = report["methods"]["random"]
+    assert model["kind"] == "bundle" and model["max_transition"] == 120  # twice the training horizon
+    rows = model["variants"]
+    assert rows["gap40-dt2"]["frames"] == 80 and "unavailable" not in rows["gap40-dt2"]  # within 2 x 60
+    for v in GAPS:
+        assert rows[v]["diversity_cm"] > 0 and rows[v]["diversity_cases"] == 2
+        assert rows[v]["l2p"] > 0 and rows[v]["last_frame_cm"] >= 0
+    gap40 = rows["gap40"]
+    for key in ("style_accuracy", "style_accuracy_cross", "style_cross_as_context"):
+        assert 0.0 <= gap40[key] <= 1.0
+    # The clip and the context are of different styles, so a transition is read as at most one of them.
+    assert gap40["style_accuracy_cross"] + gap40["style_cross_as_context"] <= 1.0 + 1e-6
+    assert "read as the context's style" in stdout
+    per_style = gap40["style_accuracy_by_style"]
+    assert set(per_style) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_style.values())
+    assert "Same-style accuracy per requested style" in stdout
+    per_clip = gap40["style_accuracy_cross_by_style"]
+    assert set(per_clip) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_clip.values())
+    assert "Other-style accuracy per requested style" in stdout
+    per_context = gap40["style_accuracy_cross_by_context"]
+    assert set(per_context) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_context.values())
+    assert "Other-style accuracy per context style" in stdout
+    assert gap40["fmd"] >= 0 and gap40["fmd_cross"] >= 0
+    assert 0.0 <= report["ground_truth"]["gap40"]["style_accuracy"] <= 1.0
+    interp = report["methods"]["interp"]["variants"]
+    assert "diversity_cm" not in interp["gap40"] and interp["gap40"]["last_frame_cm"] < 1e-3
+    assert report["classifier"]["styles"] == ["bouncy", "brisk", "slow"]
+
+
+def test_contact_sheet_always_has_interpolation(cache: MotionCache, stats) -> None:
+    run = evaluate(cache, [resolve_method("zerovel")], EvalSettings(limit=4, render_cases=2), progress=False, stats=stats)
+    assert list(run.render) == ["ground truth", "zerovel", "interp"]
+    assert "interp" not in run.report["methods"]
+    assert run.render["interp"]["gap40"].shape == run.render["zerovel"]["gap40"].shape == (2, 41, 21, 3)
+
+
+def test_bundle_is_deterministic_without_noise(cache: MotionCache, bundle_dir: Path) -> None:
+    from model.evaluation.methods import Request
+
+    method = BundleMethod(bundle_dir, batch=3)
+    cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=3))
+    a = method.generate(cs, Request(variant("gap10")))
+    b = method.generate(cs, Request(variant("gap10")))
+    assert a[0].shape == (3, 10, 21, 4) and a[1].shape == (3, 10, 3)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+    s1 = method.generate(cs, Request(variant("gap10"), seeds=[1, 2, 3]))
+    s2 = method.generate(cs, Request(variant("gap10"), seeds=[4, 5, 6]))
+    assert not torch.equal(s1[1], s2[1])
+
+
+def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle_dir: Path, dataset: tuple[Path, Path],
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    from model.evaluation.methods import Request
+
+    cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=2))
+    raw = BundleMethod(bundle_dir, smoothing=0.0, foot_lock=False)
+    smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
+    assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None}
+    a = raw.generate(cs, Request(variant("gap10")))
+    b = smooth.generate(cs, Request(variant("gap10")))
+    assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way
+    assert torch.allclose(a[1][:, -1], b[1][:, -1], atol=1e-5)  # the arrival frame is the network's own
+    data, _ = dataset
+    assert main(["eval", "--model", str(bundle_dir), "--data", str(data), "--smoothing", "1.5", "--quiet"]) == 2
+    assert "--smoothing" in capsys.readouterr().err
+
+
+def test_unknown_model_is_an_error(dataset: tuple[Path, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    data, _ = dataset
+    assert main(["eval", "--model", "no-such-bundle", "--data", str(data), "--quiet"]) == 2
+    assert "neither" in capsys.readouterr().err
+
+
+def test_styles_filter(dataset: tuple[Path, Path], cache: MotionCache, capsys: pytest.CaptureFixture[str]) -> None:
+    data, _ = dataset
+    one = cache.styles[1]
+    assert main(["eval", "--model", "interp", "--data", str(data), "--styles", one, "--json", "--quiet",
+                 "--diversity-cases", "0"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["cases"] > 0 and set(report["styles"]) == {one}
+    assert "--styles " + one in report["command"]
+    assert main(["eval", "--model", "interp", "--data", str(data), "--styles", "no-such-style", "--quiet"]) == 2
+    assert "unknown style" in capsys.readouterr().err
+
+
+def test_accuracy_by_style_agrees_with_the_overall_accuracy() -> None:
+    from model.evaluation.style_scores import StyleScorer
+
+    scorer = StyleScorer.__new__(StyleScorer)  # only the style index is needed here
+    scorer.index = {"a": 0, "b": 1, "c": 2}
+    labels = torch.tensor([0, 0, 0, 1, 1, 2, -1])
+    logits = torch.nn.functional.one_hot(torch.tensor([0, 0, 1, 1, 0, 2, 0]), 3).float()
+    per = scorer.accuracy_by_style(logits, labels)
+    assert per == pytest.approx({"a": 2 / 3, "b": 1 / 2, "c": 1.0})
+    counts = {"a": 3, "b": 2, "c": 1}
+    assert sum(per[s] * n for s, n in counts.items()) / 6 == pytest.approx(StyleScorer.accuracy(logits, labels))
+
+
+def test_accuracy_by_style_groups_cases_by_another_label() -> None:
+    from types import SimpleNamespace
+
+    from model.evaluation.style_scores import StyleScorer
+
+    scorer = SimpleNamespace(index={"a": 0, "b": 1, "c": 2})
+    logits = torch.eye(3)[[0, 1, 1, 2, 0]]  # predictions a, b, b, c, a
+    labels = torch.tensor([0, 1, 2, 2, -1])  # requested styles; the last is unknown to the classifier
+    by_label = StyleScorer.accuracy_by_style(scorer, logits, labels)
+    assert by_label == {"a": 1.0, "b": 1.0, "c": 0.5}
+    # The same hits grouped by context style: context a holds cases 0 and 2 (one hit), b holds case 1.
+    context = torch.tensor([0, 1, 0, 2, 1])
+    by_context = StyleScorer.accuracy_by_style(scorer, logits, labels, groups=context)
+    assert by_context == {"a": 0.5, "b": 1.0, "c": 1.0}  # case 4's unknown label is left out of group b

@@ -1,0 +1,194 @@
+"""The inference engine at random weights: requests, determinism, batching, retargeting, styles."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from model.data.synthetic import synthetic_skeleton, synthetic_walk
+from model.inference.bundle import Bundle
+from model.inference.engine import CharacterBatch, Engine, EngineError
+from model.motion.clip import Clip
+from model.motion.skeleton import Skeleton
+from model.nets.manifold import ManifoldConfig
+from model.nets.sampler import SamplerConfig
+
+J = 21
+
+
+@pytest.fixture(scope="module")
+def engine() -> Engine:
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    return Engine(Bundle.create(synthetic_skeleton(), cfg, man, seed=1))
+
+
+def _run(engine, walk, frames=20, seed=5, deterministic=False, style_clip=None):
+    style, _ = engine.encode_style(style_clip or walk.window(30, 150))
+    ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), frames, style, seed=seed, deterministic=deterministic)
+    return engine.generate([ch])[0]
+
+
+def test_generates_the_requested_frames(engine, walk):
+    rot, root = _run(engine, walk, frames=17)
+    assert rot.shape == (17, J, 4) and root.shape == (17, 3)
+    assert torch.allclose(rot.norm(dim=-1), torch.ones(17, J), atol=1e-4)
+
+
+def test_same_seed_same_frames_and_noise_matters(engine, walk):
+    a = _run(engine, walk, seed=5)
+    b = _run(engine, walk, seed=5)
+    c = _run(engine, walk, seed=6)
+    d1 = _run(engine, walk, deterministic=True, seed=1)
+    d2 = _run(engine, walk, deterministic=True, seed=2)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+    assert not torch.equal(a[0], c[0])
+    assert torch.equal(d1[0], d2[0])
+
+
+def test_batch_gives_what_one_at_a_time_gives(engine, walk):
+    style, _ = engine.encode_style(walk.window(30, 150))
+    chars = [engine.prepare(walk.window(i, i + 10), walk.window(i + 30, i + 32), 15 + i, style, seed=i) for i in range(6)]
+    together = engine.generate(chars)
+    for i, (rot, root) in enumerate(together):
+        ch = engine.prepare(walk.window(i, i + 10), walk.window(i + 30, i + 32), 15 + i, style, seed=i)
+        alone = engine.generate([ch])[0]
+        assert rot.shape[0] == 15 + i
+        assert torch.allclose(rot, alone[0], atol=1e-4) and torch.allclose(root, alone[1], atol=1e-3)
+
+
+def test_output_is_in_the_callers_frame(engine, walk):
+    """Moving and turning the whole request moves and turns the answer the same way."""
+    rot, root = _run(engine, walk, deterministic=True)
+    shift = torch.tensor([100.0, 0.0, -50.0])
+    moved = Clip(walk.skeleton, walk.rotations, walk.root_positions + shift, walk.fps)
+    rot2, root2 = _run(engine, moved, deterministic=True, style_clip=walk.window(30, 150))
+    assert torch.allclose(root2, root + shift, atol=1e-2)
+    assert torch.allclose(rot2, rot, atol=1e-4)
+
+
+def test_style_cache(engine, walk):
+    clip = walk.window(10, 70)
+    a, cached_a = engine.encode_style(clip)
+    b, cached_b = engine.encode_style(clip)
+    assert a.style_id == b.style_id and cached_b and a.style_id.startswith("sty_")
+    other, _ = engine.encode_style(walk.window(11, 71))
+    assert other.style_id != a.style_id
+
+
+def test_bad_requests(engine, walk):
+    style, _ = engine.encode_style(walk.window(30, 150))
+    with pytest.raises(EngineError) as err:
+        engine.prepare(walk.window(0, 5), walk.window(40, 42), 10, style)
+    assert err.value.code == "too_few_frames"
+    with pytest.raises(EngineError) as err:
+        engine.prepare(walk.window(0, 10), walk.window(40, 42), engine.max_frames + 1, style)
+    assert err.value.code == "too_many_frames"
+    with pytest.raises(EngineError) as err:
+        engine.encode_style(walk.window(0, 5))
+    assert err.value.code == "too_few_frames"
+    sk = walk.skeleton
+    keep = [i for i, n in enumerate(sk.names) if n != "Toes_R"]
+    small = Skeleton(names=tuple(sk.names[i] for i in keep), parents=tuple(keep.index(sk.parents[i]) if i else -1 for i in keep),
+                     offsets=tuple(sk.offsets[i] for i in keep), roles=replace(sk.roles, mirror=tuple(range(len(keep)))))
+    clip = Clip(small, walk.rotations[:, keep], walk.root_positions, walk.fps)
+    with pytest.raises(EngineError) as err:
+        engine.prepare(clip.window(0, 10), walk.window(40, 42), 10, style)
+    assert err.value.code == "skeleton_mismatch" and "Toes_R" in str(err.value)
+
+
+def test_context_is_resampled(engine, walk):
+    fast = walk.resample(60.0)
+    style, _ = engine.encode_style(walk.window(30, 150))
+    ch = engine.prepare(fast.window(0, 40), walk.window(40, 42), 12, style, deterministic=True)
+    rot, _ = engine.generate([ch])[0]
+    assert rot.shape[0] == 12
+
+
+def test_retarget_changes_arrival(engine, walk):
+    style, _ = engine.encode_style(walk.window(30, 150))
+    results = []
+    for retarget in (False, True):
+        batch = CharacterBatch(engine)
+        ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), 30, style, deterministic=True)
+        batch.add(ch)
+        roots = []
+        while not ch.done:
+            out = batch.step()
+            roots.append(out.root_positions[0])
+            if retarget and ch.seq == 10:
+                far = Clip(walk.skeleton, walk.rotations[40:42], walk.root_positions[40:42] + torch.tensor([300.0, 0, 0]),
+                           walk.fps)
+                engine.retarget(ch, batch, target=far, frames=15)
+        results.append(torch.stack(roots))
+        batch.drop_finished()
+        assert len(batch) == 0
+    plain, moved = results
+    assert plain.shape[0] == 30 and moved.shape[0] == 25
+    assert torch.allclose(plain[:10], moved[:10])
+    assert not torch.allclose(plain[10:25], moved[10:25])
+
+
+def test_style_switch_mid_motion(engine, walk):
+    a, _ = engine.encode_style(walk.window(30, 150))
+    b, _ = engine.encode_style(synthetic_walk(frames=60, cadence_hz=1.6, stride_deg=40.0))
+    outs = []
+    for switch in (False, True):
+        batch = CharacterBatch(engine)
+        ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, a, deterministic=True)
+        batch.add(ch)
+        frames = []
+        while not ch.done:
+            frames.append(batch.step().rotations[0])
+            if switch and ch.seq == 5:
+                batch.set_style(ch, b)
+        outs.append(torch.stack(frames))
+    assert torch.allclose(outs[0][:5], outs[1][:5])
+    assert not torch.allclose(outs[0][6:], outs[1][6:])
+
+
+def test_info_describes_the_model(engine):
+    info = engine.info()
+    assert info["fps"] == 30.0 and info["context_frames"] == 10
+    assert [j["name"] for j in info["skeleton"]["joints"]][0] == "Hips"
+    assert info["skeleton"]["units"] == "cm" and info["skeleton"]["up_axis"] == "y"
+
+
+def test_exact_arrival_lands_on_the_target(engine, walk):
+    from model.motion.rotations import quat_angle
+
+    style, _ = engine.encode_style(walk.window(30, 150))
+    target = walk.window(40, 42)
+    plain = engine.generate([engine.prepare(walk.window(0, 10), target, 20, style, deterministic=True)])[0]
+    exact = engine.generate([engine.prepare(walk.window(0, 10), target, 20, style, deterministic=True, exact_arrival=True)])[0]
+    assert quat_angle(exact[0][-1], target.rotations[-1]).max() < 1e-3
+    assert torch.allclose(exact[1][-1], target.root_positions[-1], atol=1e-3)
+    assert not torch.allclose(plain[1][-1], target.root_positions[-1], atol=1e-1)  # random weights miss it
+    assert torch.allclose(exact[0][:5], plain[0][:5])  # frames before the window are untouched
+
+
+def test_traced_step_matches_eager(walk):
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
+    results = []
+    for compiled in (False, True):
+        eng = Engine(bundle, compiled=compiled, foot_lock=True)
+        short, _ = eng.encode_style(walk.window(0, 40))
+        long, _ = eng.encode_style(walk.window(10, 150))
+        # Traced at batch 1 with one style length, then run at batch 3 with mixed lengths.
+        first = eng.generate([eng.prepare(walk.window(0, 10), walk.window(40, 42), 8, short, seed=1)])
+        chars = [eng.prepare(walk.window(i, i + 10), walk.window(40, 42), 12, s, seed=i)
+                 for i, s in enumerate((short, long, short))]
+        results.append((first, eng.generate(chars)))
+        if compiled:
+            assert not eng.step_fn.failed and eng.step_fn._graph is not None
+            # The frame's way out (world space, filter, foot lock) too.
+            assert not eng.output_fn.failed and eng.output_fn._graph is not None and eng.foot_lock is not None
+        else:
+            assert eng.output_fn._graph is None and eng.foot_lock is not None
+    (e1, e3), (c1, c3) = results
+    for a, b in zip(e1 + e3, c1 + c3):
+        assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)
