@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import os
+import functools
+import inspect
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import uvicorn
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -30,10 +35,10 @@ def _run(args: argparse.Namespace) -> int:
     from service.registry import NoModelError, find_bundles
     from service.settings import Settings
 
+    # The options given override the environment; the rest of the settings come from it (RSMT_*).
     overrides = {"host": args.host, "port": args.port, "models": args.models, "threads": args.threads,
                  "log_level": args.log_level}
-    overrides = {k: v for k, v in overrides.items() if v is not None}
-    settings = Settings(**overrides)
+    settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     assert settings.models is not None
     try:
         find_bundles(settings.models)
@@ -43,22 +48,34 @@ def _run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from service.logconfig import log_config
+    from service.app import create_app
+    from service.http.logs import log_config
 
-    common = {
+    common: dict[str, Any] = {
         "host": settings.host, "port": settings.port, "log_config": log_config(settings.log_level, settings.log_format),
         "access_log": settings.access_log, "ws_max_size": settings.ws_max_message_bytes,
         "ws_per_message_deflate": settings.ws_per_message_deflate,
         "timeout_graceful_shutdown": settings.shutdown_grace_s, "lifespan": "on",
     }
     if args.workers > 1:
-        # Worker processes build their own app from the environment.
-        for key, value in overrides.items():
-            os.environ[f"RSMT_{key.upper()}"] = str(value)
-        uvicorn.run("service.app:create_app", factory=True, workers=args.workers, **common)  # type: ignore[arg-type]
+        # Each worker process builds its own app from these settings (pickled with uvicorn's config).
+        config = uvicorn.Config(functools.partial(create_app, settings), factory=True, workers=args.workers, **common)
+        _supervise(config)
         return 0
-    from service.app import create_app
-
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), **common))  # type: ignore[arg-type]
+    server = uvicorn.Server(uvicorn.Config(create_app(settings), **common))
     server.run()
     return 0 if server.started else 1
+
+
+def _supervise(config: uvicorn.Config) -> None:
+    """Run ``config.workers`` worker processes under uvicorn's supervisor, as ``uvicorn.run`` does; that
+    accepts only an import string for several workers, which would leave the workers only the environment
+    to read their settings from. Up to uvicorn 0.50 (at least) the supervisor also took the server's ``run``."""
+    import uvicorn
+    from uvicorn.supervisors import Multiprocess
+
+    sock = config.bind_socket()
+    extra: dict[str, Any] = {}
+    if "target" in inspect.signature(Multiprocess).parameters:
+        extra["target"] = uvicorn.Server(config).run
+    Multiprocess(config, sockets=[sock], **extra).run()

@@ -8,16 +8,18 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 
-from service.body_limit import BodyLimitMiddleware
-from service.connection import RawSendMiddleware
 from service.errors import install_error_handlers
+from service.http.body_limit import BodyLimitMiddleware
+from service.http.logs import ensure_service_logging
+from service.http.ratelimit import RateLimiter
+from service.http.request_metrics import MetricsMiddleware
 from service.lifecycle import lifespan
-from service.logconfig import ensure_service_logging
-from service.metrics import Metrics, MetricsMiddleware
-from service.ratelimit import RateLimiter
+from service.metrics import Metrics
 from service.routes import health, metrics, models, stream, styles, transition, viewer
 from service.settings import Settings, get_settings
 from service.state import ServiceState
+from service.streaming.connection import RawSendMiddleware
+from service.viewer.page import mount_page
 
 DESCRIPTION = """Real-time stylized motion transitions (RSMT, SIGGRAPH 2023).
 
@@ -40,7 +42,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RawSendMiddleware)
     app.add_middleware(MetricsMiddleware, metrics=app.state.service.metrics)
-    for module in (health, models, styles, transition, stream, metrics):
+    for module in (health, models, styles, transition, stream, metrics, viewer):
         app.include_router(module.router)
-    viewer.install(app)  # the web viewer: /viewer/ and its /v1/viewer helpers
+    mount_page(app)  # the web viewer's page at /viewer/ (its helper routes are routes.viewer)
     return app

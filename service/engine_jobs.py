@@ -1,7 +1,7 @@
 """The engine work behind each request, as plain blocking functions run on a model's work threads:
 register a style, generate a transition, prepare a streamed character.
 
-Each converts payloads, calls the engine and maps :class:`EngineError` to the contract's codes.
+Each converts payloads, calls the engine and maps its errors to the contract's codes (:func:`service.errors.from_engine`).
 """
 
 from __future__ import annotations
@@ -10,16 +10,12 @@ import secrets
 import time
 from typing import Any
 
-from model.inference.engine import Character, EncodedStyle, EngineError
-from service.errors import ServiceError
+from model.inference.engine import Character, EncodedStyle
+from model.inference.errors import EngineError
+from service.errors import ServiceError, from_engine
 from service.motion import frames_bvh, frames_json, motion_to_clip
 from service.registry import LoadedModel
 from service.schemas import BvhMotion, PoseMotion, StartMessage, TransitionRequest
-
-
-def _engine_error(exc: EngineError) -> ServiceError:
-    return ServiceError(exc.code if exc.code in ("skeleton_mismatch", "too_few_frames", "too_many_frames") else
-                        "validation_error", str(exc))
 
 
 def lookup_style(model: LoadedModel, style_id: str) -> EncodedStyle:
@@ -36,7 +32,7 @@ def encode_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) 
     try:
         return model.engine.encode_style(clip, name)
     except EngineError as exc:
-        raise _engine_error(exc) from exc
+        raise from_engine(exc) from exc
 
 
 def resolve_style(model: LoadedModel, style_id: str | None, motion: BvhMotion | PoseMotion | None) -> EncodedStyle:
@@ -76,7 +72,7 @@ def run_transition(model: LoadedModel, req: TransitionRequest, queued_at: float)
         ch = engine.prepare(context, target, req.frames, style, seed=seed, deterministic=req.deterministic,
                             exact_arrival=req.exact_arrival)
     except EngineError as exc:
-        raise _engine_error(exc) from exc
+        raise from_engine(exc) from exc
     rotations, roots = engine.generate([ch])[0]
     generated = time.perf_counter()
     body: dict[str, Any] = {"fps": engine.config.fps, "model": model.name, "style_id": style.style_id, "seed": seed,
@@ -108,5 +104,5 @@ def prepare_character(model: LoadedModel, msg: StartMessage, character_id: str) 
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
                             character_id=character_id, exact_arrival=msg.exact_arrival)
     except EngineError as exc:
-        raise _engine_error(exc) from exc
+        raise from_engine(exc) from exc
     return ch, style, seed

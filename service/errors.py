@@ -1,8 +1,10 @@
-"""The error envelope ``{"error": {"code", "message"}}``, its HTTP statuses, and the handlers that produce it."""
+"""The error envelope ``{"error": {"code", "message"}}``, its HTTP statuses, the handlers that produce it, and
+the contract code of each error the engine raises."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import orjson
@@ -10,6 +12,8 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError, WebSocketRequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import Response
+
+from model.inference.errors import EngineError, SkeletonMismatch, TooFewFrames, TooManyFrames
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +59,20 @@ class ServiceError(Exception):
         return STATUS[self.code]
 
 
+# The engine's errors by contract code; any other (a length out of range) is a validation_error.
+ENGINE_CODES: dict[type[EngineError], str] = {
+    SkeletonMismatch: "skeleton_mismatch",
+    TooFewFrames: "too_few_frames",
+    TooManyFrames: "too_many_frames",
+}
+
+
+def from_engine(exc: EngineError) -> ServiceError:
+    """The contract's error for what the engine refused; the engine's message is kept."""
+    code = next((c for kind, c in ENGINE_CODES.items() if isinstance(exc, kind)), "validation_error")
+    return ServiceError(code, str(exc))
+
+
 def envelope(code: str, message: str) -> dict[str, Any]:
     return {"error": {"code": code, "message": message}}
 
@@ -71,7 +89,7 @@ def _count(request: Request, code: str) -> None:
         metrics.errors.labels(code=code).inc()
 
 
-def describe_validation(errors: list[dict[str, Any]], limit: int = 5) -> str:
+def describe_validation(errors: Sequence[Mapping[str, Any]], limit: int = 5) -> str:
     """One readable line per pydantic error: ``body.frames: Input should be greater than or equal to 1``."""
     parts = []
     for err in errors[:limit]:

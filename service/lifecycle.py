@@ -25,8 +25,8 @@ from typing import Any
 
 from fastapi import FastAPI
 
-from service.connection import CLOSE_GOING_AWAY
 from service.state import Phase, ServiceState
+from service.streaming.connection import CLOSE_GOING_AWAY
 
 log = logging.getLogger(__name__)
 HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -119,7 +119,7 @@ def install_signal_hook(state: ServiceState, loop: asyncio.AbstractEventLoop) ->
     started = False
 
     def hand_over(sig: int, frame: Any) -> None:
-        prev = previous[sig]
+        prev = previous[signal.Signals(sig)]
         if callable(prev):
             prev(sig, frame)
         elif prev == signal.SIG_DFL:

@@ -13,13 +13,14 @@ import numpy as np
 import orjson
 import torch
 
-from model.inference.engine import Engine, EngineError
+from model.inference.engine import Engine
+from model.inference.errors import EngineError
 from model.motion.bvh import BvhDocument, BvhError
 from model.motion.bvh_clip import dump_clip, to_clip
 from model.motion.clip import Clip
 from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError
 from model.motion.skeleton import plain_joint_name as _plain
-from service.errors import ServiceError
+from service.errors import ServiceError, from_engine
 from service.schemas import BvhMotion, PoseMotion
 
 MIN_FPS, MAX_FPS = 1.0, 1000.0
@@ -48,7 +49,7 @@ def motion_to_clip(motion: BvhMotion | PoseMotion, engine: Engine, limits: Motio
     try:
         return engine.conform(clip, what)
     except EngineError as exc:
-        raise ServiceError(exc.code, str(exc)) from exc
+        raise from_engine(exc) from exc
 
 
 def _bvh_clip(text: str, engine: Engine, limits: MotionLimits, what: str) -> Clip:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,8 +22,8 @@ from model.inference.engine import Engine
 from service.errors import ServiceError
 from service.metrics import Metrics
 from service.motion import MotionLimits
-from service.scheduler import Scheduler
 from service.settings import Settings
+from service.streaming.scheduler import Scheduler
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -64,10 +64,26 @@ class LoadedModel:
     warmup: dict[str, Any] = field(default_factory=dict)
 
     def info(self) -> dict[str, Any]:
-        info = self.engine.info()
-        info["name"] = self.name
-        info["max_transition_frames"] = self.max_transition
-        return info
+        """The model description of ``GET /v1/model`` (:class:`service.schemas.ModelInfo`), also in ``hello``."""
+        engine = self.engine
+        c = engine.config
+        sk = engine.skeleton
+        return {
+            "name": self.name,
+            "version": engine.version,
+            "fps": c.fps,
+            "context_frames": c.context,
+            "max_transition_frames": self.max_transition,
+            "style_clip_frames": {"min": c.style_frames_min, "max": c.style_frames_max},
+            "skeleton": {
+                "joints": [{"name": n, "parent": p, "offset": list(o)} for n, p, o in zip(sk.names, sk.parents, sk.offsets)],
+                "units": sk.units,
+                "up_axis": sk.up_axis,
+                "handedness": sk.handedness,
+            },
+            "training_data": engine.bundle.meta.training_data,
+            "license": engine.bundle.meta.license,
+        }
 
     async def run(self, fn: Callable[..., T], *args: Any) -> T:
         """Run ``fn(*args)`` on this model's work threads."""
@@ -99,7 +115,7 @@ class Registry:
                                                 "(GET /v1/models)")
         return model
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[LoadedModel]:
         return iter(self.models.values())
 
     def live_characters(self) -> int:
@@ -119,6 +135,15 @@ class Registry:
             m.step.shutdown(wait=False, cancel_futures=True)
 
 
+def _threads(count: int, prefix: str, torch_threads: int) -> ThreadPoolExecutor:
+    """``count`` worker threads; torch's thread count is per OS thread once that thread has run an op, so
+    each worker sets it (when the settings fix one)."""
+    if torch_threads:
+        return ThreadPoolExecutor(count, thread_name_prefix=prefix, initializer=torch.set_num_threads,
+                                  initargs=(torch_threads,))
+    return ThreadPoolExecutor(count, thread_name_prefix=prefix)
+
+
 def load_registry(settings: Settings) -> Registry:
     """Load every bundle the settings point at (blocking: call it from a thread)."""
     assert settings.models is not None
@@ -133,7 +158,7 @@ def load_registry(settings: Settings) -> Registry:
         engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
                         cache_bytes=settings.style_cache_bytes, smoothing=settings.output_smoothing,
                         foot_lock=settings.foot_lock, root_smoothing=settings.output_root_smoothing,
-                        int8_lstm=settings.int8_lstm)
+                        int8_lstm=settings.int8_lstm, compiled=not settings.eager)
         name = engine.name if engine.name not in names else path.name
         if name in names:
             raise NoModelError(f"two bundles are named {name!r}; rename one directory")
@@ -141,12 +166,10 @@ def load_registry(settings: Settings) -> Registry:
         cap = settings.max_transition_frames
         max_transition = min(engine.max_frames, cap) if cap else engine.max_frames
         limits = MotionLimits(settings.max_clip_frames, settings.quaternion_tolerance, settings.max_abs_position)
-        # torch's thread count is per OS thread once that thread has run an op: set it in each worker.
-        init = {"initializer": torch.set_num_threads, "initargs": (settings.threads,)} if settings.threads else {}
         models.append(LoadedModel(
             name=name, path=path, engine=engine, max_transition=max_transition, limits=limits,
-            work=ThreadPoolExecutor(settings.request_threads, thread_name_prefix=f"work-{name}", **init),
-            step=ThreadPoolExecutor(1, thread_name_prefix=f"step-{name}", **init),
+            work=_threads(settings.request_threads, f"work-{name}", settings.threads),
+            step=_threads(1, f"step-{name}", settings.threads),
         ))
         log.info("loaded model", extra={"model": name, "path": str(path), "version": engine.version})
     return Registry(models, settings.default_model)

@@ -27,75 +27,82 @@ class Settings(BaseSettings):
 
     # ------------------------------------------------------------------ network
     host: str = "127.0.0.1"
-    port: int = Field(8000, ge=0, le=65535)
+    port: int = Field(default=8000, ge=0, le=65535)
 
     # ------------------------------------------------------------------ models
     models: Path | None = Field(
-        None,
+        default=None,
         description="a bundle directory, or a directory whose subdirectories are bundles "
         "(default: the bundled default model, model/default_bundle)",
     )
-    default_model: str | None = Field(None, description="name served by GET /v1/model (default: the first, by name)")
-    threads: int = Field(1, ge=0, description="torch intra-op threads (0: torch's choice); process-wide")
-    request_threads: int = Field(1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
-    warmup_max_batch: int = Field(64, ge=1, description="warm the batched step at 1, 2, 4, ... up to this many characters")
+    default_model: str | None = Field(default=None, description="name served by GET /v1/model (default: the first, by name)")
+    threads: int = Field(default=1, ge=0, description="torch intra-op threads (0: torch's choice); process-wide")
+    request_threads: int = Field(
+        default=1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
+    warmup_max_batch: int = Field(
+        default=64, ge=1, description="warm the batched step at 1, 2, 4, ... up to this many characters")
     output_smoothing: float | None = Field(
-        None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
+        default=None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
     output_root_smoothing: float | None = Field(
-        None, ge=0, lt=1,
+        default=None, ge=0, lt=1,
         description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
-    foot_lock: bool | None = Field(None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
+    foot_lock: bool | None = Field(
+        default=None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
     int8_lstm: bool | None = Field(
-        None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
+        default=None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
+    eager: bool = Field(
+        default=False, description="run each model's per-frame step and output steps in eager PyTorch instead of their "
+        "traced graphs (slower; for debugging)")
 
     # ------------------------------------------------------------------ style cache
-    style_cache_entries: int = Field(1024, ge=1)
-    style_cache_bytes: int = Field(256 << 20, ge=1)
+    style_cache_entries: int = Field(default=1024, ge=1)
+    style_cache_bytes: int = Field(default=256 << 20, ge=1)
 
     # ------------------------------------------------------------------ limits
-    max_body_bytes: int = Field(1 << 20, ge=1024, description="HTTP request bodies above this get 413")
-    max_clip_frames: int = Field(1200, ge=1, description="most frames one Motion payload may hold (before resampling)")
+    max_body_bytes: int = Field(default=1 << 20, ge=1024, description="HTTP request bodies above this get 413")
+    max_clip_frames: int = Field(default=1200, ge=1, description="most frames one Motion payload may hold (before resampling)")
     max_transition_frames: int | None = Field(
-        None, ge=1, description="cap on `frames` below the model's own max_transition_frames (default: the model's)"
+        default=None, ge=1, description="cap on `frames` below the model's own max_transition_frames (default: the model's)"
     )
-    quaternion_tolerance: float = Field(1e-2, gt=0, lt=1, description="JSON poses need | 1 - |q| | below this")
-    max_abs_position: float = Field(1e6, gt=0, description="root positions and offsets beyond this (model units) are rejected")
-    ws_max_message_bytes: int = Field(64 << 10, ge=1024, description="WebSocket messages above this close with 1009")
+    quaternion_tolerance: float = Field(default=1e-2, gt=0, lt=1, description="JSON poses need | 1 - |q| | below this")
+    max_abs_position: float = Field(
+        default=1e6, gt=0, description="root positions and offsets beyond this (model units) are rejected")
+    ws_max_message_bytes: int = Field(default=64 << 10, ge=1024, description="WebSocket messages above this close with 1009")
     ws_send_buffer_bytes: int = Field(
-        256 << 10, ge=0, description="kernel send buffer of each WebSocket (0: the OS's autotuned default, up to "
+        default=256 << 10, ge=0, description="kernel send buffer of each WebSocket (0: the OS's autotuned default, up to "
         "net.ipv4.tcp_wmem max); bounds the memory a non-reading client holds and how soon it is noticed")
-    ws_per_message_deflate: bool = Field(False, description="permessage-deflate on WebSockets (costs CPU per frame)")
+    ws_per_message_deflate: bool = Field(default=False, description="permessage-deflate on WebSockets (costs CPU per frame)")
     send_queue_frames: int = Field(
-        16, ge=1, description="frames a character may have generated but not yet sent; the generator waits beyond it"
+        default=16, ge=1, description="frames a character may have generated but not yet sent; the generator waits beyond it"
     )
     slow_client_grace_s: float = Field(
-        5.0, gt=0, description="a character whose send queue stays full this long closes its connection with 1008"
+        default=5.0, gt=0, description="a character whose send queue stays full this long closes its connection with 1008"
     )
     idle_timeout_s: float = Field(
-        60.0, gt=0, description="a connection without live characters or messages this long closes (1000)"
+        default=60.0, gt=0, description="a connection without live characters or messages this long closes (1000)"
     )
-    max_characters_per_connection: int = Field(64, ge=1)
-    max_characters: int = Field(1024, ge=1, description="live streamed characters in the whole process")
+    max_characters_per_connection: int = Field(default=64, ge=1)
+    max_characters: int = Field(default=1024, ge=1, description="live streamed characters in the whole process")
     max_pending_messages: int = Field(
-        1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
+        default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )
 
     # ------------------------------------------------------------------ auth and rate limits
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="accepted API keys; empty: no authentication"
     )
-    rate_limit_per_s: float = Field(0.0, ge=0,
+    rate_limit_per_s: float = Field(default=0.0, ge=0,
                                     description="requests per second per key (per client address without keys); 0: off")
-    rate_limit_burst: int = Field(20, ge=1, description="token-bucket size of the per-key rate limit")
+    rate_limit_burst: int = Field(default=20, ge=1, description="token-bucket size of the per-key rate limit")
 
     # ------------------------------------------------------------------ logs and lifecycle
     log_level: Literal["debug", "info", "warning", "error"] = "warning"
     log_format: Literal["json", "text"] = "json"
     access_log: bool = False
     shutdown_drain_s: float = Field(
-        1.0, ge=0, description="after SIGTERM, readiness is 503 this long while requests are still served"
+        default=1.0, ge=0, description="after SIGTERM, readiness is 503 this long while requests are still served"
     )
-    shutdown_grace_s: float = Field(8.0, gt=0, description="in-flight requests get this long to finish after the drain")
+    shutdown_grace_s: float = Field(default=8.0, gt=0, description="in-flight requests get this long to finish after the drain")
 
     @field_validator("api_keys", mode="before")
     @classmethod

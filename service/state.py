@@ -6,13 +6,13 @@ import enum
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from service.http.ratelimit import RateLimiter
 from service.metrics import Metrics
-from service.ratelimit import RateLimiter
 from service.settings import Settings
 
 if TYPE_CHECKING:
-    from service.connection import Connection
     from service.registry import Registry
+    from service.streaming.connection import Connection
 
 
 class Phase(enum.Enum):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import os
 import time
 from dataclasses import dataclass, field
 
@@ -18,6 +17,7 @@ import torch
 
 from model.inference.arrival import ArrivalCorrector, ArrivalState
 from model.inference.bundle import Bundle
+from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.foot_lock import FootLock
 from model.inference.int8_step import int8_lstm_sampler
 from model.inference.style_codes import LRUCache, clip_content_hash
@@ -32,14 +32,6 @@ from model.nets.sampler import SamplerState, StyleContext
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
-
-
-class EngineError(ValueError):
-    """A request the engine cannot serve; ``code`` is the contract's machine-readable error code."""
-
-    def __init__(self, code: str, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 @dataclass
@@ -100,19 +92,19 @@ class Engine:
     """Serves one bundle. Thread settings are process-wide torch settings, applied here once."""
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
-                 cache_bytes: int = 256 << 20, compiled: bool | None = None, smoothing: float | None = None,
+                 cache_bytes: int = 256 << 20, compiled: bool = True, smoothing: float | None = None,
                  foot_lock: bool | None = None, root_smoothing: float | None = None,
                  int8_lstm: bool | None = None) -> None:
         """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
         the root, :mod:`model.inference.output_filter`) and ``foot_lock`` (:mod:`model.inference.foot_lock`) override the
         bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
-        ``int8_lstm`` overrides the bundle's inference setting (:mod:`model.inference.int8_step`)."""
+        ``int8_lstm`` overrides the bundle's inference setting (:mod:`model.inference.int8_step`).
+        ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
+        their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
         self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock)
         self.inference = bundle.inference.with_overrides(int8_lstm)
         if threads:
             torch.set_num_threads(threads)
-        if compiled is None:
-            compiled = os.environ.get("RSMT_EAGER", "") not in ("1", "true", "yes")
         self.bundle = bundle
         self.sampler = bundle.sampler.eval()
         for p in self.sampler.parameters():
@@ -153,27 +145,6 @@ class Engine:
     def version(self) -> str:
         return self.bundle.version
 
-    def info(self) -> dict:
-        """The model description of ``GET /v1/model``."""
-        c = self.config
-        sk = self.skeleton
-        return {
-            "name": self.name,
-            "version": self.version,
-            "fps": c.fps,
-            "context_frames": c.context,
-            "max_transition_frames": self.max_frames,
-            "style_clip_frames": {"min": c.style_frames_min, "max": c.style_frames_max},
-            "skeleton": {
-                "joints": [{"name": n, "parent": p, "offset": list(o)} for n, p, o in zip(sk.names, sk.parents, sk.offsets)],
-                "units": sk.units,
-                "up_axis": sk.up_axis,
-                "handedness": sk.handedness,
-            },
-            "training_data": self.bundle.meta.training_data,
-            "license": self.bundle.meta.license,
-        }
-
     # ------------------------------------------------------------------ input
     def conform(self, clip: Clip, what: str = "motion") -> Clip:
         """Map a clip onto the model's rig by joint name and resample it to the model's fps.
@@ -192,7 +163,7 @@ class Engine:
                 i = lookup.get(n.lower())
                 (missing.append(n) if i is None else idx.append(i))
             if missing:
-                raise EngineError("skeleton_mismatch", f"{what} lacks joint(s) of the model's skeleton: {', '.join(missing)}")
+                raise SkeletonMismatch(f"{what} lacks joint(s) of the model's skeleton: {', '.join(missing)}")
             _, grot = clip.global_transforms()
             local = global_to_local_rotations(grot[:, idx], sk.parents)
             root = forward_kinematics(clip.rotations, clip.root_positions, src.offsets_tensor(clip.rotations.dtype),
@@ -215,9 +186,9 @@ class Engine:
         clip = self.conform(clip, "style clip")
         c = self.config
         if not c.style_frames_min <= clip.num_frames <= c.style_frames_max:
-            code = "too_few_frames" if clip.num_frames < c.style_frames_min else "too_many_frames"
-            raise EngineError(code, f"a style clip needs {c.style_frames_min} to {c.style_frames_max} frames at "
-                                    f"{c.fps:g} fps; got {clip.num_frames}")
+            error = TooFewFrames if clip.num_frames < c.style_frames_min else TooManyFrames
+            raise error(f"a style clip needs {c.style_frames_min} to {c.style_frames_max} frames at {c.fps:g} fps; "
+                        f"got {clip.num_frames}")
         sid = clip_content_hash(clip, self.version)
         cached = self.styles.get(sid)
         if cached is not None:
@@ -242,13 +213,12 @@ class Engine:
         """
         c = self.config
         if not 1 <= frames <= self.max_frames:
-            raise EngineError("too_many_frames" if frames > self.max_frames else "validation_error",
-                              f"frames must be between 1 and {self.max_frames}; got {frames}")
+            error = TooManyFrames if frames > self.max_frames else FramesOutOfRange
+            raise error(f"frames must be between 1 and {self.max_frames}; got {frames}")
         context = self.conform(context, "context")
         target = self.conform(target, "target")
         if context.num_frames < c.context:
-            raise EngineError("too_few_frames", f"the context needs at least {c.context} frames at {c.fps:g} fps; "
-                                                 f"got {context.num_frames}")
+            raise TooFewFrames(f"the context needs at least {c.context} frames at {c.fps:g} fps; got {context.num_frames}")
         context = context.window(context.num_frames - c.context, context.num_frames)
         cpos, crot = self._global(context)
         frame = CanonicalFrame.at_frame(cpos.unsqueeze(0), self.skeleton, c.context - 1)
@@ -299,7 +269,7 @@ class Engine:
                  frames: int | None = None) -> None:
         """Change where and/or when a live character arrives, from its next frame on."""
         if frames is not None and not 1 <= frames <= self.max_frames:
-            raise EngineError("validation_error", f"frames must be between 1 and {self.max_frames}; got {frames}")
+            raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
         if batch is None and ch._row is None:
             ch._row = self.begin([ch])
         assert ch._frame is not None
@@ -375,8 +345,9 @@ class CharacterBatch:
                 rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
             rows += [c._row for c in resumed]  # type: ignore[misc]
             joined = fresh + resumed
-            frames = ([CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None else []) + [c._frame for c in joined]
-            self._state = SamplerState.stack(rows)  # type: ignore[arg-type]
+            held = [CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None and self._origin is not None else []
+            frames = held + [c._frame for c in joined]
+            self._state = SamplerState.stack(rows)
             self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
             self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
             posts = ([self._post] if self._post is not None else []) + [c._post for c in joined]

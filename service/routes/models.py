@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 
-from service.auth import require_access
 from service.deps import RegistryDep
+from service.http.auth import require_access
 from service.schemas import ERROR_RESPONSES, ModelInfo, ModelList
 
 router = APIRouter(prefix="/v1", tags=["models"], dependencies=[Depends(require_access)],

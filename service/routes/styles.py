@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Response
 
-from service.auth import require_access
 from service.deps import RegistryDep
 from service.engine_jobs import register_style, style_info
 from service.errors import ServiceError
+from service.http.auth import require_access
 from service.registry import Registry
 from service.schemas import (
     ERROR_RESPONSES,

@@ -6,9 +6,9 @@ import time
 
 from fastapi import APIRouter, Depends, Response
 
-from service.auth import require_access
 from service.deps import RegistryDep, StateDep
 from service.engine_jobs import run_transition
+from service.http.auth import require_access
 from service.motion import dumps
 from service.schemas import (
     ERROR_RESPONSES,

@@ -59,6 +59,19 @@ def test_rsmt_serve_sigterm(bundle_dir):
         srv.stop()
 
 
+def test_rsmt_serve_workers_get_the_command_line_settings(bundle_dir, tmp_path):
+    # The environment points nowhere: the workers can only serve if --models reaches them.
+    srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}", "--workers", "2",
+                                      "--models", str(bundle_dir)],
+                 env={"RSMT_MODELS": str(tmp_path / "none")})
+    srv.start()
+    try:
+        assert httpx.get(srv.url + "/v1/model", timeout=10).json()["name"] == "rsmt"
+    finally:
+        code = srv.stop()
+    assert code in (0, -signal.SIGTERM), (code, srv.logs())
+
+
 def test_no_model_fails_at_startup_with_a_hint(tmp_path):
     out = subprocess.run(["rsmt", "serve", "--port", "0", "--models", str(tmp_path / "none")], capture_output=True,
                          text=True, timeout=120)

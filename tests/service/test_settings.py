@@ -66,6 +66,17 @@ def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     assert not _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).inference.int8_lstm
 
 
+def test_eager_reaches_the_engines(monkeypatch):
+    from model.inference.traced_step import CompiledStep
+    from service.registry import load_registry
+
+    monkeypatch.delenv("RSMT_EAGER", raising=False)
+    assert isinstance(_engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).step_fn, CompiledStep)
+    monkeypatch.setenv("RSMT_EAGER", "1")
+    assert Settings().eager
+    assert not isinstance(_engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).step_fn, CompiledStep)
+
+
 def _engine_of(registry):
     (model,) = list(registry)
     model.work.shutdown()

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from websockets.sync.client import connect
 
-from service.frames import decode_binary
+from service.streaming.frames import decode_binary
 
 
 class Ws:

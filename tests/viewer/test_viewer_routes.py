@@ -13,8 +13,8 @@ import torch
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.motion.bvh_clip import dump_clip
 from service.app import create_app
-from service.routes.viewer import STATIC_DIR
 from service.settings import Settings
+from service.viewer.page import STATIC_DIR
 
 STATIC_FILES = sorted(p for p in STATIC_DIR.rglob("*") if p.is_file())
 

@@ -9,7 +9,8 @@ import torch
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
-from model.inference.engine import CharacterBatch, Engine, EngineError
+from model.inference.engine import CharacterBatch, Engine
+from model.inference.errors import EngineError, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.motion.clip import Clip
 from model.motion.skeleton import Skeleton
 from model.nets.manifold import ManifoldConfig
@@ -80,23 +81,24 @@ def test_style_cache(engine, walk):
 
 def test_bad_requests(engine, walk):
     style, _ = engine.encode_style(walk.window(30, 150))
-    with pytest.raises(EngineError) as err:
+    with pytest.raises(TooFewFrames, match="context needs at least 10 frames"):
         engine.prepare(walk.window(0, 5), walk.window(40, 42), 10, style)
-    assert err.value.code == "too_few_frames"
-    with pytest.raises(EngineError) as err:
+    with pytest.raises(TooManyFrames, match=f"between 1 and {engine.max_frames}"):
         engine.prepare(walk.window(0, 10), walk.window(40, 42), engine.max_frames + 1, style)
-    assert err.value.code == "too_many_frames"
-    with pytest.raises(EngineError) as err:
+    with pytest.raises(TooFewFrames, match="a style clip needs"):
         engine.encode_style(walk.window(0, 5))
-    assert err.value.code == "too_few_frames"
+    with pytest.raises(TooManyFrames, match="a style clip needs"):
+        engine.encode_style(synthetic_walk(frames=241))
+    with pytest.raises(EngineError, match="between 1 and") as err:
+        engine.prepare(walk.window(0, 10), walk.window(40, 42), 0, style)
+    assert not isinstance(err.value, (TooFewFrames, TooManyFrames))  # a length out of range, neither of those
     sk = walk.skeleton
     keep = [i for i, n in enumerate(sk.names) if n != "Toes_R"]
     small = Skeleton(names=tuple(sk.names[i] for i in keep), parents=tuple(keep.index(sk.parents[i]) if i else -1 for i in keep),
                      offsets=tuple(sk.offsets[i] for i in keep), roles=replace(sk.roles, mirror=tuple(range(len(keep)))))
     clip = Clip(small, walk.rotations[:, keep], walk.root_positions, walk.fps)
-    with pytest.raises(EngineError) as err:
+    with pytest.raises(SkeletonMismatch, match="Toes_R"):
         engine.prepare(clip.window(0, 10), walk.window(40, 42), 10, style)
-    assert err.value.code == "skeleton_mismatch" and "Toes_R" in str(err.value)
 
 
 def test_context_is_resampled(engine, walk):
@@ -147,13 +149,6 @@ def test_style_switch_mid_motion(engine, walk):
         outs.append(torch.stack(frames))
     assert torch.allclose(outs[0][:5], outs[1][:5])
     assert not torch.allclose(outs[0][6:], outs[1][6:])
-
-
-def test_info_describes_the_model(engine):
-    info = engine.info()
-    assert info["fps"] == 30.0 and info["context_frames"] == 10
-    assert [j["name"] for j in info["skeleton"]["joints"]][0] == "Hips"
-    assert info["skeleton"]["units"] == "cm" and info["skeleton"]["up_axis"] == "y"
 
 
 def test_exact_arrival_lands_on_the_target(engine, walk):

@@ -14,7 +14,8 @@ from fastapi import Depends, Request
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 
 from service.errors import ServiceError
-from service.ratelimit import retry_after_header
+from service.http.ratelimit import retry_after_header
+from service.state import ServiceState
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="an API key (when keys are on)")
 _bearer = HTTPBearer(auto_error=False, description="the same API key as a bearer token")
@@ -44,7 +45,7 @@ def is_valid(key: str | None, keys: list[str]) -> bool:
     return ok
 
 
-def check_access(state, key: str | None, client: str) -> None:
+def check_access(state: ServiceState, key: str | None, client: str) -> None:
     """Raise ``unauthorized`` or ``rate_limited`` (with Retry-After) for a request from ``client``."""
     settings = state.settings
     if settings.auth_enabled and not is_valid(key, settings.api_keys):
@@ -52,7 +53,8 @@ def check_access(state, key: str | None, client: str) -> None:
         raise ServiceError("unauthorized", f"{what} was presented: send it as `X-API-Key: KEY` or "
                                            "`Authorization: Bearer KEY` (WebSocket: also `?token=KEY`)",
                            headers={"WWW-Authenticate": "Bearer"})
-    wait = state.limiter.take(key if settings.auth_enabled else client)
+    # With keys on, the key is valid here and the bucket is its own; without, the client address's.
+    wait = state.limiter.take(key if settings.auth_enabled and key is not None else client)
     if wait > 0:
         raise ServiceError("rate_limited", f"rate limit of {settings.rate_limit_per_s:g} requests/s "
                                            f"(burst {settings.rate_limit_burst}) exceeded; retry in {wait:.2f} s",

@@ -18,8 +18,8 @@ once half of them are sent. The generator therefore never runs further ahead tha
 
 Threads: every engine call of a tick (commands, the step, frame encoding) runs in the model's
 single step thread, so the batches are only ever touched by that thread and the event loop only
-waits on a future. Commands from connections are queued on the loop and applied at the start of
-the next tick, before its step.
+waits on a future. Commands from connections (:mod:`service.streaming.commands`) are queued on the
+loop and applied at the start of the next tick, before its step.
 """
 
 from __future__ import annotations
@@ -29,86 +29,25 @@ import logging
 import time
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
-from typing import Any, Protocol
 
 import numpy as np
 
-from model.inference.engine import Character, CharacterBatch, EncodedStyle, Engine, EngineError
+from model.inference.engine import CharacterBatch, EncodedStyle, Engine
+from model.inference.errors import EngineError
 from model.motion.clip import Clip
-from service.errors import ServiceError
-from service.frames import encode_binary, encode_json
+from service.errors import ServiceError, from_engine
 from service.metrics import Metrics
+from service.streaming.commands import Add, Command, Park, Remove, Request, Retarget, SetStyle, Unpark
+from service.streaming.frames import encode_binary, encode_json
+from service.streaming.stream import PACES, Stream
 
 log = logging.getLogger(__name__)
-PACES = ("realtime", "asap")
-
-
-class Outbox(Protocol):
-    """What a connection offers the scheduler (implemented by :class:`service.connection.Connection`)."""
-
-    encoding: str
-
-    def deliver_frame(self, stream: Stream, seq: int, payload: str | bytes, now: float) -> None: ...
-
-    def deliver_end(self, stream: Stream, reason: str) -> None: ...
-
-    def deliver_failure(self, stream: Stream, message: str) -> None: ...
-
-
-@dataclass(eq=False)
-class Stream:
-    """One streamed character: the engine's :class:`Character` plus its connection, slot and pacing.
-
-    Fields below ``pace`` belong to the event loop; the step thread reads only the first ones.
-    """
-
-    character: Character
-    outbox: Outbox
-    slot: int
-    pace: str
-    fps: float
-    encoding: str
-    queued: int = 0  # frames generated and not yet sent
-    sent: int = 0
-    parked_at: float | None = None  # loop time it was parked for a full queue
-    start_time: float | None = None  # loop time frame 0 was due
-    ended: bool = False  # no more frames are taken (arrived, cancelled or dropped)
-    cancelled: bool = False
-    scheduler: Scheduler | None = None  # set by Scheduler.add
-    model: str = ""
-    last_due: float = 0.0
-
-    @property
-    def id(self) -> str:
-        return self.character.id
-
-    @property
-    def parked(self) -> bool:
-        return self.parked_at is not None
-
-    def due(self, seq: int, now: float) -> float:
-        """Loop time at which frame ``seq`` should leave: now for asap; on the fps clock for realtime.
-
-        A realtime frame generated more than one frame period late moves the clock instead of
-        bursting: the client gets it at once and the following ones one period apart.
-        """
-        if self.pace == "asap":
-            return now
-        period = 1.0 / self.fps
-        if self.start_time is None:
-            self.start_time = now - seq * period
-        due = self.start_time + seq * period
-        late = now - due
-        if late > period:
-            self.start_time += late - period
-            due = now - period
-        return due
 
 
 @dataclass
 class _Tick:
     frames: list[tuple[Stream, int, str | bytes, bool]] = field(default_factory=list)
-    replies: list[tuple[asyncio.Future, Any]] = field(default_factory=list)
+    replies: list[tuple[asyncio.Future[int], int | ServiceError]] = field(default_factory=list)
     failed: list[tuple[Stream, str]] = field(default_factory=list)
     steps: list[tuple[str, int, int, float, float]] = field(default_factory=list)  # pace, live rows, rows, s, CPU s
 
@@ -128,7 +67,7 @@ class Scheduler:
         self._streams_of: dict[int, Stream] = {}
         # Owned by the event loop.
         self.streams: dict[str, set[Stream]] = {p: set() for p in PACES}
-        self._commands: list[tuple] = []
+        self._commands: list[Command] = []
         self._wake = asyncio.Event()
         self._task: asyncio.Task | None = None
         self._closed = False
@@ -155,7 +94,7 @@ class Scheduler:
         stream.scheduler = self
         stream.model = self.name
         self.streams[stream.pace].add(stream)
-        self._push(("add", stream))
+        self._push(Add(stream=stream))
         self._gauge()
 
     def drop(self, stream: Stream) -> None:
@@ -165,35 +104,35 @@ class Scheduler:
         stream.ended = True
         stream.cancelled = True
         self.streams[stream.pace].discard(stream)
-        self._push(("remove", stream))
+        self._push(Remove(stream=stream))
         self._gauge()
 
     def park(self, stream: Stream, now: float) -> None:
         if stream.parked or stream.ended:
             return
         stream.parked_at = now
-        self._push(("park", stream))
+        self._push(Park(stream=stream))
 
     def unpark(self, stream: Stream) -> None:
         if not stream.parked:
             return
         stream.parked_at = None
         if not stream.ended:
-            self._push(("unpark", stream))
+            self._push(Unpark(stream=stream))
 
     async def retarget(self, stream: Stream, target: Clip | None, frames: int | None) -> int:
         """Apply a new target and/or length from the next frame; returns that frame's ``seq``."""
-        fut = asyncio.get_running_loop().create_future()
-        self._push(("retarget", stream, target, frames, fut))
-        return await fut
+        reply: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._push(Retarget(stream=stream, reply=reply, target=target, frames=frames))
+        return await reply
 
     async def set_style(self, stream: Stream, style: EncodedStyle) -> int:
         """Switch a character's style from the next frame; returns that frame's ``seq``."""
-        fut = asyncio.get_running_loop().create_future()
-        self._push(("style", stream, style, fut))
-        return await fut
+        reply: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._push(SetStyle(stream=stream, reply=reply, style=style))
+        return await reply
 
-    def _push(self, command: tuple) -> None:
+    def _push(self, command: Command) -> None:
         self._commands.append(command)
         self._wake.set()
 
@@ -207,7 +146,7 @@ class Scheduler:
         period = 1.0 / self.fps
         next_rt: float | None = None
         while not self._closed:
-            commands: list[tuple] = []
+            commands: list[Command] = []
             try:
                 now = loop.time()
                 rt_live = any(not s.parked for s in self.streams["realtime"])
@@ -241,9 +180,9 @@ class Scheduler:
             except Exception:  # the loop must survive anything a tick throws
                 log.exception("scheduler %s: tick failed", self.name)
                 for command in commands:  # nobody may wait forever for a reply
-                    fut = command[-1]
-                    if isinstance(fut, asyncio.Future) and not fut.done():
-                        fut.set_exception(ServiceError("internal", f"{command[0]} failed; the server log has the details"))
+                    if isinstance(command, Request) and not command.reply.done():
+                        command.reply.set_exception(
+                            ServiceError("internal", f"{command.kind} failed; the server log has the details"))
                 await asyncio.sleep(period)
 
     def _observe(self, result: _Tick, tick_s: float) -> None:
@@ -260,13 +199,13 @@ class Scheduler:
             self.metrics.tick_overhead_seconds.labels(self.name).observe(max(0.0, tick_s - step_total))
 
     def _deliver(self, result: _Tick, now: float) -> None:
-        for fut, value in result.replies:
-            if fut.done():
+        for reply, value in result.replies:
+            if reply.done():
                 continue
-            if isinstance(value, BaseException):
-                fut.set_exception(value)
+            if isinstance(value, ServiceError):
+                reply.set_exception(value)
             else:
-                fut.set_result(value)
+                reply.set_result(value)
         for stream, message in result.failed:
             if not stream.ended:
                 self.drop(stream)
@@ -283,7 +222,7 @@ class Scheduler:
             self._gauge()
 
     # ------------------------------------------------------------------ the step thread
-    def _tick(self, commands: list[tuple], step_realtime: bool, step_asap: bool) -> _Tick:
+    def _tick(self, commands: list[Command], step_realtime: bool, step_asap: bool) -> _Tick:
         result = _Tick()
         changed: set[str] = set()  # paces whose membership changed: their batch restacks anyway
         for command in commands:
@@ -311,56 +250,62 @@ class Scheduler:
             for ch in batch.drop_finished():
                 self._streams_of.pop(id(ch), None)
 
-    def _apply(self, command: tuple, result: _Tick, changed: set[str]) -> None:
-        kind, stream = command[0], command[1]
+    def _apply(self, command: Command, result: _Tick, changed: set[str]) -> None:
+        """Apply one command; a request's reply (or the error that refused it) goes into ``result``."""
+        try:
+            if isinstance(command, Request):
+                result.replies.append((command.reply, self._answer(command)))
+            else:
+                self._change_membership(command, changed)
+        except EngineError as exc:
+            if isinstance(command, Request):
+                result.replies.append((command.reply, from_engine(exc)))
+        except Exception as exc:  # a failed command must not take the batch down with it
+            log.exception("scheduler %s: %s of character %s failed", self.name, command.kind, command.stream.id)
+            if isinstance(command, Request):
+                result.replies.append((command.reply, ServiceError("internal", f"{command.kind} failed: {exc}")))
+
+    def _change_membership(self, command: Command, changed: set[str]) -> None:
+        """Add, remove, park or unpark a character; its pace goes into ``changed`` when its batch will restack."""
+        stream = command.stream
         ch = stream.character
         batch = self._batches[stream.pace]
-        try:
-            if kind == "add":
-                self._streams_of[id(ch)] = stream
-                if not ch.cancelled:
-                    batch.add(ch)
-                    changed.add(stream.pace)
-            elif kind == "remove":
-                ch.cancelled = True
-                if id(ch) in self._parked:
-                    self._parked.discard(id(ch))
-                    self._streams_of.pop(id(ch), None)
-            elif kind == "park":
-                if not ch.done and id(ch) not in self._parked:
-                    batch.detach(ch)
-                    self._parked.add(id(ch))
-                    changed.add(stream.pace)
-            elif kind == "unpark":
-                if id(ch) in self._parked:
-                    self._parked.discard(id(ch))
-                    if not ch.done:
-                        batch.add(ch)
-                        changed.add(stream.pace)
-            elif kind == "retarget":
-                target, frames, fut = command[2], command[3], command[4]
-                if ch.done:
-                    result.replies.append((fut, ServiceError("unknown_character", f"character {ch.id!r} has already ended")))
-                    return
-                self.engine.retarget(ch, None if id(ch) in self._parked else batch, target=target, frames=frames)
-                result.replies.append((fut, ch.seq))
-            elif kind == "style":
-                style, fut = command[2], command[3]
-                if ch.done:
-                    result.replies.append((fut, ServiceError("unknown_character", f"character {ch.id!r} has already ended")))
-                    return
-                if id(ch) in self._parked:
-                    ch.style = style
-                else:
-                    batch.set_style(ch, style)
-                result.replies.append((fut, ch.seq))
-        except EngineError as exc:
-            if len(command) > 2 and isinstance(command[-1], asyncio.Future):
-                result.replies.append((command[-1], ServiceError(exc.code, str(exc))))
-        except Exception as exc:  # a failed command must not take the batch down with it
-            log.exception("scheduler %s: %s of character %s failed", self.name, kind, ch.id)
-            if len(command) > 2 and isinstance(command[-1], asyncio.Future):
-                result.replies.append((command[-1], ServiceError("internal", f"{kind} failed: {exc}")))
+        key = id(ch)
+        if isinstance(command, Add):
+            self._streams_of[key] = stream
+            if not ch.cancelled:
+                batch.add(ch)
+                changed.add(stream.pace)
+        elif isinstance(command, Remove):
+            ch.cancelled = True
+            if key in self._parked:
+                self._parked.discard(key)
+                self._streams_of.pop(key, None)
+        elif isinstance(command, Park):
+            if not ch.done and key not in self._parked:
+                batch.detach(ch)
+                self._parked.add(key)
+                changed.add(stream.pace)
+        elif isinstance(command, Unpark) and key in self._parked:
+            self._parked.discard(key)
+            if not ch.done:
+                batch.add(ch)
+                changed.add(stream.pace)
+
+    def _answer(self, request: Request) -> int | ServiceError:
+        """Apply a retarget or a style change; the ``seq`` of the first frame it affects."""
+        ch = request.stream.character
+        if ch.done:
+            return ServiceError("unknown_character", f"character {ch.id!r} has already ended")
+        batch = None if id(ch) in self._parked else self._batches[request.stream.pace]
+        if isinstance(request, Retarget):
+            self.engine.retarget(ch, batch, target=request.target, frames=request.frames)
+        elif isinstance(request, SetStyle):
+            if batch is None:
+                ch.style = request.style
+            else:
+                batch.set_style(ch, request.style)
+        return ch.seq
 
     def _step(self, pace: str, batch: CharacterBatch, result: _Tick) -> None:
         started, cpu_started = time.perf_counter(), time.thread_time()

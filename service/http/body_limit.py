@@ -12,6 +12,13 @@ class _TooLarge(HTTPException):
     """Raised from ``receive``; FastAPI passes HTTP exceptions through its body parsing unchanged."""
 
 
+def _length(value: bytes) -> int:
+    try:
+        return int(value)
+    except ValueError:
+        return -1
+
+
 class BodyLimitMiddleware:
     """Checks ``Content-Length`` up front and counts streamed (chunked) bodies as they arrive."""
 
@@ -24,17 +31,18 @@ class BodyLimitMiddleware:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
-            return
+        elif self._declares_too_much(scope):
+            await self._reject(scope, receive, send)
+        else:
+            await self._counting(scope, receive, send)
+
+    def _declares_too_much(self, scope: Scope) -> bool:
+        """A ``Content-Length`` over the cap (one that is not a number is left to the server)."""
+        return any(name == b"content-length" and _length(value) > self.max_bytes for name, value in scope.get("headers", ()))
+
+    async def _counting(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Run the app with a ``receive`` that counts the body; 413 if it grows over the cap before a response started."""
         limit = self.max_bytes
-        for name, value in scope.get("headers", ()):
-            if name == b"content-length":
-                try:
-                    too_big = int(value) > limit
-                except ValueError:
-                    too_big = False
-                if too_big:
-                    await self._reject(scope, receive, send)
-                    return
         received = 0
         started = False
 

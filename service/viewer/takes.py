@@ -1,4 +1,4 @@
-"""Motion for the web viewer (``/viewer``): demo takes made on request, and uploaded takes read as JSON poses.
+"""Takes for the web viewer (``/viewer``): demo takes made on request, and uploaded takes read as JSON poses.
 
 The viewer draws poses in the browser; what it cannot do well there is read arbitrary BVH (channel
 orders, extra joints, other frame rates) and map it onto the model's rig. So takes go through the
@@ -19,15 +19,14 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from model.data.synthetic import SYNTHETIC_STYLES, synthetic_walk
-from model.inference.engine import EngineError
+from model.inference.errors import SkeletonMismatch
 from model.motion.clip import Clip
 from service.errors import ServiceError
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
-from service.schemas import ModelName, Motion
+from service.viewer.schemas import ClipRequest
 
 
 @dataclass(frozen=True)
@@ -55,65 +54,8 @@ DEMOS: dict[str, Demo] = {d.name: d for d in (
 )}
 
 
-class ClipRequest(BaseModel):
-    """``POST /v1/viewer/clip``: a take to read onto the model's rig."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    motion: Motion
-    name: str = Field("upload", min_length=1, max_length=200, description="shown in the viewer")
-    model: ModelName | None = Field(None, description="whose skeleton and fps (default: the default model)")
-
-
-class ClipPoses(BaseModel):
-    """A take as JSON poses on the model's skeleton at its fps (the Motion pose payload, plus a name)."""
-
-    name: str
-    fps: float
-    frames: int
-    root_positions: list[list[float]]
-    rotations: list[list[list[float]]]
-
-
-class DemoInfo(BaseModel):
-    name: str
-    kind: Literal["take", "style"]
-    description: str
-
-
-class DemoList(BaseModel):
-    demos: list[DemoInfo]
-
-
-class RigRoles(BaseModel):
-    root: int
-    head: int
-    left_hip: int
-    right_hip: int
-    left_shoulder: int
-    right_shoulder: int
-    left_foot: list[int]
-    right_foot: list[int]
-    mirror: list[int] = Field(description="each joint's left/right counterpart (itself on the midline)")
-
-
-class RigInfo(BaseModel):
-    """Joint roles of the model's skeleton, so the viewer measures facing as the model does."""
-
-    model: str
-    profile: str
-    roles: RigRoles
-
-
 def demo_list() -> dict[str, Any]:
     return {"demos": [{"name": d.name, "kind": d.kind, "description": d.description} for d in DEMOS.values()]}
-
-
-def rig_info(model: LoadedModel) -> dict[str, Any]:
-    r = model.engine.skeleton.roles
-    roles = {k: getattr(r, k) for k in ("root", "head", "left_hip", "right_hip", "left_shoulder", "right_shoulder")}
-    roles.update(left_foot=list(r.left_foot), right_foot=list(r.right_foot), mirror=list(r.mirror))
-    return {"model": model.name, "profile": r.profile, "roles": roles}
 
 
 def clip_poses(clip: Clip, name: str) -> dict[str, Any]:
@@ -134,7 +76,7 @@ def demo_poses(model: LoadedModel, name: str) -> dict[str, Any]:
         raise ServiceError("not_found", f"no demo {name!r}; known: {', '.join(DEMOS)} (GET /v1/viewer/demos)")
     try:
         clip = model.engine.conform(demo.make(), f"demo {name!r}")
-    except EngineError as exc:
+    except SkeletonMismatch as exc:
         raise ServiceError("skeleton_mismatch", f"{exc}. The demos are on the synthetic Bandai-Namco rig; this model's "
                                                 "skeleton differs, so upload a BVH take of its rig instead") from exc
     return clip_poses(clip, name)

@@ -15,7 +15,9 @@ import websockets
 
 from model.inference.bundle import Bundle
 from model.inference.engine import CharacterBatch, Engine
-from service.scheduler import Scheduler, Stream
+from service.errors import ServiceError
+from service.streaming.scheduler import Scheduler
+from service.streaming.stream import Stream
 from tests.service.conftest import bvh, context_clip, target_clip, walk
 from tests.service.wsclient import start_message
 
@@ -167,11 +169,55 @@ def test_generator_never_runs_ahead_of_the_queue(engine):
             sched.unpark(stream)
             await asyncio.sleep(0.6)
             assert box.frames == list(range(8))
-            while not stream.ended:
-                stream.queued = 0
-                sched.unpark(stream)
-                await asyncio.sleep(0.05)
+            await _drain(sched, stream)
             assert box.frames == list(range(30)) and box.ends == ["arrived"]
+            await sched.stop()
+
+    asyncio.run(main())
+
+
+async def _drain(sched: Scheduler, stream: Stream, timeout_s: float = 20.0) -> None:
+    """Read every frame as it comes (the client keeps up) until the character ends."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not stream.ended:
+        assert asyncio.get_running_loop().time() < deadline, "the character never ended"
+        stream.queued = 0
+        sched.unpark(stream)
+        await asyncio.sleep(0.02)
+
+
+async def _until(condition, timeout_s: float = 20.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not condition():
+        assert asyncio.get_running_loop().time() < deadline, "timed out"
+        await asyncio.sleep(0.02)
+
+
+def test_requests_get_the_seq_or_the_contract_error(engine):
+    style, _ = engine.encode_style(walk(60))
+    other, _ = engine.encode_style(walk(60, speed_cm_s=70.0))
+
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            sched = Scheduler(engine, pool, name="t")
+            sched.start()
+            box = _Outbox(capacity=4)
+            ch = engine.prepare(context_clip(), target_clip(), 12, style, seed=1)
+            stream = Stream(character=ch, outbox=box, slot=0, pace="asap", fps=30.0, encoding="json")
+            sched.add(stream)
+            await _until(lambda: stream.parked and len(box.frames) == 4)
+            # Parked after four frames: changes apply to its kept state, from frame 4 on.
+            assert await sched.retarget(stream, target_clip(yaw=90.0), 20) == 4
+            assert ch.frames_total == 24
+            assert await sched.set_style(stream, other) == 4 and ch.style is other
+            with pytest.raises(ServiceError) as err:  # the engine refuses the length
+                await sched.retarget(stream, None, 0)
+            assert err.value.code == "validation_error" and "between 1 and" in err.value.message
+            await _drain(sched, stream)
+            assert box.frames == list(range(24)) and box.ends == ["arrived"]
+            with pytest.raises(ServiceError) as err:
+                await sched.set_style(stream, style)
+            assert err.value.code == "unknown_character" and "already ended" in err.value.message
             await sched.stop()
 
     asyncio.run(main())

@@ -26,7 +26,7 @@ async function boot() {
     window.rsmtViewer = { ready: false, error: err.message };
     return;
   }
-  const joints = model.motion.skeleton.joints;
+  const joints = model.skeleton.joints;
   const parents = Int32Array.from(joints.map((j) => j.parent));
   const skeleton = {
     names: joints.map((j) => j.name), parents, offsets: joints.map((j) => j.offset),
@@ -35,7 +35,7 @@ async function boot() {
   };
   $("model-info").textContent = `${model.name} ${model.version} · ${joints.length} joints · ${model.fps} fps · ` +
     `context ${model.context_frames} frames · up to ${model.max_transition_frames} frames · ` +
-    `${model.motion.skeleton.units}, ${model.motion.skeleton.up_axis} up`;
+    `${model.skeleton.units}, ${model.skeleton.up_axis} up`;
 
   const canvas = $("view"), camera = new OrbitCamera(), renderer = new Renderer(canvas, camera);
   const app = {

@@ -21,7 +21,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket
 
 from service.metrics import Metrics
-from service.scheduler import Stream
+from service.streaming.stream import Stream
 
 log = logging.getLogger(__name__)
 

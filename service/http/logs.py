@@ -47,12 +47,6 @@ def log_config(level: str = "warning", fmt: str = "json") -> dict:
     }
 
 
-def configure_logging(level: str = "warning", fmt: str = "json") -> None:
-    import logging.config
-
-    logging.config.dictConfig(log_config(level, fmt))
-
-
 def ensure_service_logging(level: str = "warning", fmt: str = "json") -> None:
     """Give the ``service`` and ``model`` loggers the structured handler when nothing configured them
     (``uvicorn --factory`` configures only its own loggers; ``rsmt serve`` configures all).
