@@ -14,12 +14,13 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 # the project's own `torch>=2.13.0,<2.14` is then already satisfied.
 RUN pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 
-# The project, with model/default_bundle as package data. The build stops here if that bundle is
-# missing or does not load: the image must carry a working default model.
+# The project, with model/default_bundle as package data, and the Python client it requires (rsmt-client,
+# installed from its folder in the same command). The build stops here if that bundle is missing or does not
+# load: the image must carry a working default model.
 COPY . /src
-RUN pip install /src && rm -rf /src
+RUN pip install /src/clients/python /src && rm -rf /src
 RUN python -c "from model.inference.bundle import DEFAULT_BUNDLE, Bundle; Bundle.load(DEFAULT_BUNDLE)" \
- || { echo "model/default_bundle is missing or broken: train one (rsmt train all --out model/default_bundle) before docker build" >&2; exit 1; }
+ || { echo "model/default_bundle is missing or broken: train one (rsmt train recipe default-model --data DIR --run DIR --out model/default_bundle) before docker build" >&2; exit 1; }
 
 RUN useradd --create-home --uid 10001 rsmt && mkdir /models && chown rsmt /models
 USER rsmt

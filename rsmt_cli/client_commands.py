@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -104,7 +105,9 @@ def _print(obj: Any) -> None:
     print(json.dumps(obj, separators=(", ", ": ")), flush=True)
 
 
-def _guard(fn):
+def _guard(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """``fn`` with the service's errors printed (code and message) and exit status 1."""
+
     def run(args: argparse.Namespace) -> int:
         from rsmt_client import RsmtError
 

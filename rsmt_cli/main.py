@@ -14,6 +14,7 @@ from rsmt_cli import (
     data_commands,
     eval_commands,
     finetune_commands,
+    loadtest_commands,
     package_commands,
     serve_commands,
     train_commands,
@@ -21,7 +22,7 @@ from rsmt_cli import (
 
 # Each command group module exposes ``register(subparsers)``; later groups are appended here.
 GROUPS = [data_commands, train_commands, bench_commands, serve_commands, eval_commands, finetune_commands, average_commands,
-          package_commands, client_commands]
+          package_commands, client_commands, loadtest_commands]
 
 
 def build_parser() -> argparse.ArgumentParser:

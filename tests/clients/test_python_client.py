@@ -253,13 +253,13 @@ def test_exact_arrival_reaches_the_target_pose(server, client, motions, style_id
 def test_binary_frames_of_another_model_use_started_floats_per_frame():
     """A multi-model server sends hello for the default model; a character of another model announces its
     binary layout in ``started.floats_per_frame``."""
-    from rsmt_client.stream import _Session
+    from rsmt_client.stream_protocol import StreamSession
 
-    from service.frames import encode_binary, frame_layout
+    from service.streaming.frames import encode_binary, frame_layout
 
     model = {"fps": 30.0, "skeleton": {"joints": [{"name": f"J{j}", "parent": j - 1, "offset": [0, 1, 0]}
                                                   for j in range(3)]}}
-    session = _Session({"type": "hello", "protocol": 1, "model": model, "frame_layout": frame_layout(3)})
+    session = StreamSession({"type": "hello", "protocol": 1, "model": model, "frame_layout": frame_layout(3)})
     session.parse(json.dumps({"type": "started", "character": "small", "slot": 0, "floats_per_frame": 19}))
     session.parse(json.dumps({"type": "started", "character": "big", "slot": 1, "floats_per_frame": 27}))
     rots5 = np.tile(np.array([0, 0, 0, 1], np.float32), (1, 5, 1))

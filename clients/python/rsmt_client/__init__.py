@@ -12,17 +12,22 @@
         for_hero = s.collect(hero)                     # frames as numpy arrays, then the end message
 
 Everything is in the model's units and axes (``GET /v1/model``: cm, Y up, right-handed,
-quaternions x, y, z, w). See clients/python/README.md.
+quaternions x, y, z, w). BVH files are read and written here with numpy alone (:mod:`rsmt_client.bvh`):
+the client needs numpy, httpx and websockets, no torch. See clients/python/README.md.
 """
 
 from rsmt_client._retry import NO_RETRY, RetryPolicy, parse_retry_after
+from rsmt_client.bvh import BvhError
 from rsmt_client.errors import RsmtError
-from rsmt_client.http import DEFAULT_URL, AsyncClient, Client
+from rsmt_client.frames import Frame, FrameLayout
+from rsmt_client.http import AsyncClient, Client
+from rsmt_client.http_protocol import DEFAULT_URL
 from rsmt_client.motion import Poses, load_bvh_poses, motion_payload, poses_to_bvh, read_bvh
-from rsmt_client.stream import AsyncStreamClient, Frame, FrameLayout, StreamClient, StreamResult, stream_url
+from rsmt_client.stream import AsyncStreamClient, StreamClient
+from rsmt_client.stream_protocol import StreamResult, stream_url
 
 __all__ = [
-    "DEFAULT_URL", "NO_RETRY", "AsyncClient", "AsyncStreamClient", "Client", "Frame", "FrameLayout", "Poses",
+    "DEFAULT_URL", "NO_RETRY", "AsyncClient", "AsyncStreamClient", "BvhError", "Client", "Frame", "FrameLayout", "Poses",
     "RetryPolicy", "RsmtError", "StreamClient", "StreamResult", "load_bvh_poses", "motion_payload",
     "parse_retry_after", "poses_to_bvh", "read_bvh", "stream_url",
 ]

@@ -1,4 +1,5 @@
-"""Retries with backoff on 429 (honouring Retry-After) and 503, shared by every client."""
+"""Retries with backoff on 429 (honouring Retry-After) and 503, shared by every client: the policy and the
+decisions of one request (:class:`Retrying`), with no I/O of their own."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import random
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 RETRY_STATUSES = frozenset({429, 503})
 
@@ -73,3 +75,31 @@ class RetryPolicy:
 
 
 NO_RETRY = RetryPolicy(attempts=1)
+
+
+RetryHook = Callable[[int, float, Any], None]
+"""Called before each wait as ``hook(retry, seconds, response)``; ``response`` is None after a refused connection."""
+
+
+class Retrying:
+    """The retry decisions of one request or handshake, for any transport (sans I/O).
+
+    The transport tries; after each failure it asks :meth:`wait_or_raise` how long to sleep before
+    the next try, and that raises the failure's error once the policy gives up.
+    """
+
+    def __init__(self, policy: RetryPolicy, on_retry: RetryHook | None = None) -> None:
+        self.policy = policy
+        self.on_retry = on_retry
+        self.retry = 0
+
+    def wait_or_raise(self, status: int | None, headers: Mapping[str, str] | None, error: Exception,
+                      cause: BaseException | None = None, response: Any = None) -> float:
+        """Seconds to wait after a failed try (``status`` None: no connection), or raise ``error`` from ``cause``."""
+        wait = self.policy.wait(self.retry, status, headers)
+        if wait is None:
+            raise error from cause
+        if self.on_retry is not None:
+            self.on_retry(self.retry, wait, response)
+        self.retry += 1
+        return wait

@@ -2,100 +2,68 @@
 
 Both retry 429 (honouring ``Retry-After``) and 503 with backoff (:class:`RetryPolicy`), raise
 :class:`RsmtError` with the server's machine code otherwise, and return numpy arrays
-(:class:`Poses`) for transitions.
+(:class:`Poses`) for transitions. What is sent and how answers read lives in
+:mod:`rsmt_client.http_protocol`; these classes only move requests and wait.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable, Mapping
-from typing import Any, Self
+from collections.abc import Callable
+from typing import Any, Self, TypeVar
 
 import httpx
 
-from rsmt_client._retry import RetryPolicy
-from rsmt_client.errors import RsmtError
-from rsmt_client.motion import Poses, motion_payload
+from rsmt_client import http_protocol as ops
+from rsmt_client._retry import RetryHook, RetryPolicy
+from rsmt_client.http_protocol import DEFAULT_URL, ClientState, Operation, Request
+from rsmt_client.motion import Poses
 
-DEFAULT_URL = "http://127.0.0.1:8000"
-RetryHook = Callable[[int, float, "httpx.Response | None"], None]
-
-
-def error_from_response(resp: httpx.Response) -> RsmtError:
-    """The contract's ``{"error": {"code", "message"}}`` as an :class:`RsmtError` (any body survives)."""
-    from rsmt_client._retry import parse_retry_after
-
-    code, message = "http_error", resp.text[:500] or resp.reason_phrase
-    try:
-        body = resp.json()
-        err = body.get("error") if isinstance(body, dict) else None
-        if isinstance(err, dict):
-            code, message = str(err.get("code", code)), str(err.get("message", message))
-    except ValueError:
-        pass
-    return RsmtError(code, message, status=resp.status_code, retry_after=parse_retry_after(resp.headers.get("retry-after")))
+__all__ = ["DEFAULT_URL", "AsyncClient", "Client"]
+T = TypeVar("T")
 
 
-def _headers(api_key: str | None) -> dict[str, str]:
-    headers = {"User-Agent": "rsmt-client/0.1", "Accept": "application/json"}
-    if api_key:
-        headers["X-API-Key"] = api_key
-    return headers
+class _Settings:
+    """The settings both clients expose, kept in their shared :class:`ClientState`."""
+
+    _state: ClientState
+
+    @property
+    def url(self) -> str:
+        return self._state.url
+
+    @property
+    def api_key(self) -> str | None:
+        return self._state.api_key
+
+    @property
+    def retry(self) -> RetryPolicy:
+        return self._state.retry
+
+    @retry.setter
+    def retry(self, policy: RetryPolicy) -> None:
+        self._state.retry = policy
+
+    @property
+    def on_retry(self) -> RetryHook | None:
+        return self._state.on_retry
+
+    @on_retry.setter
+    def on_retry(self, hook: RetryHook | None) -> None:
+        self._state.on_retry = hook
 
 
-def _transition_body(context: Any, target: Any, frames: int, style_id: str | None, style: Any, seed: int | None,
-                     deterministic: bool, output: str, model: str | None, exact_arrival: bool = False) -> dict[str, Any]:
-    if (style_id is None) == (style is None):
-        raise ValueError("give exactly one of style_id or style")
-    body: dict[str, Any] = {"context": motion_payload(context), "target": motion_payload(target), "frames": int(frames),
-                            "deterministic": bool(deterministic), "output": output}
-    if style_id is not None:
-        body["style_id"] = style_id
-    else:
-        body["style"] = motion_payload(style)
-    if seed is not None:
-        body["seed"] = int(seed)
-    if model is not None:
-        body["model"] = model
-    if exact_arrival:  # sent only when asked, so older servers keep accepting the request
-        body["exact_arrival"] = True
-    return body
-
-
-def _poses(data: Mapping[str, Any], joints: tuple[str, ...] | None) -> Poses:
-    return Poses.from_frames(data["frames"], float(data["fps"]), joints=joints, style_id=data.get("style_id"),
-                             model=data.get("model"), timing_ms=dict(data.get("timing_ms") or {}))
-
-
-class _Common:
-    def __init__(self, url: str, api_key: str | None, retry: RetryPolicy | None, on_retry: RetryHook | None) -> None:
-        self.url = url.rstrip("/")
-        self.api_key = api_key
-        self.retry = retry or RetryPolicy()
-        self.on_retry = on_retry
-        self._model_info: dict[str, Any] | None = None
-
-    def _check(self, resp: httpx.Response) -> httpx.Response:
-        if resp.status_code >= 400:
-            raise error_from_response(resp)
-        return resp
-
-    def _joints(self) -> tuple[str, ...] | None:
-        info = self._model_info
-        return tuple(j["name"] for j in info["skeleton"]["joints"]) if info else None
-
-
-class Client(_Common):
+class Client(_Settings):
     """Synchronous client: ``with Client(url, api_key=...) as c: c.transition(...)``."""
 
     def __init__(self, url: str = DEFAULT_URL, api_key: str | None = None, timeout: float = 60.0,
                  retry: RetryPolicy | None = None, on_retry: RetryHook | None = None,
                  transport: httpx.BaseTransport | None = None, sleep: Callable[[float], None] = time.sleep) -> None:
-        super().__init__(url, api_key, retry, on_retry)
+        self._state = ClientState(url, api_key, retry or RetryPolicy(), on_retry)
         self._sleep = sleep
-        self._http = httpx.Client(base_url=self.url, headers=_headers(api_key), timeout=timeout, transport=transport,
-                                  trust_env=False)
+        self._http = httpx.Client(base_url=self._state.url, headers=self._state.headers(), timeout=timeout,
+                                  transport=transport, trust_env=False)
 
     def __enter__(self) -> Self:
         return self
@@ -108,27 +76,30 @@ class Client(_Common):
 
     def request(self, method: str, path: str, **kw: Any) -> httpx.Response:
         """One request with the retry policy; raises :class:`RsmtError` for any error status."""
-        retry = 0
+        retrying = self._state.retrying()
         while True:
             try:
                 resp = self._http.request(method, path, **kw)
             except (httpx.ConnectError, httpx.ConnectTimeout) as exc:
-                wait = self.retry.wait(retry, None, None)
-                if wait is None:
-                    raise RsmtError("connection", f"cannot reach {self.url}: {exc}") from exc
-                resp = None
+                wait = ops.wait_after_refusal(retrying, self.url, exc)
             else:
-                wait = self.retry.wait(retry, resp.status_code, resp.headers) if resp.status_code >= 400 else None
-                if wait is None:
-                    return self._check(resp)
-            if self.on_retry is not None:
-                self.on_retry(retry, wait, resp)
+                answered = ops.wait_after_response(retrying, resp)
+                if answered is None:
+                    return resp
+                wait = answered
             self._sleep(wait)
-            retry += 1
+
+    def _run(self, op: Operation[T]) -> T:
+        try:
+            req: Request = next(op)
+            while True:
+                req = op.send(self.request(req.method, req.path, json=req.json, params=req.params))
+        except StopIteration as done:
+            return done.value
 
     # ------------------------------------------------------------------ endpoints
     def live(self) -> bool:
-        return self.request("GET", "/v1/health/live").status_code == 200
+        return self._run(ops.live())
 
     def ready(self) -> bool:
         """True once every model is loaded and warmed (no retries: a 503 answers False)."""
@@ -139,61 +110,50 @@ class Client(_Common):
 
     def model(self, name: str | None = None) -> dict[str, Any]:
         """``GET /v1/model`` (or ``/v1/models/{name}``); the default model's answer is kept for BVH output."""
-        info = self.request("GET", "/v1/model" if name is None else f"/v1/models/{name}").json()
-        if name is None:
-            self._model_info = info
-        return info
+        return self._run(ops.model(self._state, name))
 
     def models(self) -> dict[str, Any]:
-        return self.request("GET", "/v1/models").json()
+        return self._run(ops.models())
 
     def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> dict[str, Any]:
         """``POST /v1/styles``: register a style clip (a BVH path or text, payload, Poses or Clip).
 
         Returns ``{"style_id", "name", "frames", "cached"}``.
         """
-        body: dict[str, Any] = {"name": name or _default_name(motion), "motion": motion_payload(motion)}
-        if model is not None:
-            body["model"] = model
-        return self.request("POST", "/v1/styles", json=body).json()
+        return self._run(ops.register_style(motion, name, model))
 
     def styles(self, model: str | None = None) -> list[dict[str, Any]]:
-        return self.request("GET", "/v1/styles", params={"model": model} if model else None).json()["styles"]
+        return self._run(ops.styles(model))
 
     def style(self, style_id: str) -> dict[str, Any]:
-        return self.request("GET", f"/v1/styles/{style_id}").json()
+        return self._run(ops.style(style_id))
 
     def delete_style(self, style_id: str) -> None:
-        self.request("DELETE", f"/v1/styles/{style_id}")
+        self._run(ops.delete_style(style_id))
 
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, model: str | None = None,
                    exact_arrival: bool = False) -> Poses:
         """``POST /v1/transition``: the ``frames`` generated poses as float32 arrays."""
-        body = _transition_body(context, target, frames, style_id, style, seed, deterministic, "json", model,
-                                exact_arrival)
-        data = self.request("POST", "/v1/transition", json=body).json()
-        if self._model_info is None and model is None:
-            self.model()
-        return _poses(data, self._joints() if model is None else None)
+        return self._run(ops.transition(self._state, context, target, frames, style_id, style, seed, deterministic, model,
+                                        exact_arrival))
 
     def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                        seed: int | None = None, deterministic: bool = False, model: str | None = None,
                        exact_arrival: bool = False) -> str:
         """``POST /v1/transition`` with ``output: bvh``: the server's BVH text of exactly ``frames`` frames."""
-        body = _transition_body(context, target, frames, style_id, style, seed, deterministic, "bvh", model,
-                                exact_arrival)
-        return self.request("POST", "/v1/transition", json=body).json()["bvh"]
+        return self._run(ops.transition_bvh(context, target, frames, style_id, style, seed, deterministic, model,
+                                            exact_arrival))
 
 
-class AsyncClient(_Common):
-    """Asynchronous client: ``async with AsyncClient(url) as c: await c.transition(...)``."""
+class AsyncClient(_Settings):
+    """Asynchronous client: ``async with AsyncClient(url) as c: await c.transition(...)``; the methods of :class:`Client`."""
 
     def __init__(self, url: str = DEFAULT_URL, api_key: str | None = None, timeout: float = 60.0,
                  retry: RetryPolicy | None = None, on_retry: RetryHook | None = None,
                  transport: httpx.AsyncBaseTransport | None = None) -> None:
-        super().__init__(url, api_key, retry, on_retry)
-        self._http = httpx.AsyncClient(base_url=self.url, headers=_headers(api_key), timeout=timeout,
+        self._state = ClientState(url, api_key, retry or RetryPolicy(), on_retry)
+        self._http = httpx.AsyncClient(base_url=self._state.url, headers=self._state.headers(), timeout=timeout,
                                        transport=transport, trust_env=False)
 
     async def __aenter__(self) -> Self:
@@ -206,26 +166,29 @@ class AsyncClient(_Common):
         await self._http.aclose()
 
     async def request(self, method: str, path: str, **kw: Any) -> httpx.Response:
-        retry = 0
+        retrying = self._state.retrying()
         while True:
             try:
                 resp = await self._http.request(method, path, **kw)
             except (httpx.ConnectError, httpx.ConnectTimeout) as exc:
-                wait = self.retry.wait(retry, None, None)
-                if wait is None:
-                    raise RsmtError("connection", f"cannot reach {self.url}: {exc}") from exc
-                resp = None
+                wait = ops.wait_after_refusal(retrying, self.url, exc)
             else:
-                wait = self.retry.wait(retry, resp.status_code, resp.headers) if resp.status_code >= 400 else None
-                if wait is None:
-                    return self._check(resp)
-            if self.on_retry is not None:
-                self.on_retry(retry, wait, resp)
+                answered = ops.wait_after_response(retrying, resp)
+                if answered is None:
+                    return resp
+                wait = answered
             await asyncio.sleep(wait)
-            retry += 1
+
+    async def _run(self, op: Operation[T]) -> T:
+        try:
+            req: Request = next(op)
+            while True:
+                req = op.send(await self.request(req.method, req.path, json=req.json, params=req.params))
+        except StopIteration as done:
+            return done.value
 
     async def live(self) -> bool:
-        return (await self.request("GET", "/v1/health/live")).status_code == 200
+        return await self._run(ops.live())
 
     async def ready(self) -> bool:
         try:
@@ -234,51 +197,31 @@ class AsyncClient(_Common):
             return False
 
     async def model(self, name: str | None = None) -> dict[str, Any]:
-        info = (await self.request("GET", "/v1/model" if name is None else f"/v1/models/{name}")).json()
-        if name is None:
-            self._model_info = info
-        return info
+        return await self._run(ops.model(self._state, name))
 
     async def models(self) -> dict[str, Any]:
-        return (await self.request("GET", "/v1/models")).json()
+        return await self._run(ops.models())
 
     async def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> dict[str, Any]:
-        body: dict[str, Any] = {"name": name or _default_name(motion), "motion": motion_payload(motion)}
-        if model is not None:
-            body["model"] = model
-        return (await self.request("POST", "/v1/styles", json=body)).json()
+        return await self._run(ops.register_style(motion, name, model))
 
     async def styles(self, model: str | None = None) -> list[dict[str, Any]]:
-        return (await self.request("GET", "/v1/styles", params={"model": model} if model else None)).json()["styles"]
+        return await self._run(ops.styles(model))
 
     async def style(self, style_id: str) -> dict[str, Any]:
-        return (await self.request("GET", f"/v1/styles/{style_id}")).json()
+        return await self._run(ops.style(style_id))
 
     async def delete_style(self, style_id: str) -> None:
-        await self.request("DELETE", f"/v1/styles/{style_id}")
+        await self._run(ops.delete_style(style_id))
 
     async def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                          seed: int | None = None, deterministic: bool = False, model: str | None = None,
                          exact_arrival: bool = False) -> Poses:
-        body = _transition_body(context, target, frames, style_id, style, seed, deterministic, "json", model,
-                                exact_arrival)
-        data = (await self.request("POST", "/v1/transition", json=body)).json()
-        if self._model_info is None and model is None:
-            await self.model()
-        return _poses(data, self._joints() if model is None else None)
+        return await self._run(ops.transition(self._state, context, target, frames, style_id, style, seed, deterministic,
+                                              model, exact_arrival))
 
     async def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None,
                              style: Any = None, seed: int | None = None, deterministic: bool = False,
                              model: str | None = None, exact_arrival: bool = False) -> str:
-        body = _transition_body(context, target, frames, style_id, style, seed, deterministic, "bvh", model,
-                                exact_arrival)
-        return (await self.request("POST", "/v1/transition", json=body)).json()["bvh"]
-
-
-def _default_name(motion: Any) -> str:
-    from pathlib import Path
-
-    if isinstance(motion, Path) or (isinstance(motion, str) and motion.lower().endswith(".bvh")
-                                    and "\n" not in motion):
-        return Path(motion).stem
-    return "style"
+        return await self._run(ops.transition_bvh(context, target, frames, style_id, style, seed, deterministic, model,
+                                                  exact_arrival))

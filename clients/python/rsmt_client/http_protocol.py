@@ -1,0 +1,174 @@
+"""The HTTP side of the contract without I/O: what each call sends, how answers and errors read.
+
+Each endpoint is an *operation*: a generator that yields the :class:`Request` objects it needs
+and is sent back each ``httpx.Response``; its return value is the call's result. The sync and
+async clients (:mod:`rsmt_client.http`) only carry requests over the wire, so both behave the
+same by construction::
+
+    op = transition(state, ...)            # nothing sent yet
+    request = next(op)                     # POST /v1/transition
+    request = op.send(response)            # then GET /v1/model, when the joint names are not known yet
+    ...                                    # StopIteration.value is the Poses
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import httpx
+
+from rsmt_client._retry import RetryHook, Retrying, RetryPolicy, parse_retry_after
+from rsmt_client.errors import RsmtError
+from rsmt_client.motion import Poses, motion_payload
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Request:
+    """One HTTP request of an operation (``json`` and ``params`` as httpx takes them)."""
+
+    method: str
+    path: str
+    json: Any = None
+    params: Mapping[str, str] | None = None
+
+
+Operation = Generator[Request, httpx.Response, T]
+
+
+@dataclass
+class ClientState:
+    """What a client knows between calls: where the server is, how to retry, the default model's description."""
+
+    url: str
+    api_key: str | None = None
+    retry: RetryPolicy = field(default_factory=RetryPolicy)
+    on_retry: RetryHook | None = None
+    model_info: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        self.url = self.url.rstrip("/")
+
+    def headers(self) -> dict[str, str]:
+        headers = {"User-Agent": "rsmt-client/0.1", "Accept": "application/json"}
+        if self.api_key:
+            headers["X-API-Key"] = self.api_key
+        return headers
+
+    def retrying(self) -> Retrying:
+        return Retrying(self.retry, self.on_retry)
+
+    def joints(self) -> tuple[str, ...] | None:
+        info = self.model_info
+        return tuple(j["name"] for j in info["skeleton"]["joints"]) if info else None
+
+
+def error_from_response(resp: httpx.Response) -> RsmtError:
+    """The contract's ``{"error": {"code", "message"}}`` as an :class:`RsmtError` (any body survives)."""
+    code, message = "http_error", resp.text[:500] or resp.reason_phrase
+    try:
+        body = resp.json()
+        err = body.get("error") if isinstance(body, dict) else None
+        if isinstance(err, dict):
+            code, message = str(err.get("code", code)), str(err.get("message", message))
+    except ValueError:
+        pass
+    return RsmtError(code, message, status=resp.status_code, retry_after=parse_retry_after(resp.headers.get("retry-after")))
+
+
+def wait_after_response(retrying: Retrying, resp: httpx.Response) -> float | None:
+    """None when ``resp`` is the answer; else the wait before trying again (or the error, raised)."""
+    if resp.status_code < 400:
+        return None
+    return retrying.wait_or_raise(resp.status_code, resp.headers, error_from_response(resp), response=resp)
+
+
+def wait_after_refusal(retrying: Retrying, url: str, exc: BaseException) -> float:
+    """The wait after a connection that could not be made (or ``RsmtError("connection")``, raised)."""
+    return retrying.wait_or_raise(None, None, RsmtError("connection", f"cannot reach {url}: {exc}"), cause=exc)
+
+
+# ---------------------------------------------------------------------- operations
+
+def live() -> Operation[bool]:
+    return (yield Request("GET", "/v1/health/live")).status_code == 200
+
+
+def model(state: ClientState, name: str | None = None) -> Operation[dict[str, Any]]:
+    info = (yield Request("GET", "/v1/model" if name is None else f"/v1/models/{name}")).json()
+    if name is None:
+        state.model_info = info
+    return info
+
+
+def models() -> Operation[dict[str, Any]]:
+    return (yield Request("GET", "/v1/models")).json()
+
+
+def register_style(motion: Any, name: str | None, model_name: str | None) -> Operation[dict[str, Any]]:
+    body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": motion_payload(motion)}
+    if model_name is not None:
+        body["model"] = model_name
+    return (yield Request("POST", "/v1/styles", json=body)).json()
+
+
+def styles(model_name: str | None) -> Operation[list[dict[str, Any]]]:
+    return (yield Request("GET", "/v1/styles", params={"model": model_name} if model_name else None)).json()["styles"]
+
+
+def style(style_id: str) -> Operation[dict[str, Any]]:
+    return (yield Request("GET", f"/v1/styles/{style_id}")).json()
+
+
+def delete_style(style_id: str) -> Operation[None]:
+    yield Request("DELETE", f"/v1/styles/{style_id}")
+
+
+def transition(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any,
+               seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool) -> Operation[Poses]:
+    body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "json", model_name,
+                           exact_arrival)
+    data = (yield Request("POST", "/v1/transition", json=body)).json()
+    if state.model_info is None and model_name is None:
+        yield from model(state)
+    joints = state.joints() if model_name is None else None
+    return Poses.from_frames(data["frames"], float(data["fps"]), joints=joints, style_id=data.get("style_id"),
+                             model=data.get("model"), timing_ms=dict(data.get("timing_ms") or {}))
+
+
+def transition_bvh(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
+                   deterministic: bool, model_name: str | None, exact_arrival: bool) -> Operation[str]:
+    body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "bvh", model_name,
+                           exact_arrival)
+    return (yield Request("POST", "/v1/transition", json=body)).json()["bvh"]
+
+
+def transition_body(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
+                    deterministic: bool, output: str, model_name: str | None, exact_arrival: bool = False) -> dict[str, Any]:
+    if (style_id is None) == (style_motion is None):
+        raise ValueError("give exactly one of style_id or style")
+    body: dict[str, Any] = {"context": motion_payload(context), "target": motion_payload(target), "frames": int(frames),
+                            "deterministic": bool(deterministic), "output": output}
+    if style_id is not None:
+        body["style_id"] = style_id
+    else:
+        body["style"] = motion_payload(style_motion)
+    if seed is not None:
+        body["seed"] = int(seed)
+    if model_name is not None:
+        body["model"] = model_name
+    if exact_arrival:  # sent only when asked, so older servers keep accepting the request
+        body["exact_arrival"] = True
+    return body
+
+
+def default_style_name(motion: Any) -> str:
+    """A style's display name when none is given: the file's stem for a path, else ``"style"``."""
+    if isinstance(motion, Path) or (isinstance(motion, str) and motion.lower().endswith(".bvh") and "\n" not in motion):
+        return Path(motion).stem
+    return "style"
