@@ -1,4 +1,4 @@
-"""The ``rsmt train`` command group: the RSMT training stages and the whole recipe."""
+"""The ``rsmt train`` command group: the RSMT training stages, one preset at a time or as a named recipe."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import json
 import logging
 import shlex
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,9 +17,10 @@ from model.data.location import find_data_dir
 if TYPE_CHECKING:
     import torch
 
-log = logging.getLogger(__name__)
+    from model.train.pipeline import TrainConfig
+    from model.train.recipe_chains import StageReport
 
-PRESET_DIR = Path(__file__).resolve().parent.parent / "model" / "train" / "configs"
+log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -33,10 +36,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p = sub.add_parser(stage, help=text, description=f"Train {text}.")
         p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
         p.add_argument("--out", type=Path, help="bundle folder to write when the sampler is trained")
-        p.add_argument("--config", type=Path, help="training config JSON (see configs/*.json); overrides --preset")
+        p.add_argument("--config", type=Path,
+                       help="a complete training config JSON (e.g. a run's train_config.json); overrides --preset")
         p.add_argument("--preset", default="default",
-                       help="a config in model/train/configs/ by name: default, paper, smoke, the default model's "
-                            "continuations default-continue-*, ... (default: default)")
+                       help="a preset in model/train/recipes/ by name (base.json with the preset's changes): default, "
+                            "paper, smoke, the shipped recipe's stages two-hour-* and cross-style-*, ... (default: default)")
         p.add_argument("--run", type=Path, help="run folder for checkpoints and stage weights (default: ~/.cache/rsmt/runs/NAME)")
         p.add_argument("--time-limit", type=float, default=0.0, metavar="S",
                        help="stop each stage after S seconds with a checkpoint; run again to resume")
@@ -47,9 +51,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         add_device_argument(p)
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         p.set_defaults(func=_run, stage=stage)
+    _register_recipe(sub)
     from rsmt_cli import classifier_commands
 
     classifier_commands.register(sub)
+
+
+def _register_recipe(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "recipe", help="a named chain of training stages, such as the shipped model's, run and packaged",
+        description="Run a named recipe (model/train/recipes/chains/NAME.json): its stages in order in one run "
+                    "folder, each an 'rsmt train all' or 'rsmt train sampler' with its preset, keeping each stage's "
+                    "bundle in RUN/stages/LABEL; then package the last one into --out as the recipe says "
+                    "(rsmt package). Prints each stage's wall time as it finishes, and the total. Resumable: run "
+                    "the same command again after a stop: stages whose bundle exists are skipped, and a stage cut "
+                    "short resumes from its last checkpoint in the run folder.")
+    p.add_argument("name", nargs="?", metavar="NAME", help="the recipe, e.g. default-model (see --list)")
+    p.add_argument("--list", action="store_true", help="list the recipes with what each is for, and stop")
+    p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
+    p.add_argument("--run", type=Path, help="run folder of every stage (default: ~/.cache/rsmt/runs/recipe-NAME)")
+    p.add_argument("--out", type=Path, help="folder of the packaged bundle")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (default: each preset's own setting)")
+    p.add_argument("--compile", action="store_true",
+                   help="train the sampler's per-frame functions through torch.compile (as rsmt train --compile)")
+    add_device_argument(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run_recipe)
 
 
 def add_device_argument(parser: argparse.ArgumentParser) -> None:
@@ -72,13 +99,16 @@ def resolve_cli_device(name: str) -> torch.device:
     return device
 
 
-def load_config(args: argparse.Namespace):
+def load_config(args: argparse.Namespace) -> TrainConfig:
+    """The config of ``--config`` (a complete one), else of ``--preset``."""
     from model.train.pipeline import TrainConfig
+    from model.train.presets import load_preset
 
-    path = args.config or PRESET_DIR / f"{args.preset}.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"no training config {path}; presets: {', '.join(p.stem for p in PRESET_DIR.glob('*.json'))}")
-    return TrainConfig.load(path)
+    if args.config is None:
+        return load_preset(args.preset)
+    if not args.config.is_file():
+        raise FileNotFoundError(f"no training config {args.config}")
+    return TrainConfig.load(args.config)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -108,3 +138,57 @@ def _run(args: argparse.Namespace) -> int:
     print(json.dumps({"run": str(run_dir), "bundle": str(args.out) if bundle else None, "device": str(device),
                       "timings_s": timings}, indent=1))
     return 0
+
+
+def _run_recipe(args: argparse.Namespace) -> int:
+    from model.train.recipe_chains import load_recipe, recipe_names, run_recipe
+
+    if args.list:
+        for name in recipe_names():
+            print(f"{name}: {load_recipe(name).about}")
+        return 0
+    if args.name is None or args.out is None:
+        raise ValueError("name a recipe and its bundle: rsmt train recipe NAME --out BUNDLE (--list shows the recipes)")
+    recipe = load_recipe(args.name)
+    device = resolve_cli_device(args.device)
+    data = args.data or find_data_dir()
+    if data is None:
+        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / f"recipe-{recipe.name}"
+    began = time.monotonic()
+    command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    last = run_recipe(recipe, Path(data), run_dir, threads=args.threads, compile=args.compile, device=device,
+                      progress=not args.quiet, command=command, report=_print_stage(len(recipe.stages)))
+    if last is None:
+        print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
+        return 3
+    t0 = time.monotonic()
+    status = _package(recipe.package.arguments(), last, args.out)
+    print(f"package: {time.monotonic() - t0:.1f} s", flush=True)
+    print(f"total: {_duration(time.monotonic() - began)}", flush=True)
+    return status
+
+
+def _print_stage(count: int) -> Callable[[StageReport], None]:
+    def report(r: StageReport) -> None:
+        what = f"stage {r.index + 1}/{count} {r.stage.label} (rsmt train {r.stage.command} --preset {r.stage.preset})"
+        done = "done before, skipped" if r.seconds is None else _duration(r.seconds)
+        print(f"{what}: {done}; bundle {r.folder}", flush=True)
+
+    return report
+
+
+def _duration(seconds: float) -> str:
+    minutes = seconds / 60
+    return f"{seconds:.0f} s" + (f" ({int(minutes // 60)} h {minutes % 60:.0f} min)" if minutes >= 60 else
+                                 f" ({minutes:.1f} min)" if seconds >= 60 else "")
+
+
+def _package(options: list[str], model: Path, out: Path) -> int:
+    """``rsmt package --model MODEL --out OUT OPTIONS``, through that command's own parser and code."""
+    from rsmt_cli import package_commands
+
+    parser = argparse.ArgumentParser(prog="rsmt")
+    package_commands.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["package", "--model", str(model), "--out", str(out), *options])
+    return int(args.func(args) or 0)

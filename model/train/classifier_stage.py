@@ -264,7 +264,7 @@ def train_classifier(
     present = [s for s, m in enumerate(by_style) if m.numel()]
     began = time.perf_counter()
     history: list[dict[str, float]] = []
-    best = (-1.0, 0, None)
+    best: tuple[float, int, dict[str, Tensor] | None] = (-1.0, 0, None)
     bar = tqdm(total=total, desc="classifier", unit="batch", disable=not progress, file=sys.stderr, dynamic_ncols=True)
     with bar:
         for epoch in range(1, settings.epochs + 1):

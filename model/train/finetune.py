@@ -20,7 +20,9 @@ from model.train.batches import make_batch
 from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 from model.train.phase_stage import label_tensors
-from model.train.sampler_stage import SamplerStageConfig, StylePairs, transition_losses
+from model.train.sampler_config import SamplerStageConfig
+from model.train.sampler_losses import transition_losses
+from model.train.sampler_stage import StylePairs
 
 TRAINABLE_PREFIXES = ("style_encoder.", "film1.", "film2.", "attn1.", "attn2.")
 
@@ -64,6 +66,7 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     reference = torch.cat([clip.rotations for clip in clips])
     tensors = MotionTensors.from_clips([(clip, 0, "clip") for clip in clips], [style_name], bundle.skeleton, reference,
                                        augment=cfg.augment, seed=cfg.loop.seed, progress=progress).to(dev)
+    assert tuned.phase_model is not None  # checked on the bundle above; a deep copy keeps it
     label_tensors(tuned.phase_model, tensors, progress, device=dev)
     sampler = tuned.sampler.to(dev)
     params = trainable_parameters(tuned)

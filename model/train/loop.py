@@ -209,7 +209,8 @@ def train_loop(
     first = next(iter(p for _, p in params), None)
     log.info("%s: training on %s", name, first.device if first is not None else "cpu")
     optimizer = make_optimizer(params, cfg)
-    start, history = 0, []
+    start = 0
+    history: list[dict] = []
     restored = load_checkpoint(folder, model, optimizer)
     if restored is not None:
         start, history, _ = restored

@@ -31,7 +31,8 @@ from model.train.loop import resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton
 from model.train.phase_stage import PhaseStageConfig, label_tensors, phase_summary, train_phase
-from model.train.sampler_stage import SamplerStageConfig, train_sampler
+from model.train.sampler_config import SamplerStageConfig
+from model.train.sampler_stage import train_sampler
 
 log = logging.getLogger(__name__)
 STAGES = ("phase", "manifold", "sampler")
@@ -81,7 +82,7 @@ def _from_dict(cls: type, data: dict[str, Any]) -> Any:
     kwargs = {}
     for name, value in data.items():
         hint = hints[name]
-        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(value, dict):
             kwargs[name] = _from_dict(hint, value)
         elif isinstance(value, list):
             kwargs[name] = tuple(value)
@@ -134,7 +135,7 @@ def style_critics(cfg: TrainConfig, data: PreparedData, run_dir: Path,
     They learn from the run's training split only, each with its own seed; the evaluation
     classifier (``rsmt train classifier``) is a separate network, so a sampler cannot be tuned to
     the very network that scores it (though a critic may read the same inputs as the evaluation
-    classifier, as the default model's acceleration critic does: docs/evaluation.md).
+    classifier, as the default model's acceleration critic does: docs/experiments/2026-11-evaluation-history.md).
     """
     stage = cfg.sampler_stage
     styles = [s for s in data.cache.styles if s not in cfg.holdout_styles]
@@ -202,6 +203,63 @@ def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progre
                "key": torch.tensor(list(key.encode()), dtype=torch.uint8)}, str(path))
 
 
+def _phase_model(cfg: TrainConfig, data: PreparedData, run_dir: Path, train: bool, timings: dict[str, float],
+                 progress: bool, dev: torch.device) -> PeriodicAutoencoder | None:
+    """The phase autoencoder, trained now (``train``) or loaded from the run folder, in eval mode; None when its
+    training stopped before the end (time limit)."""
+    pae = PeriodicAutoencoder(cfg.phase)
+    if train:
+        t0 = time.monotonic()
+        pae, result = train_phase(data.train, data.val, cfg.phase, cfg.phase_stage, run_dir / "phase", progress, dev)
+        if not result.finished:
+            return None
+        _save_weights(pae, run_dir / "phase", cfg.phase.to_dict())
+        timings["phase_s"] = round(time.monotonic() - t0, 1)
+    else:
+        _load_weights(pae, run_dir / "phase", "phase")
+        pae.to(dev)
+    return pae.eval()
+
+
+def _manifold(cfg: TrainConfig, data: PreparedData, run_dir: Path, stages: tuple[str, ...], timings: dict[str, float],
+              progress: bool, dev: torch.device) -> MotionManifold | None:
+    """The motion manifold: trained now, loaded from the run folder when the sampler needs it, or fresh when
+    nothing does; None when its training stopped before the end."""
+    manifold = MotionManifold(cfg.manifold)
+    if "manifold" in stages:
+        t0 = time.monotonic()
+        manifold, result = train_manifold(data.train, data.val, cfg.manifold, cfg.manifold_stage, run_dir / "manifold",
+                                          progress, dev)
+        if not result.finished:
+            return None
+        _save_weights(manifold.decoder, run_dir / "manifold", cfg.manifold.to_dict())
+        timings["manifold_s"] = round(time.monotonic() - t0, 1)
+    elif "sampler" in stages:
+        _load_weights(manifold.decoder, run_dir / "manifold", "manifold")
+        manifold.to(dev)
+    return manifold
+
+
+def _sampler(cfg: TrainConfig, data: PreparedData, run_dir: Path, manifold: MotionManifold, timings: dict[str, float],
+             progress: bool, dev: torch.device, compile: bool) -> TransitionSampler | None:
+    """The sampler trained (or resumed) on the frozen manifold, with its style critics when the style loss is on;
+    None when its training stopped before the end."""
+    critics: list[StyleClassifier] = []
+    if cfg.sampler_stage.w_style > 0:
+        critics, seconds = style_critics(cfg, data, run_dir, progress)
+        if seconds is not None:  # trained now, not reloaded from the run folder
+            timings["critic_s"] = round(seconds, 1)
+    t0 = time.monotonic()
+    torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
+    sampler = TransitionSampler(cfg.sampler, manifold.decoder)
+    sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev,
+                                    critics, compile=compile)
+    if not result.finished:
+        return None
+    timings["sampler_s"] = round(time.monotonic() - t0, 1)
+    return sampler
+
+
 def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...], out: Path | None,
         progress: bool = True, command: str | None = None, device: torch.device | str = "auto",
         compile: bool = False) -> Bundle | None:
@@ -212,7 +270,8 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     of ``cfg`` or of the saved ``train_config.json``: a run can resume on another device. Random
     draws stay on the CPU's generators, so the CPU path's numbers do not depend on this option.
     ``compile`` (also not part of the recipe) trains the sampler's per-frame functions through
-    ``torch.compile`` (:mod:`model.train.step_compiler`).
+    ``torch.compile`` (:mod:`model.train.step_compiler`). Returns None when a stage stopped before
+    its end (time limit).
     """
     dev = resolve_device(device)
     log.info("training on %s", dev)
@@ -229,52 +288,23 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
     data.train.skeleton.save(run_dir / "skeleton.json")
 
-    pae = PeriodicAutoencoder(cfg.phase)
-    if "phase" in stages:
-        t0 = time.monotonic()
-        pae, result = train_phase(data.train, data.val, cfg.phase, cfg.phase_stage, run_dir / "phase", progress, dev)
-        if not result.finished:
-            return None
-        _save_weights(pae, run_dir / "phase", cfg.phase.to_dict())
-        timings["phase_s"] = round(time.monotonic() - t0, 1)
-    else:
-        _load_weights(pae, run_dir / "phase", "phase")
-        pae.to(dev)
-    pae.eval()
+    pae = _phase_model(cfg, data, run_dir, "phase" in stages, timings, progress, dev)
+    if pae is None:
+        return None
     t0 = time.monotonic()
     for part, tensors in (("train", data.train), ("val", data.val)):
         _labels(pae, tensors, run_dir / "phase" / f"labels_{part}.safetensors", progress, dev)
     timings["labels_s"] = round(time.monotonic() - t0, 1)
     (run_dir / "phase_summary.json").write_text(json.dumps(phase_summary(data.train), indent=1))
 
-    manifold = MotionManifold(cfg.manifold)
-    if "manifold" in stages:
-        t0 = time.monotonic()
-        manifold, result = train_manifold(data.train, data.val, cfg.manifold, cfg.manifold_stage, run_dir / "manifold",
-                                          progress, dev)
-        if not result.finished:
-            return None
-        _save_weights(manifold.decoder, run_dir / "manifold", cfg.manifold.to_dict())
-        timings["manifold_s"] = round(time.monotonic() - t0, 1)
-    elif "sampler" in stages:
-        _load_weights(manifold.decoder, run_dir / "manifold", "manifold")
-        manifold.to(dev)
-
+    manifold = _manifold(cfg, data, run_dir, stages, timings, progress, dev)
+    if manifold is None:
+        return None
     bundle = None
     if "sampler" in stages:
-        critics: list[StyleClassifier] = []
-        if cfg.sampler_stage.w_style > 0:
-            critics, seconds = style_critics(cfg, data, run_dir, progress)
-            if seconds is not None:  # trained now, not reloaded from the run folder
-                timings["critic_s"] = round(seconds, 1)
-        t0 = time.monotonic()
-        torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
-        sampler = TransitionSampler(cfg.sampler, manifold.decoder)
-        sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev,
-                                        critics, compile=compile)
-        if not result.finished:
+        sampler = _sampler(cfg, data, run_dir, manifold, timings, progress, dev, compile)
+        if sampler is None:
             return None
-        timings["sampler_s"] = round(time.monotonic() - t0, 1)
         meta = BundleMeta(
             name=cfg.name,
             training_data=f"{data_dir.name}: {len(data.cache.takes)} takes, styles {', '.join(data.cache.styles)}; "

@@ -4,7 +4,7 @@ Two samplers continued from the same checkpoint stay in one basin of the loss, s
 of their weights is itself a working model, and it often sits above the straight line between the
 two on a trade-off. For the default model: the 15,000-step sampler carries the requested style 67%
 of the time at L2P 1.80, its 17,000-step continuation with three style critics 81% at L2P 1.90,
-and their half-and-half mean 75% at L2P 1.81 (docs/evaluation.md). Averaging unrelated models
+and their half-and-half mean 75% at L2P 1.81 (docs/experiments/2026-11-evaluation-history.md). Averaging unrelated models
 (different seeds, say) gives nonsense; nothing here can tell, so only average a bundle with its own
 continuations.
 """

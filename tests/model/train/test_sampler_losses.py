@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from model.train.sampler_stage import acceleration_profile, planted_foot_speed
+from model.train.sampler_losses import acceleration_profile, planted_foot_speed
 
 
 def test_acceleration_profile_is_zero_at_constant_velocity_and_measures_each_joint():
@@ -45,7 +45,7 @@ def test_planted_foot_speed_slows_feet_rather_than_lifting_them():
 
 
 def test_velocity_spectrum_puts_jitter_at_the_top_and_ignores_timing():
-    from model.train.sampler_stage import velocity_spectrum
+    from model.train.sampler_losses import velocity_spectrum
 
     frames = 20
     t = torch.arange(frames, dtype=torch.float32)
@@ -67,7 +67,7 @@ def test_velocity_spectrum_puts_jitter_at_the_top_and_ignores_timing():
 def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
     import pytest
 
-    from model.train.sampler_stage import SamplerStageConfig
+    from model.train.sampler_config import SamplerStageConfig
 
     for bad in ("pose", ["velocity", "pose"], [], ["velocity", "velocity"]):
         with pytest.raises(ValueError, match="critic_inputs"):
@@ -80,7 +80,7 @@ def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
 def test_changed_control_settings_are_checked():
     import pytest
 
-    from model.train.sampler_stage import SamplerStageConfig
+    from model.train.sampler_config import SamplerStageConfig
 
     for bad in ({"control_batch": -1}, {"control_dt": 0.5}, {"control_shift": -1.0}):
         with pytest.raises(ValueError, match="control"):
@@ -90,7 +90,7 @@ def test_changed_control_settings_are_checked():
 def test_the_cross_style_critic_weight_defaults_to_w_style_and_is_checked():
     import pytest
 
-    from model.train.sampler_stage import SamplerStageConfig, cross_style_weights
+    from model.train.sampler_config import SamplerStageConfig, cross_style_weights
 
     weights = {"pos": 1.0, "style": 0.15, "last_pos": 1.0}
     assert cross_style_weights(weights, SamplerStageConfig(w_style=0.15)) == weights
@@ -105,7 +105,7 @@ def test_critic_logits_match_the_critics_own_features_of_the_real_motion():
     from model.data.synthetic import synthetic_walk
     from model.motion.kinematics import forward_kinematics
     from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig, motion_features
-    from model.train.sampler_stage import critic_logits
+    from model.train.sampler_losses import critic_logits
 
     clip = synthetic_walk(frames=41)
     sk = clip.skeleton
@@ -145,7 +145,8 @@ def _tiny_setup():
     from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig
     from model.train.motion_tensors import MotionTensors
     from model.train.phase_stage import label_tensors
-    from model.train.sampler_stage import SamplerStageConfig, style_statistics
+    from model.train.sampler_config import SamplerStageConfig
+    from model.train.sampler_stage import style_statistics
 
     walks = [synthetic_walk(frames=80, speed_cm_s=v, cadence_hz=f) for v, f in ((100.0, 0.8), (160.0, 1.2))]
     sk = walks[0].skeleton
@@ -178,7 +179,8 @@ def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their
     """The sampler stage generates its cross-style windows in the same rollout as the batch's own windows;
     each group's losses must be those of a separate rollout (windows do not interact)."""
     from model.train.batches import make_batch
-    from model.train.sampler_stage import concat_batches, rollout, score_rollout, transition_losses
+    from model.train.sampler_losses import score_rollout, transition_losses
+    from model.train.sampler_rollout import concat_batches, rollout
 
     tensors, sampler, stage, critics, take_starts, length = _tiny_setup()
     sk, k = tensors.skeleton, sampler.config.context
@@ -209,7 +211,7 @@ def test_compiled_steps_give_the_eager_losses_and_gradients_and_restore_the_mode
     import pytest
 
     from model.train.batches import make_batch
-    from model.train.sampler_stage import transition_losses, weighted_sum
+    from model.train.sampler_losses import transition_losses, weighted_sum
     from model.train.step_compiler import compile_unavailable, compiled_steps
 
     reason = compile_unavailable(torch.device("cpu"))
@@ -250,7 +252,8 @@ def test_clip_acceleration_loss_needs_no_ground_truth_and_reaches_the_sampler():
     """Other-style windows have no ground truth; ``clip_acc`` compares each joint's mean acceleration over
     the generated transition with the style clip's, and its gradient reaches the sampler."""
     from model.train.batches import make_batch
-    from model.train.sampler_stage import acceleration_profile, rollout, score_rollout
+    from model.train.sampler_losses import acceleration_profile, score_rollout
+    from model.train.sampler_rollout import rollout
 
     tensors, sampler, stage, critics, take_starts, length = _tiny_setup()
     k = sampler.config.context

@@ -13,8 +13,8 @@ from model.inference.bundle import Bundle
 from model.inference.engine import Engine
 from model.nets.style_classifier import StyleClassifier
 from model.train.loop import resolve_device
+from model.train.presets import preset_dict
 from rsmt_cli.main import main
-from rsmt_cli.train_commands import PRESET_DIR
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -122,7 +122,7 @@ def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypa
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
     write_synthetic_dataset(data)
-    cfg = json.loads((PRESET_DIR / "smoke.json").read_text())
+    cfg = preset_dict("smoke")
     cfg["sampler_stage"].update(w_style=0.5, cross_batch=4, critic_epochs=1, critic_iterations=5,
                                 critic_inputs=["dynamics", "acceleration"],
                                 style_loss_min_frames=3, w_vel=1.0, w_acc=1.0, w_foot_height=1.0, extra_losses_from=3,

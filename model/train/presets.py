@@ -1,0 +1,111 @@
+"""Training presets: one complete base config, and per preset only the settings it changes.
+
+``recipes/base.json`` holds every setting of :class:`model.train.pipeline.TrainConfig`. A preset
+``recipes/NAME.json`` holds the keys it changes, nested as in the base (``{"sampler_stage":
+{"loop": {"iterations": 18000}}}``), and an ``about`` that says what it is for. Loading a preset
+merges it into the base: objects key by key, anything else (numbers, strings, lists, null)
+replaced whole. A preset may change another preset instead of the base by naming it in
+``"extends"``. A key the base does not have is an error, so a misspelt setting cannot pass
+unnoticed.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+from model.train.pipeline import TrainConfig, fit_to_skeleton
+
+RECIPE_DIR = Path(__file__).resolve().parent / "recipes"
+BASE = "base"
+EXTENDS = "extends"  # the preset a preset changes (default: the base)
+
+
+def deep_merge(base: dict[str, Any], changes: dict[str, Any], where: str = "") -> dict[str, Any]:
+    """A copy of ``base`` with ``changes`` applied: nested objects are merged key by key, other values replaced.
+
+    Raises ValueError naming the key (dotted, after ``where``) when ``changes`` has a key ``base``
+    lacks, or gives an object where ``base`` has a plain value or the other way round.
+    """
+    merged = copy.deepcopy(base)
+    for key, value in changes.items():
+        path = f"{where}.{key}" if where else key
+        if key not in base:
+            raise ValueError(f"unknown setting {path!r}: the base config has no such key")
+        if isinstance(base[key], dict) != isinstance(value, dict):
+            kind = "an object of settings" if isinstance(base[key], dict) else "a single value"
+            raise ValueError(f"setting {path!r} must be {kind}, as in the base config")
+        merged[key] = deep_merge(base[key], value, path) if isinstance(value, dict) else copy.deepcopy(value)
+    return merged
+
+
+def _read(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a preset is a JSON object")
+    return data
+
+
+def preset_names(folder: Path = RECIPE_DIR) -> list[str]:
+    """The presets in ``folder``, by name (the base is not one)."""
+    return sorted(p.stem for p in folder.glob("*.json") if p.stem != BASE)
+
+
+def preset_changes(name: str, folder: Path = RECIPE_DIR) -> dict[str, Any]:
+    """The preset file's own content: the settings it changes, its ``about`` and maybe ``extends``."""
+    path = folder / f"{name}.json"
+    if name == BASE or not path.is_file():
+        raise FileNotFoundError(f"no training preset {name!r} in {folder}; presets: {', '.join(preset_names(folder))}")
+    return _read(path)
+
+
+def preset_dict(name: str, folder: Path = RECIPE_DIR, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The complete config of a preset as a JSON object: the base (or the preset it extends) with its changes."""
+    if name in _seen:
+        raise ValueError(f"presets extend each other in a circle: {' -> '.join((*_seen, name))}")
+    changes = preset_changes(name, folder)
+    parent = changes.pop(EXTENDS, None)
+    start = _read(folder / f"{BASE}.json") if parent is None else preset_dict(parent, folder, (*_seen, name))
+    try:
+        return deep_merge(start, changes)
+    except ValueError as exc:
+        raise ValueError(f"{folder / f'{name}.json'}: {exc}") from exc
+
+
+def load_preset(name: str, folder: Path = RECIPE_DIR) -> TrainConfig:
+    """The typed training config of a preset."""
+    try:
+        return TrainConfig.from_dict(preset_dict(name, folder))
+    except TypeError as exc:
+        raise ValueError(f"preset {name!r}: not a valid training config: {exc}") from exc
+
+
+def preset_about(name: str, folder: Path = RECIPE_DIR) -> str:
+    """What a preset is for (its own ``about``, else the one it inherits)."""
+    return str(preset_dict(name, folder).get("about", ""))
+
+
+def training_differences(stored: TrainConfig, wanted: TrainConfig) -> list[str]:
+    """The settings, dotted, in which a run's saved config ``stored`` trains differently from ``wanted``.
+
+    Left out: ``about``, ``threads`` (a property of the machine, set by ``--threads``) and the
+    sizes the run fits to its rig (joints, root, phase channels: :func:`fit_to_skeleton`), which
+    ``wanted`` takes from ``stored``.
+    """
+    fitted = fit_to_skeleton(copy.deepcopy(wanted), stored.sampler.joints, stored.sampler.root)
+    a, b = _flat(dataclasses.asdict(stored)), _flat(dataclasses.asdict(fitted))
+    return [k for k in sorted(a.keys() | b.keys()) if k not in ("about", "threads") and a.get(k) != b.get(k)]
+
+
+def _flat(data: dict[str, Any], where: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        path = f"{where}.{key}" if where else key
+        out.update(_flat(value, path) if isinstance(value, dict) else {path: value})
+    return out

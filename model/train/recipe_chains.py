@@ -1,0 +1,188 @@
+"""Named training recipes: presets run one after the other on one run folder, then packaged.
+
+A recipe ``recipes/chains/NAME.json`` lists its stages in order, each an ``rsmt train all`` or
+``rsmt train sampler`` with a preset (each later preset continues the sampler of the one before
+from its checkpoint), and the settings of the ``rsmt package`` step that ends it. Each stage
+writes its bundle to ``RUN/stages/LABEL``. A stage whose bundle is already there is skipped, so a
+stopped recipe, run again, goes on where it stopped (a stage cut short resumes from its checkpoint
+in the run folder).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from model.train.pipeline import STAGES, TrainConfig, run
+from model.train.presets import RECIPE_DIR, load_preset, training_differences
+
+CHAIN_DIR = RECIPE_DIR / "chains"
+# The train commands a stage may run, and the pipeline stages each trains.
+STAGE_COMMANDS: dict[str, tuple[str, ...]] = {"all": STAGES, "sampler": ("sampler",)}
+
+
+@dataclass(frozen=True)
+class ChainStage:
+    """One stage of a recipe: ``rsmt train COMMAND --preset PRESET``, its bundle in ``RUN/stages/LABEL``."""
+
+    label: str
+    command: str
+    preset: str
+
+    def __post_init__(self) -> None:
+        if self.command not in STAGE_COMMANDS:
+            raise ValueError(f"stage {self.label!r}: command must be one of {', '.join(STAGE_COMMANDS)}, not {self.command!r}")
+        if not self.label or Path(self.label).name != self.label or self.label.startswith("."):
+            raise ValueError(f"stage label {self.label!r} must be a plain folder name")
+
+
+@dataclass(frozen=True)
+class PackageSettings:
+    """The ``rsmt package`` step that ends a recipe; None keeps the trained bundle's own setting."""
+
+    name: str | None = None
+    float16: bool = False
+    smoothing: float | None = None
+    foot_lock: bool | None = None
+    int8_lstm: bool | None = None
+
+    def arguments(self) -> list[str]:
+        """These settings as ``rsmt package`` options."""
+        args = ["--float16"] if self.float16 else []
+        if self.name is not None:
+            args += ["--name", self.name]
+        if self.smoothing is not None:
+            args += ["--smoothing", repr(self.smoothing)]
+        for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm)):
+            if value is not None:
+                args += [flag, "on" if value else "off"]
+        return args
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A named chain of training stages and the packaging of the last stage's bundle."""
+
+    name: str
+    about: str
+    stages: tuple[ChainStage, ...]
+    package: PackageSettings
+
+    @classmethod
+    def from_dict(cls, name: str, data: dict[str, Any]) -> Recipe:
+        _check_keys("recipe", data, {"about", "stages", "package"})
+        stages = []
+        for entry in data.get("stages", []):
+            _check_keys("stage", entry, {f.name for f in fields(ChainStage)})
+            stages.append(ChainStage(**entry))
+        if not stages:
+            raise ValueError(f"recipe {name!r} has no stages")
+        if stages[0].command != "all":
+            raise ValueError(f"recipe {name!r}: the first stage must train every stage (command 'all')")
+        labels = [s.label for s in stages]
+        if len(set(labels)) != len(labels):
+            raise ValueError(f"recipe {name!r}: stage labels must differ, got {labels}")
+        package = data.get("package", {})
+        _check_keys("package", package, {f.name for f in fields(PackageSettings)})
+        return cls(name, str(data.get("about", "")), tuple(stages), PackageSettings(**package))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"about": self.about, "stages": [asdict(s) for s in self.stages], "package": asdict(self.package)}
+
+
+def _check_keys(what: str, data: Any, known: set[str]) -> None:
+    if not isinstance(data, dict):
+        raise ValueError(f"a {what} is a JSON object, got {data!r}")
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"unknown {what} setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+
+
+def recipe_names(folder: Path = CHAIN_DIR) -> list[str]:
+    """The recipes in ``folder``, by name."""
+    return sorted(p.stem for p in folder.glob("*.json"))
+
+
+def load_recipe(name: str, folder: Path = CHAIN_DIR) -> Recipe:
+    """The recipe ``folder/NAME.json``, checked."""
+    path = folder / f"{name}.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no training recipe {name!r} in {folder}; recipes: {', '.join(recipe_names(folder))}")
+    try:
+        return Recipe.from_dict(name, json.loads(path.read_text()))
+    except (json.JSONDecodeError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+
+
+@dataclass(frozen=True)
+class StageReport:
+    """What :func:`run_recipe` reports as each stage ends (or is skipped)."""
+
+    index: int  # from 0
+    stage: ChainStage
+    folder: Path  # the stage's bundle
+    seconds: float | None  # wall time; None when the stage was done before and skipped
+
+
+def stage_folder(run_dir: Path, stage: ChainStage) -> Path:
+    return run_dir / "stages" / stage.label
+
+
+def stage_done(run_dir: Path, stage: ChainStage, cfg: TrainConfig) -> bool:
+    """Whether the stage's bundle is in the run folder, complete (its ``train_config.json`` is written last).
+
+    A bundle there trained with other settings than the stage's preset is an error rather than a
+    stage to skip or to overwrite.
+    """
+    saved = stage_folder(run_dir, stage) / "train_config.json"
+    if not saved.is_file():
+        return False
+    differences = training_differences(TrainConfig.load(saved), cfg)
+    if differences:
+        raise ValueError(f"{saved.parent} holds a bundle trained with other settings than preset {stage.preset!r} "
+                         f"({', '.join(differences[:4])}{', ...' if len(differences) > 4 else ''}): remove that "
+                         "folder or use another run folder")
+    return True
+
+
+def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, compile: bool = False,
+               device: torch.device | str = "auto", progress: bool = True, command: str | None = None,
+               report: Callable[[StageReport], None] | None = None) -> Path | None:
+    """Run the recipe's stages in order in ``run_dir``, skipping those whose bundle is there already.
+
+    ``threads`` (when not 0), ``compile`` and ``device`` are the machine's, as for ``rsmt train``.
+    Every stage's preset is resolved and checked against the run folder before anything trains.
+    Returns the last stage's bundle folder, or None when a stage stopped before its end.
+    """
+    configs = [load_preset(stage.preset) for stage in recipe.stages]
+    done = [stage_done(run_dir, stage, cfg) for stage, cfg in zip(recipe.stages, configs)]
+    first_missing = done.index(False) if False in done else len(done)
+    if any(done[first_missing:]):
+        later = ", ".join(s.label for s, d in zip(recipe.stages[first_missing:], done[first_missing:]) if d)
+        raise ValueError(f"stage {recipe.stages[first_missing].label} has no bundle in {run_dir} but later stages do "
+                         f"({later}): their checkpoint is past its end; use another run folder")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "recipe.json").write_text(json.dumps({"name": recipe.name, **recipe.to_dict()}, indent=1))
+    for i, (stage, cfg) in enumerate(zip(recipe.stages, configs)):
+        folder = stage_folder(run_dir, stage)
+        if done[i]:
+            if report:
+                report(StageReport(i, stage, folder, None))
+            continue
+        if threads:
+            cfg.threads = threads
+        began = time.monotonic()
+        what = f"stage {stage.label}: rsmt train {stage.command} --preset {stage.preset}"
+        bundle = run(cfg, data_dir, run_dir, STAGE_COMMANDS[stage.command], folder, progress=progress,
+                     command=f"{command or f'rsmt train recipe {recipe.name}'} ({what})", device=device, compile=compile)
+        if bundle is None:
+            return None
+        if report:
+            report(StageReport(i, stage, folder, time.monotonic() - began))
+    return stage_folder(run_dir, recipe.stages[-1])

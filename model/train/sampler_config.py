@@ -1,0 +1,87 @@
+"""The sampler stage's settings: its schedule, the transitions it draws, and the weight of every loss."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from model.train.loop import LoopConfig
+
+CRITIC_INPUTS = ("velocity", "dynamics", "acceleration")  # input selections that depend on positions only
+
+
+@dataclass
+class SamplerStageConfig:
+    """Schedule, drawn transitions and loss weights of the sampler stage (saved in every ``train_config.json``)."""
+
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=3000, epoch_iterations=300, lr=1e-3,
+                                                                weight_decay=1e-4))
+    batch: int = 32
+    min_transition: int = 5
+    max_transition: int = 60
+    curriculum: float = 0.3  # fraction of training after which any length up to the maximum is drawn
+    style_frames: int = 120
+    gt_phase_probability: float = 0.5
+    w_pos: float = 1.0
+    w_rot: float = 1.0
+    w_last_pos: float = 1.0
+    w_last_rot: float = 0.5
+    w_phase: float = 0.5
+    w_foot: float = 0.05
+    w_fk: float = 0.5
+    w_estimator: float = 0.5
+    w_vel: float = 0.0  # joint velocities against the ground truth's
+    w_acc: float = 0.0  # each joint's mean acceleration against the ground truth's (acceleration_profile)
+    w_spectrum: float = 0.0  # log power spectrum of joint velocities against the ground truth's (velocity_spectrum)
+    w_foot_height: float = 0.0  # horizontal speed of generated feet at their ground height (planted_foot_speed)
+    w_style: float = 0.0  # cross-entropy of the style critic on generated frames (0: no critic)
+    cross_batch: int = 0  # windows per step with a style clip of another style (need w_style)
+    # Those windows have no ground truth: this weighs each joint's mean acceleration over the transition
+    # against the style clip's own (acceleration_profile), the clip being the only example of its style at hand.
+    w_clip_acc: float = 0.0
+    # The critics' loss on those other-style windows (None: w_style). They are the only windows that ask
+    # the sampler to follow a clip against its context, and they are scored on little else.
+    w_cross_style: float | None = None
+    # Windows per step with changed controls, scored without ground truth (reaching the target, feet,
+    # critics): half get a duration scaled by a factor in [1/control_dt, control_dt], half a target
+    # moved by x times the window's own root travel, x in [-control_shift, control_shift] (the
+    # evaluation's d = 2 and d = -1 are x = 1 and x = -2). Natural windows alone never ask for either.
+    control_batch: int = 0
+    control_dt: float = 2.0
+    control_shift: float = 2.0
+    # Each critic's input selection (model.nets.style_classifier.INPUTS, velocity-based); the style loss is
+    # their mean, so generated motion has to satisfy critics that read it differently, not one net's blind spots.
+    critic_inputs: tuple[str, ...] = ("dynamics",)
+    critic_epochs: int = 6
+    critic_iterations: int = 150
+    style_loss_min_frames: int = 16  # shorter transitions get no style loss: too short to show a style
+    extra_losses_from: int = 0  # step from which w_vel, w_acc, w_spectrum, w_foot_height, w_style and cross pairs apply
+    validation_transition: int = 40
+
+    def __post_init__(self) -> None:
+        if isinstance(self.critic_inputs, str):  # configs written before critics became a list
+            self.critic_inputs = (self.critic_inputs,)
+        self.critic_inputs = tuple(self.critic_inputs)
+        bad = [c for c in self.critic_inputs if c not in CRITIC_INPUTS]
+        if bad or not self.critic_inputs or len(set(self.critic_inputs)) != len(self.critic_inputs):
+            # Critics read positions only (critic_logits): no gradient through 6D-to-quaternion conversions.
+            raise ValueError(f"critic_inputs must be distinct selections among {', '.join(CRITIC_INPUTS)}, "
+                             f"got {list(self.critic_inputs)!r}")
+        if self.cross_batch < 0 or self.control_batch < 0:
+            raise ValueError("cross_batch and control_batch must be 0 or more")
+        if self.w_cross_style is not None and self.w_cross_style < 0:
+            raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
+        if self.control_dt < 1.0 or self.control_shift < 0.0:
+            raise ValueError("control_dt must be at least 1 and control_shift at least 0")
+
+
+def cross_style_weights(weights: dict[str, float], stage: SamplerStageConfig) -> dict[str, float]:
+    """The loss weights of the other-style windows: ``weights`` with the critics' at ``w_cross_style``."""
+    return dict(weights) if stage.w_cross_style is None else {**weights, "style": stage.w_cross_style}
+
+
+def curriculum_length(step: int, stage: SamplerStageConfig) -> int:
+    """The longest transition drawn at ``step``: rises linearly from the shortest to the longest over
+    the first ``curriculum`` fraction of training."""
+    frac = min(1.0, step / max(1, stage.loop.iterations * stage.curriculum))
+    return int(stage.min_transition + math.floor(frac * (stage.max_transition - stage.min_transition)))

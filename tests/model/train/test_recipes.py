@@ -1,0 +1,158 @@
+"""Named recipes: chains of presets run in one run folder, resumed by skipping finished stages, then packaged."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+
+import pytest
+import torch
+
+from model.data.synthetic import synthetic_skeleton, synthetic_walk, write_synthetic_dataset
+from model.inference.bundle import Bundle
+from model.inference.engine import Engine
+from model.train.pipeline import fit_to_skeleton
+from model.train.presets import load_preset
+from model.train.recipe_chains import (
+    ChainStage,
+    PackageSettings,
+    Recipe,
+    load_recipe,
+    recipe_names,
+    run_recipe,
+    stage_folder,
+)
+from rsmt_cli import package_commands
+from rsmt_cli.main import main
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def test_every_recipe_loads_and_names_presets_that_exist():
+    assert {"default-model", "smoke"} <= set(recipe_names())
+    for name in recipe_names():
+        recipe = load_recipe(name)
+        assert recipe.about and recipe.stages[0].command == "all"
+        for stage in recipe.stages:
+            load_preset(stage.preset)
+    shipped = load_recipe("default-model")
+    assert [(s.label, s.command, s.preset) for s in shipped.stages] == [
+        ("A", "all", "two-hour-1-frames"), ("B", "sampler", "two-hour-2-critics"),
+        ("C", "sampler", "two-hour-3-accuracy"), ("D", "sampler", "two-hour-4-accuracy"),
+        ("E1", "sampler", "cross-style-1-critics"), ("E2", "sampler", "cross-style-2-arrival"),
+        ("E3", "sampler", "cross-style-3-accuracy")]
+    assert shipped.package == PackageSettings(name="rsmt-default", float16=True, smoothing=0.3, foot_lock=True,
+                                              int8_lstm=True)
+
+
+def test_recipe_files_are_checked():
+    good = {"about": "x", "stages": [{"label": "A", "command": "all", "preset": "smoke"}]}
+    assert Recipe.from_dict("r", good).package == PackageSettings()
+    for bad, message in (
+        ({**good, "stage": []}, "unknown recipe setting"),
+        ({**good, "stages": []}, "no stages"),
+        ({**good, "stages": [{"label": "A", "command": "phase", "preset": "smoke"}]}, "command must be one of all, sampler"),
+        ({**good, "stages": [{"label": "A", "command": "sampler", "preset": "smoke"}]}, "first stage must train every"),
+        ({**good, "stages": good["stages"] * 2}, "labels must differ"),
+        ({**good, "stages": [{"label": "../A", "command": "all", "preset": "smoke"}]}, "plain folder name"),
+        ({**good, "package": {"float_16": True}}, "unknown package setting"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            Recipe.from_dict("r", bad)
+
+
+def test_package_settings_are_the_package_command_options():
+    settings = PackageSettings(name="shipped", float16=True, smoothing=0.3, foot_lock=True, int8_lstm=False)
+    options = settings.arguments()
+    assert options == ["--float16", "--name", "shipped", "--smoothing", "0.3", "--foot-lock", "on", "--int8-lstm", "off"]
+    parser = argparse.ArgumentParser()
+    package_commands.register(parser.add_subparsers())
+    args = parser.parse_args(["package", "--model", "m", "--out", "o", *options])
+    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm) == ("shipped", True, 0.3, "on", "off")
+    assert PackageSettings().arguments() == []
+
+
+def test_list_names_every_recipe_with_its_about(capsys):
+    assert main(["train", "recipe", "--list"]) == 0
+    out = capsys.readouterr().out
+    for name in recipe_names():
+        assert f"{name}: {load_recipe(name).about}" in out
+    assert main(["train", "recipe"]) == 2
+    assert "name a recipe" in capsys.readouterr().err
+
+
+def _stage_lines(out: str) -> list[str]:
+    return [line for line in out.splitlines() if line.startswith("stage ")]
+
+
+def test_a_recipe_runs_end_to_end_packages_and_skips_finished_stages(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
+    data = tmp_path / "data"
+    write_synthetic_dataset(data)
+    run_dir = tmp_path / "run"
+    # On the CPU, whatever the machine: the by-hand run below must train the same weights.
+    args = ["train", "recipe", "smoke", "--data", str(data), "--run", str(run_dir), "--device", "cpu", "--out",
+            str(tmp_path / "ship"), "--quiet"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    lines = _stage_lines(out)
+    assert len(lines) == 2
+    assert re.match(r"stage 1/2 A \(rsmt train all --preset smoke\): \d+ s", lines[0])
+    assert re.match(r"stage 2/2 B \(rsmt train sampler --preset smoke-critics\): \d+ s", lines[1])
+    assert re.search(r"^total: \d+ s", out, re.M)
+    ship = Bundle.load(tmp_path / "ship")
+    assert ship.meta.name == "rsmt-smoke"
+    assert (ship.output.smoothing, ship.output.foot_lock, ship.inference.int8_lstm) == (0.3, True, True)
+    # The last stage's bundle, packaged: its config is the last preset's, its weights float16.
+    last = Bundle.load(stage_folder(run_dir, load_recipe("smoke").stages[-1])).tensors()
+    shipped = ship.tensors()
+    assert shipped.keys() == last.keys()
+    assert all(torch.equal(shipped[k], v.half().float() if v.is_floating_point() else v) for k, v in last.items())
+    saved = json.loads((tmp_path / "ship" / "train_config.json").read_text())
+    assert saved["sampler_stage"] == json.loads(json.dumps(load_preset("smoke-critics").to_dict()))["sampler_stage"]
+    engine = Engine(ship)
+    walk = synthetic_walk(frames=60)
+    style, _ = engine.encode_style(walk.window(10, 50))
+    rot, _ = engine.generate([engine.prepare(walk.window(0, 10), walk.window(30, 32), 8, style, deterministic=True)])[0]
+    assert rot.shape[0] == 8
+
+    # Run again: both stages are found finished and skipped, their bundles untouched; packaging runs again.
+    stamps = [(stage_folder(run_dir, s) / "weights.safetensors").stat().st_mtime_ns for s in load_recipe("smoke").stages]
+    assert main([*args[:-2], str(tmp_path / "ship-again"), "--quiet"]) == 0
+    again = _stage_lines(capsys.readouterr().out)
+    assert [line.split(":")[1].strip() for line in again] == ["done before, skipped; bundle " + str(run_dir / "stages" / s)
+                                                              for s in ("A", "B")]
+    assert [(stage_folder(run_dir, s) / "weights.safetensors").stat().st_mtime_ns
+            for s in load_recipe("smoke").stages] == stamps
+    assert Bundle.load(tmp_path / "ship-again").version == ship.version
+
+    # The recipe trains what its commands run by hand give.
+    hand = ["--data", str(data), "--run", str(tmp_path / "hand"), "--device", "cpu", "--quiet"]
+    assert main(["train", "all", "--preset", "smoke", "--out", str(tmp_path / "A"), *hand]) == 0
+    assert main(["train", "sampler", "--preset", "smoke-critics", "--out", str(tmp_path / "B"), *hand]) == 0
+    assert main(["package", "--model", str(tmp_path / "B"), "--out", str(tmp_path / "hand-ship"),
+                 *load_recipe("smoke").package.arguments()]) == 0
+    assert Bundle.load(tmp_path / "hand-ship").version == ship.version
+
+
+def _finished(run_dir, label: str, preset: str) -> None:
+    """A stage's bundle folder as a run leaves it: its train_config.json (fitted to the rig) written last."""
+    folder = run_dir / "stages" / label
+    folder.mkdir(parents=True)
+    sk = synthetic_skeleton()
+    (folder / "train_config.json").write_text(json.dumps(fit_to_skeleton(load_preset(preset), sk.num_joints,
+                                                                         sk.roles.root).to_dict()))
+
+
+def test_a_run_folder_with_a_gap_or_other_settings_is_refused_before_training(tmp_path):
+    recipe = load_recipe("smoke")
+    _finished(tmp_path / "gap", "B", "smoke-critics")
+    with pytest.raises(ValueError, match="stage A has no bundle .* but later stages do \\(B\\)"):
+        run_recipe(recipe, tmp_path / "no-data", tmp_path / "gap")
+    _finished(tmp_path / "other", "A", "smoke-critics")
+    with pytest.raises(ValueError, match="trained with other settings than preset 'smoke' \\(sampler_stage"):
+        run_recipe(recipe, tmp_path / "no-data", tmp_path / "other")
+    assert not (tmp_path / "gap" / "recipe.json").exists()
+    stage = ChainStage("A", "all", "smoke")
+    assert stage_folder(tmp_path, stage) == tmp_path / "stages" / "A"
