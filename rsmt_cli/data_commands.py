@@ -71,8 +71,9 @@ def _probe_headers(index: TakeIndex, profile: SkeletonProfile | None) -> tuple[l
                 rig_ok[header.joints] = None
             except SkeletonError as exc:
                 rig_ok[header.joints] = str(exc)
-        if rig_ok[header.joints] is not None:
-            problems.append(Problem(rel, "rig", rig_ok[header.joints]))
+        rig_problem = rig_ok[header.joints]
+        if rig_problem is not None:
+            problems.append(Problem(rel, "rig", rig_problem))
             continue
         frames = header.frames
         if take.start is not None or take.stop is not None:

@@ -119,10 +119,9 @@ def write_outputs(run, folder: Path, text: str) -> list[Path]:
 
     folder = Path(folder)
     paths = write_report(folder, run.report, text)
-    if run.stats is not None:
-        stats = folder / "reference_stats.json"
-        stats.write_text(json.dumps(run.stats.to_dict()))
-        paths.append(stats)
+    stats = folder / "reference_stats.json"
+    stats.write_text(json.dumps(run.stats.to_dict()))
+    paths.append(stats)
     paths.append(plot_gap_metrics(run.report, folder / "metrics_over_gap.png"))
     paths.append(plot_controls(run.report, folder / "controls.png"))
     cases = run.cases

@@ -3,6 +3,16 @@
 from __future__ import annotations
 
 import argparse
+from typing import TypedDict
+
+
+class OutputOverrides(TypedDict):
+    """Keyword arguments of :class:`model.inference.engine.Engine` (None keeps the bundle's own setting)."""
+
+    smoothing: float | None
+    root_smoothing: float | None
+    foot_lock: bool | None
+    int8_lstm: bool | None
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
@@ -21,7 +31,7 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
                         "own setting)")
 
 
-def output_overrides(args: argparse.Namespace) -> dict[str, float | bool | None]:
+def output_overrides(args: argparse.Namespace) -> OutputOverrides:
     """The flags as :class:`model.inference.engine.Engine` keyword arguments (None: the bundle's own), checked
     here so that an error names the flag."""
     for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):

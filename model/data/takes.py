@@ -22,6 +22,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 FRAME_CUTS = "Frame_Cuts.csv"
 STYLE100_CONTENTS = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
@@ -106,7 +107,7 @@ class TakeIndex:
 
 def find_bvh_files(folder: Path) -> list[Path]:
     """Every ``.bvh`` file under ``folder`` (any depth, any case of the suffix), sorted; hidden folders are skipped."""
-    found = []
+    found: list[Path] = []
     for dirpath, dirnames, filenames in os.walk(folder):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
         found.extend(Path(dirpath) / f for f in filenames if f.lower().endswith(".bvh") and not f.startswith("."))
@@ -254,46 +255,50 @@ def _index_manifest(root: Path, manifest: Path) -> TakeIndex:
         raise ValueError(f"{manifest}: manifest lacks the column(s) {', '.join(missing)} "
                          "(expected file, style, content and optional start, stop)")
     index = TakeIndex(root=root, layout="manifest", manifest=manifest)
-    base = manifest.parent
     listed: set[Path] = set()
     seen: dict[str, int] = {}
     for line, row in rows:
-        where = f"{manifest.name}:{line}"
-        if not row.get("file"):
-            index.problems.append(Problem(where, "unlabelled", "row without a file"))
+        item = _manifest_take(root, manifest, line, row, listed)
+        if isinstance(item, Take) and item.take_id in seen:
+            item = Problem(relative_path(item.path, root), "unlabelled",
+                           f"{manifest.name}:{line} repeats the take of line {seen[item.take_id]}")
+        if isinstance(item, Problem):
+            index.problems.append(item)
             continue
-        path = (base / row["file"]).resolve()
-        listed.add(path)
-        rel = relative_path(path, root)
-        if not path.is_file():
-            index.problems.append(Problem(rel, "missing", f"listed in {where} but not found"))
-            continue
-        style, content = row.get("style", ""), row.get("content", "")
-        if not style or not content:
-            index.problems.append(Problem(rel, "unlabelled", f"{where} gives no {'style' if not style else 'content'}"))
-            continue
-        try:
-            start, stop = _parse_cut(row.get("start")), _parse_cut(row.get("stop"))
-        except ValueError as exc:
-            index.problems.append(Problem(rel, "bad-cut", f"{where}: {exc}"))
-            continue
-        if start is not None and stop is not None and stop <= start:
-            index.problems.append(Problem(rel, "bad-cut", f"{where}: stop {stop} is not after start {start}"))
-            continue
-        take_id = _stem_id(path, base)
-        # A manifest may cut one file into several takes; the cut then disambiguates the id.
-        if start is not None or stop is not None:
-            take_id += f"@{'' if start is None else start}-{'' if stop is None else stop}"
-        if take_id in seen:
-            index.problems.append(Problem(rel, "unlabelled", f"{where} repeats the take of line {seen[take_id]}"))
-            continue
-        seen[take_id] = line
-        index.takes.append(Take(path=path, style=style, content=content, take_id=take_id, start=start, stop=stop))
+        seen[item.take_id] = line
+        index.takes.append(item)
     for path in find_bvh_files(root):
         if path.resolve() not in listed:
             index.problems.append(Problem(relative_path(path, root), "unlabelled", f"not listed in the manifest {manifest.name}"))
     index.takes.sort(key=lambda t: t.take_id)
     return index
+
+
+def _manifest_take(root: Path, manifest: Path, line: int, row: dict[str, str], listed: set[Path]) -> Take | Problem:
+    """The take one manifest row names, or the problem that keeps it out (its file is added to ``listed``)."""
+    where = f"{manifest.name}:{line}"
+    if not row.get("file"):
+        return Problem(where, "unlabelled", "row without a file")
+    base = manifest.parent
+    path = (base / row["file"]).resolve()
+    listed.add(path)
+    rel = relative_path(path, root)
+    if not path.is_file():
+        return Problem(rel, "missing", f"listed in {where} but not found")
+    style, content = row.get("style", ""), row.get("content", "")
+    if not style or not content:
+        return Problem(rel, "unlabelled", f"{where} gives no {'style' if not style else 'content'}")
+    try:
+        start, stop = _parse_cut(row.get("start")), _parse_cut(row.get("stop"))
+    except ValueError as exc:
+        return Problem(rel, "bad-cut", f"{where}: {exc}")
+    if start is not None and stop is not None and stop <= start:
+        return Problem(rel, "bad-cut", f"{where}: stop {stop} is not after start {start}")
+    take_id = _stem_id(path, base)
+    # A manifest may cut one file into several takes; the cut then disambiguates the id.
+    if start is not None or stop is not None:
+        take_id += f"@{'' if start is None else start}-{'' if stop is None else stop}"
+    return Take(path=path, style=style, content=content, take_id=take_id, start=start, stop=stop)
 
 
 # ---------------------------------------------------------------------------------- header probe
@@ -355,7 +360,10 @@ def read_bvh_header(path: str | Path) -> BvhHeader:
     raise ValueError(f"{path}: no 'Frames:' and 'Frame Time:' lines (truncated file?)")
 
 
-def _header_number(path: Path, lineno: int, words: list[str], kind: type) -> int | float:
+_N = TypeVar("_N", int, float)
+
+
+def _header_number(path: Path, lineno: int, words: list[str], kind: type[_N]) -> _N:
     try:
         return kind(words[1]) if kind is int else kind(words[-1])
     except (IndexError, ValueError):

@@ -38,7 +38,6 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
     lines = [f"## Evaluation on the {report['split']} split: {report['cases']} cases from {report['takes']} takes", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
-    clf = report.get("classifier")
     lines += [
         f"Data: `{report['data']}`; canonical frame: {report['protocol']['canonical_frame']}; "
         f"reference statistics from {report['reference']['windows']} training windows of "
@@ -48,7 +47,15 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
         "",
     ]
 
-    # 1. unchanged controls
+    lines += _unchanged_controls(methods, report)
+    lines += _changed_controls(methods, report)
+    lines += _style_tables(methods, report)
+    lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]
+    return "\n".join(lines)
+
+
+def _unchanged_controls(methods: dict[str, Any], report: dict[str, Any]) -> list[str]:
+    """Per gap: the figures that need ground truth."""
     header = ["gap", "method", "L2P", "L2Q", "NPSS", "100×NPSS", "MPJPE cm", "foot skate", "GT foot skate",
               "last frame cm", "diversity cm"]
     rows = []
@@ -63,10 +70,13 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
                          _fmt(r.get("npss_x100")), _fmt(r.get("mpjpe_cm"), 2), _fmt(r.get("foot_skate")),
                          _fmt(gt.get("foot_skate")), _fmt(r.get("last_frame_cm"), 2),
                          _fmt(r.get("diversity_cm"), 2)])
-    lines += ["### Unchanged controls (ground truth exists)", "", *_table(header, rows), ""]
+    return ["### Unchanged controls (ground truth exists)", "", *_table(header, rows), ""]
 
-    # 2. changed controls
+
+def _changed_controls(methods: dict[str, Any], report: dict[str, Any]) -> list[str]:
+    """The 40-frame gap with the target moved or the duration scaled (no ground truth)."""
     header = ["variant", "method", "frames", "last frame cm", "last-frame L2P", "foot skate"]
+    clf = report.get("classifier")
     if clf:
         header.append("style acc")
     rows = []
@@ -81,48 +91,50 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
             if clf:
                 cells.append(_fmt(r.get("style_accuracy")))
             rows.append(cells)
-    lines += ["### Changed controls on the 40-frame gap (no ground truth)", "", *_table(header, rows), ""]
+    lines = ["### Changed controls on the 40-frame gap (no ground truth)", "", *_table(header, rows), ""]
     unavailable = sorted({f"{name} {vn}: {r['unavailable']}" for name, m in methods.items()
                           for vn, r in m["variants"].items() if "unavailable" in r})
     if unavailable:
         lines += ["Not produced: " + "; ".join(unavailable) + ".", ""]
+    return lines
 
-    # 3. style
-    if clf:
-        chance = 1.0 / max(1, len(clf["styles"]))
-        header = ["method", "style acc (same-style clip)", "style acc (other-style clip)",
-                  "other-style clip read as the context's style", "FMD", "FMD (other style)"]
-        gt = report["ground_truth"].get("gap40", {})
-        floor = gt.get("fmd_split_half")
-        rows = [[GT_NAME, _fmt(gt.get("style_accuracy")), "–", "–", "0" if floor is None else f"0 (split halves {floor:.2f})",
-                 "–"]]
-        for name, m in methods.items():
-            r = m["variants"].get("gap40", {})
-            rows.append([name, _fmt(r.get("style_accuracy")), _fmt(r.get("style_accuracy_cross")),
-                         _fmt(r.get("style_cross_as_context")), _fmt(r.get("fmd"), 2), _fmt(r.get("fmd_cross"), 2)])
-        lines += [f"### Style on the 40-frame gap (classifier `{clf['path']}`, inputs `{clf['inputs']}`, "
-                  f"chance {chance:.3f})", "", *_table(header, rows), "",
-                  "Style accuracy: share of transitions classified as the requested style (the style clip's). "
-                  "Baselines ignore the style clip. With an other-style clip, the next column is the share of "
-                  "transitions classified as the context's own style instead (the clip not followed). "
-                  "FMD: Fréchet distance of the classifier's pooled features to the "
-                  "ground truth of the same cases (other style: to ground truth of cases in the requested style); "
-                  "the ground-truth row gives the distance between two halves of the ground truth, the floor at "
-                  "this number of cases.", ""]
 
-        def gap40(key: str) -> dict[str, Any]:
-            return {name: m["variants"].get("gap40", {}).get(key) for name, m in methods.items()}
+def _style_tables(methods: dict[str, Any], report: dict[str, Any]) -> list[str]:
+    """Style accuracy and FMD on the 40-frame gap, overall and per style."""
+    clf = report.get("classifier")
+    if not clf:
+        return ["No style classifier given (`--classifier DIR`): no style accuracy or FMD.", ""]
+    chance = 1.0 / max(1, len(clf["styles"]))
+    header = ["method", "style acc (same-style clip)", "style acc (other-style clip)",
+              "other-style clip read as the context's style", "FMD", "FMD (other style)"]
+    gt = report["ground_truth"].get("gap40", {})
+    floor = gt.get("fmd_split_half")
+    rows = [[GT_NAME, _fmt(gt.get("style_accuracy")), "–", "–", "0" if floor is None else f"0 (split halves {floor:.2f})",
+             "–"]]
+    for name, m in methods.items():
+        r = m["variants"].get("gap40", {})
+        rows.append([name, _fmt(r.get("style_accuracy")), _fmt(r.get("style_accuracy_cross")),
+                     _fmt(r.get("style_cross_as_context")), _fmt(r.get("fmd"), 2), _fmt(r.get("fmd_cross"), 2)])
+    lines = [f"### Style on the 40-frame gap (classifier `{clf['path']}`, inputs `{clf['inputs']}`, "
+             f"chance {chance:.3f})", "", *_table(header, rows), "",
+             "Style accuracy: share of transitions classified as the requested style (the style clip's). "
+             "Baselines ignore the style clip. With an other-style clip, the next column is the share of "
+             "transitions classified as the context's own style instead (the clip not followed). "
+             "FMD: Fréchet distance of the classifier's pooled features to the "
+             "ground truth of the same cases (other style: to ground truth of cases in the requested style); "
+             "the ground-truth row gives the distance between two halves of the ground truth, the floor at "
+             "this number of cases.", ""]
 
-        lines += _per_style_table("Same-style accuracy per requested style (40-frame gap):",
-                                  {GT_NAME: gt.get("style_accuracy_by_style"), **gap40("style_accuracy_by_style")})
-        lines += _per_style_table("Other-style accuracy per requested style (the clip's; 40-frame gap):",
-                                  gap40("style_accuracy_cross_by_style"))
-        lines += _per_style_table("Other-style accuracy per context style (scored on the clip's style; 40-frame gap):",
-                                  gap40("style_accuracy_cross_by_context"))
-    else:
-        lines += ["No style classifier given (`--classifier DIR`): no style accuracy or FMD.", ""]
-    lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]
-    return "\n".join(lines)
+    def gap40(key: str) -> dict[str, Any]:
+        return {name: m["variants"].get("gap40", {}).get(key) for name, m in methods.items()}
+
+    lines += _per_style_table("Same-style accuracy per requested style (40-frame gap):",
+                              {GT_NAME: gt.get("style_accuracy_by_style"), **gap40("style_accuracy_by_style")})
+    lines += _per_style_table("Other-style accuracy per requested style (the clip's; 40-frame gap):",
+                              gap40("style_accuracy_cross_by_style"))
+    lines += _per_style_table("Other-style accuracy per context style (scored on the clip's style; 40-frame gap):",
+                              gap40("style_accuracy_cross_by_context"))
+    return lines
 
 
 def _per_style_table(title: str, per_method: dict[str, dict[str, float] | None]) -> list[str]:

@@ -35,7 +35,7 @@ from model.evaluation.cases import (
 )
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
-from model.evaluation.scoring import ground_truth_transitions, score, to_canonical
+from model.evaluation.scoring import Transitions, ground_truth_transitions, score, to_canonical
 from model.evaluation.style_scores import StyleScorer, matched_reference
 from model.nets.style_classifier import StyleClassifier
 
@@ -66,9 +66,9 @@ class EvalRun:
 
     report: dict[str, Any]
     cases: CaseSet
+    stats: ReferenceStats
     render_index: list[int] = field(default_factory=list)
     render: dict[str, dict[str, Tensor]] = field(default_factory=dict)  # method -> variant -> [R, N+1, J, 3]
-    stats: ReferenceStats | None = None
 
 
 def _spread(n: int, k: int) -> list[int]:
@@ -112,27 +112,10 @@ def evaluate(
     cases = CaseSet.load(cache, case_list)
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]
-    cross_styles = [c.cross_style for c in cases.cases]
     render_index = _render_cases(cases, settings.render_cases)
     run = EvalRun(report={}, cases=cases, render_index=render_index, stats=stats)
 
-    # Ground truth: foot skate and what the classifier makes of real transitions.
-    gt_rows: dict[str, dict[str, Any]] = {}
-    gt_features: Tensor | None = None
-    run.render[GT_NAME] = {}
-    for v in GAP_VARIANTS:
-        gt = ground_truth_transitions(cases, v)
-        row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
-                               "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground))}
-        if scorer is not None and v.gap == STYLE_GAP:
-            logits, gt_features = scorer.classify(gt)
-            row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
-            row["style_accuracy_by_style"] = scorer.accuracy_by_style(logits, scorer.labels(styles))
-            # The noise floor of FMD at this many cases: ground truth against ground truth of other cases.
-            row["fmd_split_half"] = scorer.fmd(gt_features[0::2], gt_features[1::2])
-        gt_rows[v.name] = row
-        run.render[GT_NAME][v.name] = gt.positions[render_index]
-
+    gt_rows, gt_features = _score_ground_truth(run, scorer)
     method_reports: dict[str, Any] = {}
     names: list[str] = []
     for method in methods:
@@ -141,42 +124,7 @@ def evaluate(
             name += "'"
         names.append(name)
         t0 = time.perf_counter()
-        rows: dict[str, Any] = {}
-        run.render[name] = {}
-        for v in tqdm(VARIANTS, desc=name, unit="variant", disable=not progress, leave=False, file=sys.stderr):
-            try:
-                rot, root = method.generate(cases, Request(v), progress)
-            except Unavailable as exc:
-                rows[v.name] = {"unavailable": str(exc)}
-                continue
-            out = to_canonical(cases, rot, root)
-            row: dict[str, Any] = score(cases, v, out, stats)
-            run.render[name][v.name] = out.positions[render_index]
-            if scorer is not None and v.gap == STYLE_GAP:
-                logits, feats = scorer.classify(out)
-                row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
-                row["style_accuracy_by_style"] = scorer.accuracy_by_style(logits, scorer.labels(styles))
-                if v.has_ground_truth:
-                    assert gt_features is not None
-                    row["fmd"] = scorer.fmd(feats, gt_features)
-                    if method.uses_style:
-                        rot_x, root_x = method.generate(cases, Request(v, cross_style=True), progress)
-                        logits_x, feats_x = scorer.classify(to_canonical(cases, rot_x, root_x))
-                    else:  # the output does not depend on the style clip
-                        logits_x, feats_x = logits, feats
-                    row["style_accuracy_cross"] = scorer.accuracy(logits_x, scorer.labels(cross_styles))
-                    # Where the misses go: the share read as the context's own style (the clip ignored).
-                    row["style_cross_as_context"] = scorer.accuracy(logits_x, scorer.labels(styles))
-                    row["style_accuracy_cross_by_style"] = scorer.accuracy_by_style(logits_x, scorer.labels(cross_styles))
-                    # And by the context's style: which contexts make another style's clip hard to follow.
-                    row["style_accuracy_cross_by_context"] = scorer.accuracy_by_style(
-                        logits_x, scorer.labels(cross_styles), groups=scorer.labels(styles))
-                    ref, kept = matched_reference(gt_features, styles, cross_styles)
-                    row["fmd_cross"] = scorer.fmd(feats_x[kept], ref)
-            if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
-                    and settings.diversity_cases > 0):
-                row.update(_diversity(method, cases, v, settings, progress))
-            rows[v.name] = row
+        rows = _score_method(run, method, name, settings, scorer, gt_features, progress)
         method_reports[name] = {**method.describe(), "name": name, "seconds": round(time.perf_counter() - t0, 2),
                                 "variants": rows}
 
@@ -215,6 +163,83 @@ def evaluate(
         "seconds": round(time.perf_counter() - began, 2),
     }
     return run
+
+
+def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[str, dict[str, Any]], Tensor | None]:
+    """Ground truth's rows (foot skate, what the classifier makes of real transitions) and its
+    classifier features at the style gap, which the methods' FMD compares against."""
+    cases, stats = run.cases, run.stats
+    styles = [c.style for c in cases.cases]
+    gt_rows: dict[str, dict[str, Any]] = {}
+    gt_features: Tensor | None = None
+    run.render[GT_NAME] = {}
+    for v in GAP_VARIANTS:
+        gt = ground_truth_transitions(cases, v)
+        row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
+                               "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground))}
+        if scorer is not None and v.gap == STYLE_GAP:
+            logits, gt_features = scorer.classify(gt)
+            row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
+            row["style_accuracy_by_style"] = scorer.accuracy_by_style(logits, scorer.labels(styles))
+            # The noise floor of FMD at this many cases: ground truth against ground truth of other cases.
+            row["fmd_split_half"] = scorer.fmd(gt_features[0::2], gt_features[1::2])
+        gt_rows[v.name] = row
+        run.render[GT_NAME][v.name] = gt.positions[run.render_index]
+    return gt_rows, gt_features
+
+
+def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSettings, scorer: StyleScorer | None,
+                  gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
+    """One method's rows, one per variant."""
+    cases = run.cases
+    rows: dict[str, Any] = {}
+    run.render[name] = {}
+    for v in tqdm(VARIANTS, desc=name, unit="variant", disable=not progress, leave=False, file=sys.stderr):
+        try:
+            rot, root = method.generate(cases, Request(v), progress)
+        except Unavailable as exc:
+            rows[v.name] = {"unavailable": str(exc)}
+            continue
+        out = to_canonical(cases, rot, root)
+        row: dict[str, Any] = score(cases, v, out, run.stats)
+        run.render[name][v.name] = out.positions[run.render_index]
+        if scorer is not None and v.gap == STYLE_GAP:
+            row.update(_style_row(run, method, v, out, scorer, gt_features, progress))
+        if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
+                and settings.diversity_cases > 0):
+            row.update(_diversity(method, cases, v, settings, progress))
+        rows[v.name] = row
+    return rows
+
+
+def _style_row(run: EvalRun, method: Method, v: Variant, out: Transitions, scorer: StyleScorer,
+               gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
+    """Style accuracy of a method's transitions; with ground truth also FMD and the other-style clip figures."""
+    cases = run.cases
+    styles = [c.style for c in cases.cases]
+    cross_styles = [c.cross_style for c in cases.cases]
+    logits, feats = scorer.classify(out)
+    row: dict[str, Any] = {"style_accuracy": scorer.accuracy(logits, scorer.labels(styles)),
+                           "style_accuracy_by_style": scorer.accuracy_by_style(logits, scorer.labels(styles))}
+    if not v.has_ground_truth:
+        return row
+    assert gt_features is not None
+    row["fmd"] = scorer.fmd(feats, gt_features)
+    if method.uses_style:
+        rot_x, root_x = method.generate(cases, Request(v, cross_style=True), progress)
+        logits_x, feats_x = scorer.classify(to_canonical(cases, rot_x, root_x))
+    else:  # the output does not depend on the style clip
+        logits_x, feats_x = logits, feats
+    row["style_accuracy_cross"] = scorer.accuracy(logits_x, scorer.labels(cross_styles))
+    # Where the misses go: the share read as the context's own style (the clip ignored).
+    row["style_cross_as_context"] = scorer.accuracy(logits_x, scorer.labels(styles))
+    row["style_accuracy_cross_by_style"] = scorer.accuracy_by_style(logits_x, scorer.labels(cross_styles))
+    # And by the context's style: which contexts make another style's clip hard to follow.
+    row["style_accuracy_cross_by_context"] = scorer.accuracy_by_style(
+        logits_x, scorer.labels(cross_styles), groups=scorer.labels(styles))
+    ref, kept = matched_reference(gt_features, styles, cross_styles)
+    row["fmd_cross"] = scorer.fmd(feats_x[kept], ref)
+    return row
 
 
 def _diversity(method: Method, cases: CaseSet, v: Variant, settings: EvalSettings, progress: bool) -> dict[str, Any]:

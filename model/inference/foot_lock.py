@@ -30,7 +30,7 @@ Tensor = torch.Tensor
 
 @dataclass(frozen=True)
 class FootLockConfig:
-    # Defaults chosen on the validation split with the default model (docs/evaluation.md): tighter
+    # Defaults chosen on the validation split with the default model (docs/experiments/2026-11-evaluation-history.md): tighter
     # contact and release than a first guess (3 / 5 / 10 cm, catch-up 0.5) hold the feet as well
     # and no longer cost style accuracy, since the leg is bent less far and lets go more gently.
     contact_cm: float = 1.5  # ankle height above the ground under which a slow foot locks

@@ -6,7 +6,7 @@ is the largest layer (3.4 MB); PyTorch's dynamic quantisation stores it as int8 
 quantises its inputs per call (fbgemm kernels). With the default model on the development machine,
 alternating a float32 and an int8-LSTM engine in one process (five pairs, one thread), batch-1
 medians went from 0.94-1.83 to 0.70-1.17 ms and 128 characters from 10.7-12.0 to 13.4-15.4
-thousand character-frames/s; test figures are unchanged to the third digit (docs/benchmarks.md).
+thousand character-frames/s; test figures are unchanged to the third digit (docs/experiments/2026-11-benchmark-runs.md).
 
 The warm-up on the context frames (``begin``) keeps the float32 cell: it runs once per transition.
 """

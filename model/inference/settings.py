@@ -13,7 +13,7 @@ class InferenceConfig:
     """``int8_lstm``: run the recurrent core's LSTM cell with int8 weights in the per-frame step
     (:mod:`model.inference.int8_step`). The cell holds 43% of the weights a frame reads, and at batch 1 a
     frame is bound by reading them; the rest of the network stays float32, because quantising all
-    of it cost same-style accuracy (docs/benchmarks.md)."""
+    of it cost same-style accuracy (docs/experiments/2026-11-benchmark-runs.md)."""
 
     int8_lstm: bool = False
 

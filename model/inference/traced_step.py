@@ -4,7 +4,7 @@ output filter, foot lock), traced to TorchScript: the fastest path measured on t
 At batch 1 a step is a few dozen small operations, so Python dispatch costs as much as the
 arithmetic: tracing halves it (0.70 -> 0.36 ms per step on the 2-core development machine, with
 the default model) and still helps at batch 64 (6.0 -> 5.1 ms). ONNX Runtime and torch.compile
-were not needed to reach the target; eager remains available (``RSMT_EAGER=1`` or ``compiled=False``).
+were not needed to reach the target; eager remains available (``compiled=False``; the service's ``RSMT_EAGER=1``).
 
 The traced graph takes and returns flat tensors; the dataclasses are rebuilt around it. It is
 shape-generic in the batch and in the style-code length (verified against eager in the tests).

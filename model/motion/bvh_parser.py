@@ -11,6 +11,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from itertools import chain
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,7 @@ def _vec3(value: Sequence[float], what: str) -> Vec3:
     vals = tuple(float(v) for v in value)
     if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
         raise ValueError(f"{what} must be three finite numbers, got {value!r}")
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,10 @@ def fps_from_frame_time(frame_time: float) -> float:
     if whole >= 1 and abs(fps - whole) <= 1e-4 * fps:
         return float(whole)
     return fps
+
+
+# The items a joint block may hold once each, as named in errors.
+_JOINT_PARTS = {"OFFSET": "OFFSET", "CHANNELS": "CHANNELS", "END": "End Site"}
 
 
 class _Parser:
@@ -200,6 +205,21 @@ class _Parser:
 
     def joint(self, parent: int, line: int) -> None:
         kind = "ROOT" if parent < 0 else "JOINT"
+        name = self._joint_name(kind, line)
+        index = len(self.joints)
+        self.joints.append(None)
+        parts: dict[str, Any] = {}
+        while not self._joint_item(kind, name, index, line, parts):
+            pass
+        if "OFFSET" not in parts:
+            raise self.error(f"{kind} {name} has no OFFSET", line)
+        try:
+            self.joints[index] = BvhJoint(name, parent, parts["OFFSET"], parts.get("CHANNELS", ()), parts.get("END"))
+        except ValueError as exc:  # BvhJoint's own checks; the parser should have caught them
+            raise self.error(str(exc), line) from exc
+
+    def _joint_name(self, kind: str, line: int) -> str:
+        """The name after ROOT or JOINT (unique in the file), and the opening brace."""
         name_tokens = self.rest_of_line(line)
         if not name_tokens:
             raise self.error(f"{kind} without a name", line)
@@ -210,47 +230,37 @@ class _Parser:
         tok = self.next(f"'{{' to open {kind} {name}")
         if tok[0] != "{":
             raise self.error(f"expected '{{' after {kind} {name}, found {tok[0]!r}", tok[1])
-        index = len(self.joints)
-        self.joints.append(None)
-        offset: Vec3 | None = None
-        channels: tuple[str, ...] | None = None
-        end_site: Vec3 | None = None
-        while True:
-            tok = self.peek()
-            if tok is None:
-                raise self.error(f"unexpected end of file: {kind} {name} (line {line}) is never closed with '}}'",
-                                 self.last_line())
-            word, wline = tok
-            up = word.upper()
-            self.pos += 1
+        return name
+
+    def _joint_item(self, kind: str, name: str, index: int, line: int, parts: dict[str, Any]) -> bool:
+        """Read one item of a joint block into ``parts``; True at the block's closing brace."""
+        tok = self.peek()
+        if tok is None:
+            raise self.error(f"unexpected end of file: {kind} {name} (line {line}) is never closed with '}}'",
+                             self.last_line())
+        word, wline = tok
+        up = word.upper()
+        self.pos += 1
+        if up in _JOINT_PARTS:
+            if up in parts:
+                raise self.error(f"second {_JOINT_PARTS[up]} in {kind} {name}", wline)
             if up == "OFFSET":
-                if offset is not None:
-                    raise self.error(f"second OFFSET in {kind} {name}", wline)
-                offset = self.offset(wline, f"OFFSET of {name}")
+                parts[up] = self.offset(wline, f"OFFSET of {name}")
             elif up == "CHANNELS":
-                if channels is not None:
-                    raise self.error(f"second CHANNELS in {kind} {name}", wline)
-                channels = self.channels(wline, name)
-            elif up == "JOINT":
-                self.joint(index, wline)
-            elif up == "END":
-                if end_site is not None:
-                    raise self.error(f"second End Site in {kind} {name}", wline)
-                end_site = self.end_site(wline, name)
-            elif word == "}":
-                break
-            elif up == "ROOT":
-                raise self.error("a second ROOT: a BVH file here must hold exactly one hierarchy", wline)
-            elif up == "MOTION":
-                raise self.error(f"missing '}}': {kind} {name} (line {line}) is not closed before MOTION", wline)
+                parts[up] = self.channels(wline, name)
             else:
-                raise self.error(f"unexpected {word!r} in {kind} {name}", wline)
-        if offset is None:
-            raise self.error(f"{kind} {name} has no OFFSET", line)
-        try:
-            self.joints[index] = BvhJoint(name, parent, offset, channels or (), end_site)
-        except ValueError as exc:  # BvhJoint's own checks; the parser should have caught them
-            raise self.error(str(exc), line) from exc
+                parts[up] = self.end_site(wline, name)
+            return False
+        if up == "JOINT":
+            self.joint(index, wline)
+            return False
+        if word == "}":
+            return True
+        if up == "ROOT":
+            raise self.error("a second ROOT: a BVH file here must hold exactly one hierarchy", wline)
+        if up == "MOTION":
+            raise self.error(f"missing '}}': {kind} {name} (line {line}) is not closed before MOTION", wline)
+        raise self.error(f"unexpected {word!r} in {kind} {name}", wline)
 
     def offset(self, line: int, what: str) -> Vec3:
         vals = self.rest_of_line(line)

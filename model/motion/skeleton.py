@@ -121,6 +121,14 @@ class SkeletonRoles:
     mirror: tuple[int, ...]  # mirror[j] is j's left/right counterpart (itself on the midline)
 
 
+def _vec3(values: Any) -> tuple[float, float, float]:
+    """Three floats from a row of numbers (an offset)."""
+    vals = tuple(float(v) for v in values)
+    if len(vals) != 3:
+        raise SkeletonError(f"an offset has 3 numbers, not {len(vals)}: {vals!r}")
+    return vals
+
+
 def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonRoles:
     """Resolve a profile against joint names; the error lists every joint it could not find."""
     lookup = {plain_joint_name(n): i for i, n in enumerate(names)}
@@ -133,7 +141,7 @@ def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonR
             return -1
         return i
 
-    roles = {
+    roles: dict[str, Any] = {
         "root": idx(profile.root), "head": idx(profile.head),
         "left_foot": tuple(idx(j) for j in profile.left_foot),
         "right_foot": tuple(idx(j) for j in profile.right_foot),
@@ -204,7 +212,7 @@ class Skeleton:
     ) -> Skeleton:
         """Build a skeleton, resolving roles with ``profile`` or the first built-in that fits."""
         names = tuple(names)
-        offs = tuple(tuple(float(v) for v in row) for row in torch.as_tensor(offsets, dtype=torch.float64).tolist())
+        offs = tuple(_vec3(row) for row in torch.as_tensor(offsets, dtype=torch.float64).tolist())
         roles = detect_roles(names, profile)
         return cls(names=names, parents=tuple(int(p) for p in parents), offsets=offs, roles=roles,
                    end_sites=tuple(end_sites), units=units)
@@ -296,9 +304,9 @@ class Skeleton:
             return cls(
                 names=tuple(j["name"] for j in joints),
                 parents=tuple(int(j["parent"]) for j in joints),
-                offsets=tuple(tuple(float(v) for v in j["offset"]) for j in joints),
+                offsets=tuple(_vec3(j["offset"]) for j in joints),
                 roles=SkeletonRoles(**roles_data),
-                end_sites=tuple((int(e["joint"]), tuple(float(v) for v in e["offset"])) for e in data.get("end_sites", [])),
+                end_sites=tuple((int(e["joint"]), _vec3(e["offset"])) for e in data.get("end_sites", [])),
                 units=data.get("units", "cm"),
                 up_axis=data.get("up_axis", "y"),
                 handedness=data.get("handedness", "right"),

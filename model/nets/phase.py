@@ -46,6 +46,10 @@ class PhaseConfig:
 class PeriodicAutoencoder(nn.Module):
     """DeepPhase PAE: ``x [B, C, W]`` (zero-mean per channel) to per-channel sinusoid parameters."""
 
+    # Buffers (registered in __init__).
+    freqs: Tensor
+    tau: Tensor
+
     def __init__(self, config: PhaseConfig) -> None:
         super().__init__()
         c = config

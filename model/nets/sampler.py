@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 import torch
 from torch import nn
@@ -110,7 +111,7 @@ class FiLM(nn.Module):
         return gamma, beta
 
     @staticmethod
-    def apply(x: Tensor, gamma: Tensor, beta: Tensor) -> Tensor:
+    def modulate(x: Tensor, gamma: Tensor, beta: Tensor) -> Tensor:
         return (1 + gamma) * nn.functional.layer_norm(x, x.shape[-1:]) + beta
 
 
@@ -135,7 +136,7 @@ class StyleAttention(nn.Module):
         keys = self.key(nn.functional.layer_norm(code, code.shape[-1:]))
         return keys.transpose(1, 2).contiguous(), self.value(code)
 
-    def apply(self, x: Tensor, keys: Tensor, values: Tensor, mask: Tensor) -> Tensor:
+    def attend(self, x: Tensor, keys: Tensor, values: Tensor, mask: Tensor) -> Tensor:
         q = self.query(nn.functional.layer_norm(x, x.shape[-1:]))
         scores = torch.bmm(q.unsqueeze(1), keys).squeeze(1) * self.scale
         attn = torch.softmax(scores.masked_fill(~mask, float("-inf")), dim=-1)
@@ -199,8 +200,8 @@ class SamplerState:
     tta: Tensor  # [B] frames left, including the next one
     noise: Tensor  # [B, 2*width]
 
-    def index(self, idx) -> SamplerState:
-        vals = {}
+    def index(self, idx: Any) -> SamplerState:
+        vals: dict[str, Any] = {}
         for f in fields(self):
             v = getattr(self, f.name)
             vals[f.name] = v.index(idx) if isinstance(v, PoseState) else v[idx]
@@ -208,7 +209,7 @@ class SamplerState:
 
     @staticmethod
     def stack(items: list[SamplerState]) -> SamplerState:
-        vals = {}
+        vals: dict[str, Any] = {}
         for f in fields(SamplerState):
             parts = [getattr(i, f.name) for i in items]
             if isinstance(parts[0], PoseState):
@@ -234,6 +235,11 @@ def _mlp(inputs: int, hidden: int, outputs: int) -> nn.Sequential:
 
 class TransitionSampler(nn.Module):
     """The per-frame generator; the manifold decoder is attached frozen (``decoder``)."""
+
+    # Buffers (registered in __init__).
+    pe: Tensor
+    style_mean: Tensor
+    style_std: Tensor
 
     def __init__(self, config: SamplerConfig, decoder: ManifoldDecoder) -> None:
         super().__init__()
@@ -308,19 +314,19 @@ class TransitionSampler(nn.Module):
         b, k = context.rel.shape[0], context.rel.shape[1]
         ctx_vec = context.vector()  # [B, K, D]
         if phase is None:
-            phase, _, freq = self.phase_estimator(ctx_vec[:, -c.context :])
+            current, _, freq = self.phase_estimator(ctx_vec[:, -c.context :])
         else:
-            phase, _, freq = phase
+            current, _, freq = phase
         target_vec = target.vector()
         state = SamplerState(
             h=ctx_vec.new_zeros(b, c.rnn), c=ctx_vec.new_zeros(b, c.rnn), pose=context.index((slice(None), k - 1)),
-            phase=phase, target_vec=target_vec, target_pos=target.positions(), target_rot=target.rot,
+            phase=current, target_vec=target_vec, target_pos=target.positions(), target_rot=target.rot,
             target_emb=self.target_encoder(target_vec), tta=frames.long(), noise=noise,
         )
         # Warm-up: feed context frames 1..K-2 with phases rotated back from the current estimate.
         for i in range(1, k - 1):
             back = k - 1 - i
-            ph = advance_phase(phase, phase.norm(dim=-1), -freq, back / c.fps)
+            ph = advance_phase(current, current.norm(dim=-1), -freq, back / c.fps)
             warm = SamplerState(
                 h=state.h, c=state.c, pose=context.index((slice(None), i)), phase=ph, target_vec=target_vec,
                 target_pos=state.target_pos, target_rot=state.target_rot, target_emb=state.target_emb,
@@ -332,8 +338,8 @@ class TransitionSampler(nn.Module):
     def _core(self, state: SamplerState, style: StyleContext) -> tuple[Tensor, Tensor, Tensor]:
         pe = self.time_code(state.tta)
         s = self.state_in(self.state_encoder(state.pose.vector()))
-        s = self.act(FiLM.apply(s, style.gamma1, style.beta1))
-        s = self.act(self.attn1.apply(s, style.keys1, style.values1, style.mask)) + pe
+        s = self.act(FiLM.modulate(s, style.gamma1, style.beta1))
+        s = self.act(self.attn1.attend(s, style.keys1, style.values1, style.mask)) + pe
         pos = state.pose.positions()
         offset = torch.cat([(state.target_pos - pos).flatten(1), (state.target_rot - state.pose.rot).flatten(1)], dim=-1)
         off = self.offset_encoder(offset) + pe
@@ -348,8 +354,8 @@ class TransitionSampler(nn.Module):
         m = c.phases
         h, cell, ht = self._core(state, style)
         y = self.head_in(torch.cat([h, state.phase.flatten(1), ht], dim=-1))
-        y = self.act(FiLM.apply(y, style.gamma2, style.beta2))
-        y = self.act(self.attn2.apply(y, style.keys2, style.values2, style.mask))
+        y = self.act(FiLM.modulate(y, style.gamma2, style.beta2))
+        y = self.act(self.attn2.attend(y, style.keys2, style.values2, style.mask))
         out = self.head_out(y)
         p_hat = out[:, : 2 * m].view(-1, m, 2)
         amp = out[:, 2 * m : 3 * m]

@@ -21,7 +21,7 @@ Which channels it sees is the config's ``inputs``:
 * ``"velocity"``: velocities only.
 
 The chosen input and its numbers (real-data accuracy and accuracy on interpolated transitions)
-are in ``docs/evaluation.md``. Channels are then normalised per channel by the training
+are in ``docs/experiments/2026-11-evaluation-history.md``. Channels are then normalised per channel by the training
 statistics held as (non-persistent) buffers: they are saved in ``config.json``, not in the weights.
 
 Saved as a folder: ``weights.safetensors`` (parameters only) and ``config.json`` (the config,
@@ -140,6 +140,10 @@ def motion_features(global_positions: Tensor, global_rotations: Tensor, skeleton
 class StyleClassifier(nn.Module):
     """Temporal CNN: input selection, normalisation, conv blocks, pooled feature, linear classifier."""
 
+    # Buffers (registered in __init__).
+    mean: Tensor
+    std: Tensor
+
     def __init__(self, config: StyleClassifierConfig) -> None:
         super().__init__()
         self.config = config
@@ -247,11 +251,3 @@ class StyleClassifier(nn.Module):
             raise ClassifierError(f"{path}: inconsistent classifier: {exc}") from exc
         model.record = data.get("record", {})
         return model.eval()
-
-
-def read_record(path: str | Path) -> dict[str, Any]:
-    """The training record saved with a classifier (accuracies, command), or ``{}``."""
-    try:
-        return json.loads((Path(path) / "config.json").read_text()).get("record", {})
-    except (OSError, json.JSONDecodeError):
-        return {}

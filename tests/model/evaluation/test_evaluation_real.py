@@ -49,7 +49,8 @@ def test_quick_classifier_recognises_real_styles(cache: MotionCache) -> None:
     cfg = StyleClassifierConfig(styles=cache.styles, channels=48, feature_dim=32)
     result = train_classifier(train, None, cfg, TrainSettings(epochs=3, iterations=40, batch=64), progress=False)
     check = check_classifier(result.model, cache, cache.split.test[::3])
-    # A short training already separates the styles; the full recipe reaches 0.998 (docs/evaluation.md).
+    # A short training already separates the styles; the full recipe reaches 0.998
+    # (docs/experiments/2026-11-evaluation-history.md).
     assert check["accuracy"] > 0.8, check["accuracy"]
     assert set(check["per_style"]) == set(cache.styles)
     assert "interpolation" in check and "zero_velocity" in check

@@ -24,7 +24,7 @@ from model.motion.bvh_clip import dump_clip, from_clip, load_clip, to_clip
 from model.motion.rotations import quat_angle, quat_to_matrix
 from model.motion.skeleton import SkeletonError, SkeletonProfile
 
-FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 MIXED = FIXTURES / "mixed_channels.bvh"
 BANDAI = FIXTURES / "bandai_namco_rig.bvh"
 

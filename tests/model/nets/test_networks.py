@@ -129,8 +129,8 @@ def test_styles_of_different_lengths_batch_with_masks():
         long = net.style_context(net.encode_style(torch.randn(1, 60, J * 12)))
         both = StyleContext.stack([short, long])
         x = torch.randn(2, 32)
-        out = net.attn1.apply(x, both.keys1, both.values1, both.mask)
-        alone = net.attn1.apply(x[:1], short.keys1, short.values1, short.mask)
+        out = net.attn1.attend(x, both.keys1, both.values1, both.mask)
+        alone = net.attn1.attend(x[:1], short.keys1, short.values1, short.mask)
     assert both.mask.shape == (2, long.mask.shape[1]) and not both.mask[0, -1]
     assert torch.allclose(out[:1], alone, atol=1e-5)
 

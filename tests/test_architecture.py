@@ -1,0 +1,111 @@
+"""The layout rules the code keeps: dependencies point one way, no import cycles, small modules.
+
+Read from the source with :mod:`ast` (nothing is imported), so a rule broken anywhere fails here
+with the modules named.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = {"model": REPO / "model", "service": REPO / "service", "rsmt_cli": REPO / "rsmt_cli",
+            "rsmt_client": REPO / "clients" / "python" / "rsmt_client"}
+MAX_LINES = 500
+MAX_MODEL_TOP_LEVEL = 8
+
+
+def _modules() -> dict[str, Path]:
+    found = {}
+    for top, folder in PACKAGES.items():
+        for path in folder.rglob("*.py"):
+            parts = [top, *path.relative_to(folder).with_suffix("").parts]
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            found[".".join(parts)] = path
+    return found
+
+
+MODULES = _modules()
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """Every module of this repository that ``name`` imports, at any depth of its code (lazy imports count)."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            # "from pkg import mod" imports the module pkg.mod when there is one, else names of pkg.
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
+        for target in targets:
+            while target and target not in MODULES:
+                target = target.rpartition(".")[0]
+            if target and target != name:
+                out.add(target)
+    return out
+
+
+GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
+
+
+def _reaches(start: str) -> set[str]:
+    seen, stack = set(), [start]
+    while stack:
+        for nxt in GRAPH[stack.pop()]:
+            if nxt not in seen:
+                seen.add(nxt)
+                stack.append(nxt)
+    return seen
+
+
+def test_the_graph_was_read():
+    assert len(MODULES) > 60
+    assert "model.inference.engine" in GRAPH["service.app"] | _reaches("service.app")
+    assert "model.motion.rotations" in GRAPH["model.motion.kinematics"]
+
+
+def test_no_import_cycles():
+    cycles = sorted(name for name in GRAPH if name in _reaches(name))
+    assert not cycles, f"modules on an import cycle: {', '.join(cycles)}"
+
+
+@pytest.mark.parametrize(("low", "high"), [("model", "service"), ("model", "rsmt_cli"), ("model", "rsmt_client"),
+                                           ("rsmt_client", "model"), ("rsmt_client", "service"),
+                                           ("rsmt_client", "rsmt_cli"), ("service", "rsmt_cli")])
+def test_dependencies_point_one_way(low, high):
+    wrong = sorted(f"{name} -> {dep}" for name, deps in GRAPH.items() if name.split(".")[0] == low
+                   for dep in deps if dep.split(".")[0] == high)
+    assert not wrong, f"{low} must not import {high}: {'; '.join(wrong)}"
+
+
+def test_the_client_imports_no_torch():
+    names = set()
+    for name, path in MODULES.items():
+        if name.startswith("rsmt_client"):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Import):
+                    names |= {a.name.split(".")[0] for a in node.names}
+                elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                    names.add(node.module.split(".")[0])
+    assert not names & {"torch", "fastapi", "matplotlib", "model", "service"}
+
+
+def test_modules_are_small():
+    big = sorted(f"{path.relative_to(REPO)} ({n} lines)" for path in MODULES.values()
+                 if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_LINES)
+    assert not big, f"modules over {MAX_LINES} lines: {', '.join(big)}"
+
+
+def test_model_top_level_holds_few_modules():
+    top = sorted(p.name for p in (REPO / "model").glob("*.py"))
+    assert len(top) <= MAX_MODEL_TOP_LEVEL, f"model/ holds {len(top)} modules at its top level: {', '.join(top)}"
