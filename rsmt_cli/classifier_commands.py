@@ -9,11 +9,13 @@ from pathlib import Path
 
 from model.data.location import find_data_dir
 
+# model.nets.style_classifier.INPUTS, repeated here so that building the parser does not import torch
+# (tests/cli/test_startup.py checks that the two agree).
+INPUTS = ("pose", "motion", "deviation", "velocity", "dynamics", "acceleration")
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``classifier`` stage to ``rsmt train``."""
-    from model.nets.style_classifier import INPUTS
-
     p = sub.add_parser(
         "classifier", help="the style classifier for evaluation (style accuracy, FMD)",
         description=(

@@ -9,11 +9,13 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from model.data.splits import DEFAULT_RATIOS, SPLITS, parse_ratios, split_takes
 from model.data.takes import Problem, Take, TakeIndex, describe_layout, index_takes, read_bvh_header, relative_path
-from model.motion.skeleton import SkeletonError, SkeletonProfile, detect_roles
+
+if TYPE_CHECKING:
+    from model.motion.skeleton import SkeletonProfile
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +57,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 # ---------------------------------------------------------------------------------- gathering
 def _probe_headers(index: TakeIndex, profile: SkeletonProfile | None) -> tuple[list[tuple[Take, int, float]], list[Problem]]:
     """Frames and fps of each take from its BVH header, checking that the rig resolves."""
+    from model.motion.skeleton import SkeletonError, detect_roles  # imports torch: only when a command runs
+
     rows: list[tuple[Take, int, float]] = []
     problems: list[Problem] = []
     rig_ok: dict[tuple[str, ...], str | None] = {}
@@ -104,6 +108,8 @@ def inspect_data(
     fps: float = 30.0,
 ) -> dict[str, Any]:
     """The report that ``rsmt data inspect`` prints, as a JSON-ready dict."""
+    from model.motion.skeleton import SkeletonProfile  # imports torch: only when a command runs
+
     index = index_takes(folder, manifest)
     prof = None if profile is None else SkeletonProfile.load(profile)
     cache_folder = None

@@ -46,8 +46,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 SERVER_METRICS = ("process_cpu_seconds_total", "rsmt_step_seconds_sum", "rsmt_step_seconds_count", "rsmt_frames_sent_total",
                   "rsmt_step_cpu_seconds_total", "rsmt_character_prepare_seconds_sum",
                   "rsmt_character_prepare_seconds_count", "rsmt_batch_size_sum", "rsmt_batch_size_count",
@@ -137,6 +135,8 @@ class Progress:
 def rest_motion(model: dict[str, Any], frames: int, yaw_deg: float = 0.0, shift: tuple[float, float] = (0.0, 0.0),
                 speed: float = 100.0) -> dict[str, Any]:
     """JSON poses: the model's rest pose walking straight (``speed`` units/s) along ``yaw_deg``, shifted on the ground."""
+    import numpy as np  # here, not at the top: `rsmt --help` need not load it
+
     joints = len(model["skeleton"]["joints"])
     yaw = np.radians(yaw_deg)
     heading = np.array([np.sin(yaw), 0.0, np.cos(yaw)])
@@ -150,6 +150,8 @@ def rest_motion(model: dict[str, Any], frames: int, yaw_deg: float = 0.0, shift:
 def percentiles(values: list[float], digits: int | None = None) -> dict[str, float]:
     if not values:
         return {"p50": float("nan"), "p99": float("nan"), "max": float("nan"), "n": 0}
+    import numpy as np
+
     a = np.asarray(values)
     out = {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
     return {**({k: round(v, digits) for k, v in out.items()} if digits is not None else out), "n": len(a)}
@@ -241,6 +243,7 @@ class _Run:
 
 
 async def _connection(run: _Run, names: list[str], stagger_s: float) -> None:
+    import numpy as np
     from rsmt_client import AsyncStreamClient, Frame, RetryPolicy, RsmtError
 
     period = 1.0 / float(run.model["fps"])
@@ -377,6 +380,7 @@ def transition_load(url: str, api_key: str | None, requests: int, frames: int, b
                     progress: Progress) -> dict[str, Any]:
     """Requests at concurrency 1, each followed by the same transition on an in-process engine (when ``bundle``
     is given), so both see the same machine load; stops after ``requests`` or ``seconds``."""
+    import numpy as np
     from rsmt_client import Client
 
     with Client(url, api_key=api_key) as http:

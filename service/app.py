@@ -9,13 +9,14 @@ from __future__ import annotations
 from fastapi import FastAPI
 
 from service.errors import install_error_handlers
+from service.http.auth import DocsAndMetricsKeyMiddleware
 from service.http.body_limit import BodyLimitMiddleware
 from service.http.logs import ensure_service_logging
 from service.http.ratelimit import RateLimiter
 from service.http.request_metrics import MetricsMiddleware
 from service.lifecycle import lifespan
 from service.metrics import Metrics
-from service.routes import health, metrics, models, stream, styles, transition, viewer
+from service.routes import docs, health, metrics, models, stream, styles, transition, viewer
 from service.settings import Settings, get_settings
 from service.state import ServiceState
 from service.streaming.connection import RawSendMiddleware
@@ -33,7 +34,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app; ``settings`` default to the ``RSMT_*`` environment."""
     settings = settings or get_settings()
     ensure_service_logging(settings.log_level, settings.log_format)
-    app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan)
+    app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan,
+                  docs_url=None, redoc_url=None)  # served by routes.docs, from local files
     app.state.service = ServiceState(settings=settings, metrics=Metrics(),
                                      limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst))
     app.dependency_overrides[get_settings] = lambda: settings
@@ -41,8 +43,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Added last = outermost: metrics see every request, including 413s.
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RawSendMiddleware)
+    app.add_middleware(DocsAndMetricsKeyMiddleware, keys=settings.api_keys, open_=settings.open_docs_and_metrics)
     app.add_middleware(MetricsMiddleware, metrics=app.state.service.metrics)
     for module in (health, models, styles, transition, stream, metrics, viewer):
         app.include_router(module.router)
     mount_page(app)  # the web viewer's page at /viewer/ (its helper routes are routes.viewer)
+    docs.install(app)  # /docs and /redoc without a CDN, and / -> /viewer/
     return app

@@ -52,7 +52,8 @@ def register_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str
 
 
 def new_seed() -> int:
-    return secrets.randbits(62)
+    """A random seed a JavaScript client can hold exactly (at most 2^53 - 1, as a request's seed)."""
+    return secrets.randbits(53)
 
 
 def run_transition(model: LoadedModel, req: TransitionRequest, queued_at: float) -> dict[str, Any]:

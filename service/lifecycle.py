@@ -9,6 +9,9 @@ balancers see the 503, then hands the signal to uvicorn, which waits up to its
 ``timeout_graceful_shutdown`` (``rsmt serve`` sets it to ``shutdown_grace_s``) for in-flight
 requests. A second signal goes to uvicorn at once. Where signals cannot be caught (not the main
 thread, e.g. a test client), the lifespan's shutdown runs the same steps.
+
+When the app knows the address it is served at (``app.state.public_url``, set by ``rsmt serve``), the
+ready and stopped events go to the ``service.announce`` logger, which speaks at the default level.
 """
 
 from __future__ import annotations
@@ -25,10 +28,12 @@ from typing import Any
 
 from fastapi import FastAPI
 
+from service.http.logs import ANNOUNCE
 from service.state import Phase, ServiceState
 from service.streaming.connection import CLOSE_GOING_AWAY
 
 log = logging.getLogger(__name__)
+announce = logging.getLogger(ANNOUNCE)
 HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
@@ -38,6 +43,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     from service.warmup import warm_up
 
     state: ServiceState = app.state.service
+    url: str | None = getattr(app.state, "public_url", None)
     state.phase, state.failure = Phase.STARTING, ""  # an app may be started again after a shutdown (tests)
     try:
         registry = await asyncio.to_thread(load_registry, state.settings)
@@ -64,7 +70,13 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         freeze_heap()
         if state.phase is Phase.STARTING:
             state.phase = Phase.READY
-            log.info("ready", extra={"models": [m.name for m in registry]})
+            names = [m.name for m in registry]
+            if url is None:
+                log.info("ready", extra={"models": names})
+            else:
+                announce.info("RSMT ready at %s, model%s %s; viewer %s/viewer, API docs %s/docs", url,
+                              "s" if len(names) > 1 else "", ", ".join(names), url, url,
+                              extra={"event": "ready", "url": url, "models": names, "viewer": f"{url}/viewer"})
 
     warm_task = asyncio.create_task(warm_all(), name="warm-up")
     try:
@@ -74,6 +86,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await begin_shutdown(state)
         await registry.stop()
         restore()
+        if url is not None:
+            announce.info("RSMT at %s stopped", url, extra={"event": "stopped", "url": url})
 
 
 def freeze_heap() -> None:

@@ -8,15 +8,20 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, TypeAdapter, model_validator
 
 # Hard ceilings for any model; the configured limits (service.settings) are usually lower.
 MAX_FRAMES_ANY = 100_000
 MAX_JOINTS_ANY = 1_000
-SEED_MAX = 2**63 - 1
+# The largest integer a JSON number holds exactly in JavaScript (Number.MAX_SAFE_INTEGER).
+SEED_MAX = 2**53 - 1
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Quat = Annotated[list[float], Field(min_length=4, max_length=4, description="x, y, z, w")]
+# Numbers are JSON numbers and counts JSON integers: "30", 30.0, true and "0.5" are refused (strict types; a
+# bool is not an int), rather than read as 30, 30, 1 and 0.5.
+Vec3 = Annotated[list[StrictFloat], Field(min_length=3, max_length=3)]
+Quat = Annotated[list[StrictFloat], Field(min_length=4, max_length=4, description="x, y, z, w")]
+FrameCount = Annotated[StrictInt, Field(ge=1, le=MAX_FRAMES_ANY)]
+Seed = Annotated[StrictInt, Field(ge=0, le=SEED_MAX, description="sampling seed, at most 2^53 - 1 (default: random)")]
 CharacterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
 StyleId = Annotated[str, Field(min_length=1, max_length=128)]
 ModelName = Annotated[str, Field(min_length=1, max_length=128)]
@@ -69,7 +74,7 @@ class PoseMotion(BaseModel):
     joints: list[Annotated[str, Field(min_length=1, max_length=256)]] | None = Field(
         None, max_length=MAX_JOINTS_ANY, description="joint names of the rotation columns, when not the model's order"
     )
-    fps: float | None = Field(None, gt=0, le=1000, description="frame rate of these frames (default: the model's fps)")
+    fps: StrictFloat | None = Field(None, gt=0, le=1000, description="frame rate of these frames (default: the model's fps)")
 
 
 Motion = Annotated[BvhMotion | PoseMotion, Field(description="BVH text or JSON poses")]
@@ -174,10 +179,10 @@ class TransitionRequest(_StyleChoice):
 
     context: Motion = Field(description=">= context_frames frames; the last one is the current pose")
     target: Motion = Field(description="the last frame is the target pose; a frame before it gives its velocity")
-    frames: int = Field(ge=1, le=MAX_FRAMES_ANY, description="frames to generate; the last is the arrival frame")
-    seed: int | None = Field(None, ge=0, le=SEED_MAX, description="sampling seed (default: random)")
-    deterministic: bool = Field(False, description="no sampling noise")
-    exact_arrival: bool = Field(False, description="bend the last frames so the arrival frame equals the target pose")
+    frames: FrameCount = Field(description="frames to generate; the last is the arrival frame")
+    seed: Seed | None = None
+    deterministic: StrictBool = Field(False, description="no sampling noise")
+    exact_arrival: StrictBool = Field(False, description="bend the last frames so the arrival frame equals the target pose")
     output: Literal["json", "bvh"] = "json"
     model: ModelName | None = None
 
@@ -234,10 +239,10 @@ class StartMessage(_WsMessage, _StyleChoice):
     character: CharacterId | None = None
     context: Motion
     target: Motion
-    frames: int = Field(ge=1, le=MAX_FRAMES_ANY)
-    seed: int | None = Field(None, ge=0, le=SEED_MAX)
-    deterministic: bool = False
-    exact_arrival: bool = False
+    frames: FrameCount
+    seed: Seed | None = None
+    deterministic: StrictBool = False
+    exact_arrival: StrictBool = False
     pace: Literal["realtime", "asap"] = "realtime"
     model: ModelName | None = None
 
@@ -246,7 +251,7 @@ class RetargetMessage(_WsMessage):
     type: Literal["retarget"]
     character: CharacterId
     target: Motion | None = None
-    frames: int | None = Field(None, ge=1, le=MAX_FRAMES_ANY)
+    frames: FrameCount | None = None
 
     @model_validator(mode="after")
     def _something(self) -> RetargetMessage:

@@ -94,6 +94,12 @@ class Settings(BaseSettings):
     rate_limit_per_s: float = Field(default=0.0, ge=0,
                                     description="requests per second per key (per client address without keys); 0: off")
     rate_limit_burst: int = Field(default=20, ge=1, description="token-bucket size of the per-key rate limit")
+    open_docs_and_metrics: bool = Field(
+        default=False, description="with API keys on, serve /metrics, /docs, /redoc and /openapi.json without a key")
+    forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="proxy addresses (or networks, or '*') whose X-Forwarded-For / X-Forwarded-Proto are trusted by "
+        "`rsmt serve`; empty: none, the peer address is the client's (the keyless rate limit's key)")
 
     # ------------------------------------------------------------------ logs and lifecycle
     log_level: Literal["debug", "info", "warning", "error"] = "warning"
@@ -104,7 +110,7 @@ class Settings(BaseSettings):
     )
     shutdown_grace_s: float = Field(default=8.0, gt=0, description="in-flight requests get this long to finish after the drain")
 
-    @field_validator("api_keys", mode="before")
+    @field_validator("api_keys", "forwarded_allow_ips", mode="before")
     @classmethod
     def _split_keys(cls, value: object) -> object:
         if isinstance(value, str):

@@ -1,4 +1,5 @@
-"""Where the training motion data lives: the ``RSMT_DATA`` setting and its default.
+"""Where the training motion data lives and where its preprocessed cache goes: the ``RSMT_DATA`` and
+``RSMT_CACHE`` settings and their defaults (the only place the model package reads the environment).
 
 ``RSMT_DATA`` names a folder of BVH takes (searched recursively), e.g. the unpacked
 Bandai-Namco dataset. Without it, the folder that ``../shared/data/unpack.sh`` fills by default
@@ -12,6 +13,8 @@ from pathlib import Path
 
 ENV_VAR = "RSMT_DATA"
 DEFAULT_UNPACKED = Path.home() / ".cache" / "rsmt-data" / "bandai-namco-motion-2"
+CACHE_ENV = "RSMT_CACHE"
+DEFAULT_CACHE_ROOT = Path.home() / ".cache" / "rsmt" / "preprocessed"
 
 
 def find_data_dir() -> Path | None:
@@ -23,3 +26,9 @@ def find_data_dir() -> Path | None:
     if (DEFAULT_UNPACKED / ".complete").is_file():
         return DEFAULT_UNPACKED
     return None
+
+
+def cache_root() -> Path:
+    """Where preprocessed-data caches live: ``$RSMT_CACHE`` or ``~/.cache/rsmt/preprocessed``."""
+    value = os.environ.get(CACHE_ENV)
+    return Path(value).expanduser() if value else DEFAULT_CACHE_ROOT

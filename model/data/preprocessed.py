@@ -9,8 +9,9 @@ Layout of a cache folder ``<root>/<key>/``:
   the distinct skeletons as :meth:`Skeleton.to_dict` (offsets differ between performers), and the
   problems found (files skipped, and why).
 
-``<root>`` is ``$RSMT_CACHE`` or ``~/.cache/rsmt/preprocessed``; ``<key>`` hashes the data (each
-file's path relative to the data folder, size, modification time, labels and cut) and the settings
+``<root>`` is ``$RSMT_CACHE`` or ``~/.cache/rsmt/preprocessed``; ``<key>`` hashes the data (the data
+folder's resolved path, and each file's path relative to it, size, modification time, labels and cut;
+a copy of the data elsewhere gets its own cache, whose takes point into that copy) and the settings
 (fps, skeleton profile, minimum length, :data:`CACHE_FORMAT_VERSION`), so a changed file or setting
 gives a new cache and an unchanged one is reused. A build writes into a temporary folder that is
 renamed into place at the end, so a killed build never leaves a half-written cache.
@@ -41,6 +42,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from tqdm import tqdm
 
+from model.data.location import cache_root
 from model.data.splits import DEFAULT_RATIOS, Split, split_takes
 from model.data.takes import Problem, Take, TakeIndex, index_takes, relative_path
 from model.motion.bvh import BvhError
@@ -52,8 +54,6 @@ log = logging.getLogger(__name__)
 
 # Bump when the reader, the cutting/resampling or the stored layout changes: old caches are then ignored.
 CACHE_FORMAT_VERSION = 1
-CACHE_ENV = "RSMT_CACHE"
-DEFAULT_CACHE_ROOT = Path.home() / ".cache" / "rsmt" / "preprocessed"
 DATA_FILE = "motion.safetensors"
 INDEX_FILE = "index.json"
 DEFAULT_FPS = 30.0
@@ -65,12 +65,6 @@ POOL_MIN_TAKES = 64
 _SAME_FPS_REL_TOL = 1e-4
 
 ProfileArg = SkeletonProfile | str | Path | None
-
-
-def cache_root() -> Path:
-    """Where caches live: ``$RSMT_CACHE`` or ``~/.cache/rsmt/preprocessed``."""
-    value = os.environ.get(CACHE_ENV)
-    return Path(value).expanduser() if value else DEFAULT_CACHE_ROOT
 
 
 def _resolve_profile(profile: ProfileArg) -> SkeletonProfile | None:
@@ -95,6 +89,7 @@ def cache_key(index: TakeIndex, fps: float = DEFAULT_FPS, profile: ProfileArg = 
         "profile": None if prof is None else prof.to_dict(),
         "min_frames": int(min_frames),
         "layout": index.layout,
+        "data_root": str(index.root),
         "files": files,
     }
     text = json.dumps(description, sort_keys=True, separators=(",", ":"))

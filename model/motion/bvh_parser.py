@@ -30,6 +30,13 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _FRAMES = re.compile(r"frames\s*:\s*(.*)", re.IGNORECASE)
 _FRAME_TIME = re.compile(r"frame\s+time\s*:\s*(.*)", re.IGNORECASE)
 
+# The most frames a file may declare. Frames of channel values are bounded by the text itself, but a
+# hierarchy without channels has empty frames, so only this bounds what its count asks for.
+MAX_FRAMES = 10_000_000
+# Decimal digits of the largest count worth reading: int() refuses past 4,300 digits, and no count here
+# needs more than a few.
+_COUNT_DIGITS = 18
+
 # A position channel of a non-root joint that moves more than this (file units) cannot be kept by
 # a Clip, which has one fixed offset per bone.
 BONE_TRANSLATION_TOLERANCE = 0.01
@@ -118,6 +125,24 @@ def fps_from_frame_time(frame_time: float) -> float:
 
 # The items a joint block may hold once each, as named in errors.
 _JOINT_PARTS = {"OFFSET": "OFFSET", "CHANNELS": "CHANNELS", "END": "End Site"}
+
+
+def whole_number(text: str) -> int | None:
+    """``text`` as a non-negative integer when it is plain ASCII digits of a sane size, else ``None``.
+
+    Leading zeros are allowed; a count of more than ``_COUNT_DIGITS`` significant digits is ``None``
+    (no allocation or ``int()`` ever sees it).
+    """
+    digits = text.lstrip("0") or "0"  # int() counts leading zeros towards its 4,300-digit limit too
+    if not (text.isascii() and text.isdigit()) or len(digits) > _COUNT_DIGITS:
+        return None
+    return int(digits)
+
+
+def shorten(text: str, keep: int = 24) -> str:
+    """``text`` for an error message: at most ``keep`` characters, the rest counted (a 4,300-digit count
+    is not echoed whole)."""
+    return text if len(text) <= keep else f"{text[:keep]}... ({len(text)} characters)"
 
 
 class _Parser:
@@ -277,7 +302,8 @@ class _Parser:
             raise self.error(f"CHANNELS of {name}: missing the channel count", line)
         count, names = words[0], words[1:]
         if not (count.isascii() and count.isdigit()):
-            raise self.error(f"CHANNELS of {name}: the count {count!r} is not a whole number", line)
+            raise self.error(f"CHANNELS of {name}: the count {shorten(count)!r} is not a whole number", line)
+        declared = whole_number(count)
         canon = []
         for c in names:
             key = CANONICAL_CHANNEL.get(c.lower())
@@ -286,8 +312,9 @@ class _Parser:
             if key in canon:
                 raise self.error(f"CHANNELS of {name}: {key} is listed twice", line)
             canon.append(key)
-        if int(count) != len(names):
-            raise self.error(f"CHANNELS of {name}: declares {int(count)} channels but lists {len(names)}", line)
+        if declared != len(names):
+            shown = shorten(count.lstrip("0")) if declared is None else declared
+            raise self.error(f"CHANNELS of {name}: declares {shown} channels but lists {len(names)}", line)
         return tuple(canon)
 
     def end_site(self, line: int, name: str) -> Vec3:
@@ -316,9 +343,13 @@ class _Parser:
         m = _FRAMES.fullmatch(self.lines[i].strip())
         if not m:
             raise self.error(f"expected 'Frames: <count>', found {self.lines[i].strip()!r}", i + 1)
-        if not (m.group(1).isascii() and m.group(1).isdigit()):
-            raise self.error(f"Frames: {m.group(1)!r} is not a whole number", i + 1)
-        frames = int(m.group(1))
+        count = m.group(1)
+        if not (count.isascii() and count.isdigit()):
+            raise self.error(f"Frames: {shorten(count)!r} is not a whole number", i + 1)
+        frames = whole_number(count)
+        if frames is None or frames > MAX_FRAMES:
+            raise self.error(f"Frames: {shorten(count.lstrip('0'))} is more than the {MAX_FRAMES} frames a file may "
+                             "declare", i + 1)
         self.frames_line = i + 1
         i = self._next_nonblank(i + 1, "Frame Time:")
         m = _FRAME_TIME.fullmatch(self.lines[i].strip())
@@ -416,5 +447,12 @@ class _Parser:
 
 
 def parse_bvh_parts(text: str, source: str = "<string>") -> tuple[list[BvhJoint], float, np.ndarray]:
-    """The joints, frame time and ``[frames, channels]`` motion of BVH text (see :class:`BvhError`)."""
-    return _Parser(text, source).parse()
+    """The joints, frame time and ``[frames, channels]`` motion of BVH text (see :class:`BvhError`).
+
+    Any text either parses or raises :class:`BvhError`; nothing else escapes (a hierarchy nested past
+    the interpreter's recursion limit included).
+    """
+    try:
+        return _Parser(text, source).parse()
+    except RecursionError:
+        raise BvhError("the hierarchy is nested too deeply to read", None, source) from None

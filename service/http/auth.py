@@ -12,8 +12,10 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
+from starlette.datastructures import Headers
+from starlette.types import ASGIApp, Receive, Scope, Send
 
-from service.errors import ServiceError
+from service.errors import ServiceError, error_response
 from service.http.ratelimit import retry_after_header
 from service.state import ServiceState
 
@@ -45,14 +47,18 @@ def is_valid(key: str | None, keys: list[str]) -> bool:
     return ok
 
 
+def _unauthorized(key: str | None) -> ServiceError:
+    what = "no API key" if key is None else "an unknown API key"
+    return ServiceError("unauthorized", f"{what} was presented: send it as `X-API-Key: KEY` or "
+                                        "`Authorization: Bearer KEY` (WebSocket: also `?token=KEY`)",
+                        headers={"WWW-Authenticate": "Bearer"})
+
+
 def check_access(state: ServiceState, key: str | None, client: str) -> None:
     """Raise ``unauthorized`` or ``rate_limited`` (with Retry-After) for a request from ``client``."""
     settings = state.settings
     if settings.auth_enabled and not is_valid(key, settings.api_keys):
-        what = "no API key" if key is None else "an unknown API key"
-        raise ServiceError("unauthorized", f"{what} was presented: send it as `X-API-Key: KEY` or "
-                                           "`Authorization: Bearer KEY` (WebSocket: also `?token=KEY`)",
-                           headers={"WWW-Authenticate": "Bearer"})
+        raise _unauthorized(key)
     # With keys on, the key is valid here and the bucket is its own; without, the client address's.
     wait = state.limiter.take(key if settings.auth_enabled and key is not None else client)
     if wait > 0:
@@ -69,3 +75,33 @@ async def require_access(
     """Route dependency: API key (when keys are on) and the per-key rate limit."""
     client = request.client.host if request.client else "unknown"
     check_access(request.app.state.service, key_from(request.headers), client)
+
+
+# Routes outside /v1 that describe or measure the service (with their sub-paths, e.g. /docs/static/...).
+DOCS_AND_METRICS = ("/metrics", "/docs", "/redoc", "/openapi.json")
+
+
+class DocsAndMetricsKeyMiddleware:
+    """With keys on, ``/metrics`` and the API docs need a key too (no rate limit), unless
+    ``RSMT_OPEN_DOCS_AND_METRICS`` opens them; the health probes and the viewer's page stay open."""
+
+    def __init__(self, app: ASGIApp, keys: list[str], open_: bool) -> None:
+        self.app = app
+        self.keys = keys
+        self.closed = bool(keys) and not open_
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if self.closed and scope["type"] == "http" and _is_docs_or_metrics(scope):
+            key = key_from(Headers(scope=scope))
+            if not is_valid(key, self.keys):
+                exc = _unauthorized(key)
+                await error_response(exc.code, exc.message, exc.headers)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
+def _is_docs_or_metrics(scope: Scope) -> bool:
+    path, root = str(scope.get("path", "")), str(scope.get("root_path", ""))
+    if root and path.startswith(root):
+        path = path[len(root):]
+    return any(path == p or path.startswith(p + "/") for p in DOCS_AND_METRICS)

@@ -1,4 +1,9 @@
-"""Structured logging: one JSON object per line (or plain text), quiet (warnings) by default."""
+"""Structured logging: one JSON object per line (or plain text), quiet (warnings) by default.
+
+One logger speaks at the default level too: ``service.announce``, the service's few lines for a person
+(the address, models and viewer once ready; the stop), at info unless the level is ``error``. In text
+format they are the bare message; in JSON format an object like any other, with their fields.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,8 @@ import json
 import logging
 import time
 
+ANNOUNCE = "service.announce"
+TEXT_FORMAT = "%(asctime)s %(levelname)s %(name)s %(message)s"
 _STANDARD = set(logging.makeLogRecord({}).__dict__) | {"message", "asctime", "color_message"}
 
 
@@ -29,15 +36,17 @@ class JsonFormatter(logging.Formatter):
 
 def log_config(level: str = "warning", fmt: str = "json") -> dict:
     """A ``logging.config.dictConfig`` for the service and uvicorn (pass it as uvicorn's ``log_config``)."""
-    formatter = {"()": JsonFormatter} if fmt == "json" else {"format": "%(asctime)s %(levelname)s %(name)s %(message)s"}
+    json_format = {"()": JsonFormatter}
+    formatter = json_format if fmt == "json" else {"format": TEXT_FORMAT}
     handler = {"class": "logging.StreamHandler", "formatter": "default", "stream": "ext://sys.stderr"}
     lvl = level.upper()
     return {
         "version": 1,
         "disable_existing_loggers": False,
-        "formatters": {"default": formatter},
-        "handlers": {"default": handler},
+        "formatters": {"default": formatter, "announce": json_format if fmt == "json" else {"format": "%(message)s"}},
+        "handlers": {"default": handler, "announce": {**handler, "formatter": "announce"}},
         "loggers": {
+            ANNOUNCE: {"handlers": ["announce"], "level": _announce_level(lvl), "propagate": False},
             "service": {"handlers": ["default"], "level": lvl, "propagate": False},
             "model": {"handlers": ["default"], "level": lvl, "propagate": False},
             "uvicorn": {"handlers": ["default"], "level": lvl, "propagate": False},
@@ -45,6 +54,10 @@ def log_config(level: str = "warning", fmt: str = "json") -> dict:
             "uvicorn.access": {"handlers": ["default"], "level": lvl, "propagate": False},
         },
     }
+
+
+def _announce_level(level: str) -> str:
+    return "ERROR" if level == "ERROR" else "INFO"
 
 
 def ensure_service_logging(level: str = "warning", fmt: str = "json") -> None:
@@ -57,8 +70,7 @@ def ensure_service_logging(level: str = "warning", fmt: str = "json") -> None:
     """
     if logging.getLogger().handlers:
         return
-    formatter: logging.Formatter = JsonFormatter() if fmt == "json" else logging.Formatter(
-        "%(asctime)s %(levelname)s %(name)s %(message)s")
+    formatter: logging.Formatter = JsonFormatter() if fmt == "json" else logging.Formatter(TEXT_FORMAT)
     for name in ("service", "model"):
         logger = logging.getLogger(name)
         if logger.handlers:

@@ -11,7 +11,8 @@ from service.schemas import ERROR_RESPONSES, Health
 router = APIRouter(prefix="/v1/health", tags=["health"])
 
 
-@router.get("/live", response_model=Health, summary="200 while the process runs")
+# Only the status (docs/api-contract.md): which models serve is readiness's answer, not liveness's.
+@router.get("/live", response_model=Health, response_model_exclude_unset=True, summary="200 while the process runs")
 async def live() -> Health:
     return Health(status="alive")
 

@@ -55,15 +55,16 @@ async def stream(ws: WebSocket) -> None:
 
 
 def _admit(ws: WebSocket, state: ServiceState, encoding: str) -> None:
-    """Raise the error that refuses this handshake, if any: bad encoding, not serving, key or rate limit."""
-    if encoding not in ("json", "binary"):
-        raise ServiceError("validation_error", f"encoding must be 'json' or 'binary', got {encoding!r}")
+    """Raise the error that refuses this handshake, if any: not serving, key or rate limit, then bad encoding
+    (after the key, so that nothing about the request is answered to a client without one)."""
     if state.stopping:
         raise ServiceError("shutting_down", "the server is shutting down; reconnect to another replica")
     if state.registry is None:
         raise ServiceError("not_ready", "the models are still loading; retry shortly")
     client = ws.client.host if ws.client else "unknown"
     check_access(state, key_from(ws.headers, ws.query_params), client)
+    if encoding not in ("json", "binary"):
+        raise ServiceError("validation_error", f"encoding must be 'json' or 'binary', got {encoding!r}")
 
 
 async def _deny(ws: WebSocket, exc: ServiceError) -> None:

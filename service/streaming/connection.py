@@ -64,6 +64,7 @@ class Connection:
         if send_buffer_bytes:
             self._limit_send_buffer(send_buffer_bytes)
         self._sender = self._loop.create_task(self._send_loop(), name="ws-sender")
+        self._sender.add_done_callback(_sender_done)
         self._watchdog = self._loop.create_task(self._watch(), name="ws-watchdog")
 
     def touch(self) -> None:
@@ -250,6 +251,13 @@ class Connection:
                     and now - self.last_activity > self.idle_timeout_s:
                 await self.close(CLOSE_NORMAL, "idle")
                 return
+
+
+def _sender_done(task: asyncio.Task[None]) -> None:
+    """Retrieve the sender's exception (a client gone mid-write) so that asyncio never prints it as a
+    multi-line 'Task exception was never retrieved' on stderr; the route sees the disconnect itself."""
+    if not task.cancelled() and (exc := task.exception()) is not None:
+        log.debug("sender stopped: %r", exc)
 
 
 class RawSendMiddleware:

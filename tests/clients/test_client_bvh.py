@@ -17,8 +17,10 @@ from rsmt_client.quaternions import euler_to_quat, quat_to_euler
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.motion.bvh import BvhDocument
+from model.motion.bvh import BvhError as ProjectBvhError
 from model.motion.bvh_clip import load_clip
 from model.motion.skeleton import SkeletonProfile
+from tests.model.motion.bvh_strategies import ANY_BVH_TEXT
 
 FIXTURES = sorted((Path(__file__).resolve().parents[1] / "fixtures").glob("*.bvh"))
 ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
@@ -230,6 +232,51 @@ def test_damaged_files_fail_cleanly_and_as_the_server_would(text: str) -> None:
         BvhDocument.parse(text)
         project_accepts = True
     except ValueError:
+        project_accepts = False
+    try:
+        parsed = BvhFile.parse(text, source="x.bvh")
+    except BvhError as exc:
+        assert not project_accepts, f"refused what the server reads: {exc}"
+        assert exc.line is None or 1 <= exc.line <= text.count("\n") + 1
+        return
+    assert project_accepts, "read what the server refuses"
+    assert parsed.motion.shape == (parsed.num_frames, sum(len(j.channels) for j in parsed.joints))
+
+
+# ---------------------------------------------------------------------- hostile input: BvhError and nothing else
+ZERO_CHANNELS = "HIERARCHY\nROOT Hips\n{\n\tOFFSET 0 0 0\n\tCHANNELS 0\n}\nMOTION\nFrames: %s\nFrame Time: 0.0333333\n"
+
+
+@pytest.mark.parametrize(("text", "line", "words"), [
+    (ZERO_CHANNELS % ("9" * 4400), 8, "(4400 characters) is more than the 10000000 frames"),
+    (ZERO_CHANNELS % "10000000000000000000", 8, "10000000000000000000 is more than the 10000000 frames"),
+    (_with_line(_line_of("Frames:"), "Frames: " + "9" * 4400), _line_of("Frames:"), "is more than the 10000000 frames"),
+    (_with_line(_line_of("CHANNELS"), "CHANNELS " + "6" * 4400 + " Xposition"), _line_of("CHANNELS"),
+     "(4400 characters) is followed by 1 channel names"),
+], ids=["frames-4400-digits-zero-channels", "frames-2^64-zero-channels", "frames-4400-digits", "channels-4400-digits"])
+def test_hostile_counts_are_bvh_errors(text: str, line: int, words: str) -> None:
+    with pytest.raises(BvhError) as err:
+        BvhFile.parse(text, source="x.bvh")
+    assert err.value.line == line and words in str(err.value) and len(str(err.value)) < 300, str(err.value)
+    with pytest.raises(ValueError):  # the project's reader refuses the same text
+        BvhDocument.parse(text)
+
+
+def test_zero_channels_and_leading_zeros_read_as_the_server_reads_them() -> None:
+    for text in (ZERO_CHANNELS % "0", ZERO_CHANNELS % "12", ZERO_CHANNELS % ("0" * 5000 + "12")):
+        ours, theirs = BvhFile.parse(text), BvhDocument.parse(text)
+        assert ours.motion.shape == theirs.motion.shape == (theirs.num_frames, 0)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(text=ANY_BVH_TEXT)
+def test_any_text_reads_or_is_a_bvh_error_as_on_the_server(text: str) -> None:
+    """Fuzzing: any text (or file bytes) gives a file or BvhError, never another exception, and exactly when
+    the project's reader (itself fuzzed in tests/model/motion/test_bvh.py) accepts it."""
+    try:
+        BvhDocument.parse(text)
+        project_accepts = True
+    except ProjectBvhError:
         project_accepts = False
     try:
         parsed = BvhFile.parse(text, source="x.bvh")

@@ -41,6 +41,7 @@ class Server:
             sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--host", "127.0.0.1",
             "--port", str(self.port), "--ws-max-size", self.env.get("RSMT_WS_MAX_MESSAGE_BYTES", str(64 << 10)),
             "--timeout-graceful-shutdown", "3", "--log-level", "warning", "--ws-per-message-deflate", "false",
+            "--no-proxy-headers",  # as `rsmt serve` by default: X-Forwarded-For from 127.0.0.1 is not trusted
         ]
         self.command = [c.replace("{port}", str(self.port)) for c in self.command]
         self.log = tempfile.NamedTemporaryFile("w+", prefix="rsmt-server-", suffix=".log", delete=False)

@@ -3,6 +3,7 @@ and a clear failure when there is no model."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -57,6 +58,28 @@ def test_rsmt_serve_sigterm(bundle_dir):
         assert code in (0, -signal.SIGTERM), code
     finally:
         srv.stop()
+    # Not on a terminal, the logs are JSON lines; at the default level they still say where the service was.
+    events = [json.loads(line) for line in srv.logs().splitlines() if line.startswith("{")]
+    announced = {e["event"]: e for e in events if e["logger"] == "service.announce"}
+    assert announced["ready"]["url"] == srv.url and announced["ready"]["models"] == ["rsmt"]
+    assert announced["ready"]["viewer"] == srv.url + "/viewer"
+    assert announced["stopped"]["url"] == srv.url and events[-1]["event"] == "stopped"
+
+
+def test_rsmt_serve_says_where_it_is_in_text(bundle_dir):
+    srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}", "--log-format", "text"])
+    srv.start()
+    ready_lines = srv.logs().splitlines()
+    # Liveness says only that the process runs; the models are readiness's answer (docs/api-contract.md).
+    assert httpx.get(srv.url + "/v1/health/live").json() == {"status": "alive"}
+    assert httpx.get(srv.url + "/v1/health/ready").json() == {"status": "ready", "models": ["rsmt"]}
+    code = srv.stop()
+    lines = srv.logs().splitlines()
+    url = srv.url
+    assert f"RSMT ready at {url}, model rsmt; viewer {url}/viewer, API docs {url}/docs" in ready_lines
+    assert lines[-1] == f"RSMT at {url} stopped", lines
+    assert not [line for line in lines if line.startswith("{")]
+    assert code in (0, -signal.SIGTERM), (code, lines)
 
 
 def test_rsmt_serve_workers_get_the_command_line_settings(bundle_dir, tmp_path):

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
@@ -12,6 +17,7 @@ from model.motion.bvh import BvhDocument
 from service.errors import ServiceError
 from service.motion import MotionLimits, frames_bvh, frames_json, motion_to_clip
 from service.schemas import BvhMotion, PoseMotion
+from tests.model.motion.bvh_strategies import ANY_BVH_TEXT
 from tests.service.conftest import bvh, poses, walk
 
 LIMITS = MotionLimits(max_frames=300, quaternion_tolerance=1e-2, max_abs_position=1e6)
@@ -104,3 +110,64 @@ def test_output_round_trip(engine):
     assert back.num_frames == 9 and torch.allclose(back.rotations, clip.rotations, atol=1e-5)
     frames = frames_json(clip.rotations, clip.root_positions)
     assert len(frames) == 9 and frames[0]["rotations"].shape == (21, 4) and frames[0]["rotations"].dtype == np.float32
+
+
+# ---------------------------------------------------------------------- fuzzing the decoders of client input
+_number = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(10**30), 10**30), st.just(1.0),
+                    st.just(0.0), st.booleans(), st.text(max_size=4), st.none())
+_quat = st.lists(_number, min_size=0, max_size=5)
+_pose_json = st.fixed_dictionaries(
+    {"root_positions": st.lists(st.lists(_number, max_size=4), max_size=4) | _number,
+     "rotations": st.lists(st.lists(_quat, max_size=22), max_size=4) | _number},
+    optional={"joints": st.lists(st.sampled_from(["Hips", "Spine", "hips", "", "x" * 300]) | st.text(max_size=5),
+                                 max_size=22) | _number,
+              "fps": _number, "extra": _number},
+)
+
+
+
+@st.composite
+def _nearly_valid_poses(draw: st.DrawFn) -> dict:
+    """Three frames of a walk with a few numbers (or whole quaternions) replaced by anything."""
+    p = poses(walk(3))
+    for _ in range(draw(st.integers(1, 3))):
+        t, j = draw(st.integers(0, 2)), draw(st.integers(0, 20))
+        quat = p["rotations"][t][j]
+        if quat and draw(st.booleans()):
+            quat[draw(st.integers(0, len(quat) - 1))] = draw(_number)
+        elif draw(st.booleans()):
+            p["rotations"][t][j] = draw(_quat)
+        else:
+            p["root_positions"][t][draw(st.integers(0, 2))] = draw(_number)
+    return p
+
+
+@settings(max_examples=150, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(payload=_pose_json | _nearly_valid_poses() | st.dictionaries(st.text(max_size=8), _number, max_size=3))
+def test_any_json_poses_decode_or_are_refused_cleanly(engine, payload):
+    """JSON in (as the server reads a body): a validation error, a ServiceError with a contract code, or a clip."""
+    try:
+        motion = PoseMotion.model_validate_json(json.dumps(payload))  # NaN and Infinity as some clients write them
+    except ValidationError:
+        return
+    try:
+        clip = motion_to_clip(motion, engine, LIMITS, "clip")
+    except ServiceError as exc:
+        assert exc.code in ("bad_motion", "skeleton_mismatch", "too_few_frames", "too_many_frames"), exc
+        return
+    assert torch.isfinite(clip.rotations).all() and torch.isfinite(clip.root_positions).all()
+
+
+@settings(max_examples=100, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(text=ANY_BVH_TEXT)
+def test_any_bvh_text_converts_or_is_refused_cleanly(engine, text):
+    try:
+        motion = BvhMotion.model_validate_json(json.dumps({"bvh": text}))
+    except ValidationError:  # empty, or a lone surrogate (not UTF-8)
+        return
+    try:
+        clip = motion_to_clip(motion, engine, LIMITS, "clip")
+    except ServiceError as exc:
+        assert exc.code in ("bad_motion", "skeleton_mismatch", "too_few_frames", "too_many_frames"), exc
+        return
+    assert torch.isfinite(clip.rotations).all()

@@ -34,6 +34,17 @@ def test_environment(monkeypatch, tmp_path):
         Settings()
 
 
+def test_forwarded_headers_and_docs_settings(monkeypatch):
+    for key in ("RSMT_FORWARDED_ALLOW_IPS", "RSMT_OPEN_DOCS_AND_METRICS"):
+        monkeypatch.delenv(key, raising=False)
+    s = Settings()
+    assert s.forwarded_allow_ips == [] and s.open_docs_and_metrics is False  # no proxy trusted, docs behind keys
+    monkeypatch.setenv("RSMT_FORWARDED_ALLOW_IPS", "10.0.0.1, 192.168.0.0/16")
+    monkeypatch.setenv("RSMT_OPEN_DOCS_AND_METRICS", "true")
+    s = Settings()
+    assert s.forwarded_allow_ips == ["10.0.0.1", "192.168.0.0/16"] and s.open_docs_and_metrics is True
+
+
 def test_import_builds_nothing_and_model_stays_free_of_web_code():
     code = ("import sys, service.app; "
             "assert 'uvicorn' not in sys.modules; "

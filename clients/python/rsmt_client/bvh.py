@@ -24,6 +24,10 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _NOT_IN_NUMBERS = re.compile(r"[^0-9eE+\-.\s]")
 _FRAMES = re.compile(r"frames\s*:\s*(\S*)\s*", re.IGNORECASE)
 _FRAME_TIME = re.compile(r"frame\s+time\s*:\s*(\S*)\s*", re.IGNORECASE)
+# The most frames a file may declare (as the server's reader): frames of a hierarchy without channels are
+# empty lines, so nothing in the text bounds their count.
+MAX_FRAMES = 10_000_000
+_COUNT_DIGITS = 18  # int() refuses numbers past 4,300 digits; no count needs more than a few
 
 
 class BvhError(ValueError):
@@ -66,7 +70,10 @@ class BvhFile:
         if not (math.isfinite(self.frame_time) and self.frame_time > 0):
             raise ValueError(f"frame time must be a positive number of seconds, got {self.frame_time}")
         width = sum(len(j.channels) for j in self.joints)
-        self.motion = np.asarray(self.motion, dtype=np.float64).reshape(-1, width)
+        motion = np.asarray(self.motion, dtype=np.float64)
+        if motion.ndim == 1 and motion.size == 0:
+            motion = motion.reshape(0, width)
+        self.motion = motion if width == 0 and motion.ndim == 2 else motion.reshape(-1, width)
 
     @property
     def num_frames(self) -> int:
@@ -165,6 +172,19 @@ def read_text(path: str | Path) -> str:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         return raw.decode("latin-1")
+
+
+def _whole_number(text: str) -> int | None:
+    """Plain ASCII digits as an int, or None when they are not digits or too many to be a sane count."""
+    digits = text.lstrip("0") or "0"  # int() counts leading zeros towards its limit too
+    if not (text.isascii() and text.isdigit()) or len(digits) > _COUNT_DIGITS:
+        return None
+    return int(digits)
+
+
+def _short(text: str, keep: int = 24) -> str:
+    """``text`` for an error message, at most ``keep`` characters of it."""
+    return text if len(text) <= keep else f"{text[:keep]}... ({len(text)} characters)"
 
 
 def _exact(values: Sequence[float]) -> str:
@@ -281,10 +301,12 @@ class _Hierarchy:
     def channels(self, line: int) -> tuple[str, ...]:
         words = [tok for tok, _ in self.words(line)]
         if not words or not (words[0].isascii() and words[0].isdigit()):
-            raise self.error(f"CHANNELS: expected a channel count, found {words[0] if words else 'nothing'!r}", line)
-        count, names = int(words[0]), words[1:]
+            raise self.error(f"CHANNELS: expected a channel count, found {_short(words[0]) if words else 'nothing'!r}",
+                             line)
+        count, names = _whole_number(words[0]), words[1:]
         if len(names) != count:
-            raise self.error(f"CHANNELS {count} is followed by {len(names)} channel names on its line", line)
+            shown = _short(words[0].lstrip("0")) if count is None else count
+            raise self.error(f"CHANNELS {shown} is followed by {len(names)} channel names on its line", line)
         out: list[str] = []
         for name in names:
             canon = _CHANNELS.get(name.lower())
@@ -311,12 +333,17 @@ def _parse_motion(lines: Sequence[str], at: int, width: int, source: str) -> tup
     value, at = _header(lines, at, _FRAMES, "Frames", source)
     frames_line = at  # the index after the Frames line is its 1-based number
     if not (value.isascii() and value.isdigit()):
-        raise BvhError(f"Frames: expected a whole number, found {value!r}", frames_line, source)
-    frames = int(value)
+        raise BvhError(f"Frames: expected a whole number, found {_short(value)!r}", frames_line, source)
+    frames = _whole_number(value)
+    if frames is None or frames > MAX_FRAMES:
+        raise BvhError(f"Frames: {_short(value.lstrip('0'))} is more than the {MAX_FRAMES} frames a file may declare",
+                       frames_line, source)
     value, at = _header(lines, at, _FRAME_TIME, "Frame Time", source)
     if not _NUMBER.fullmatch(value) or not (math.isfinite(float(value)) and float(value) > 0):
         raise BvhError(f"Frame Time: expected a positive number of seconds, found {value!r}", at, source)
     rows = [(n, line) for n, line in enumerate(lines[at:], at + 1) if line.strip()]
+    if width == 0 and not rows:  # frames without channels are empty lines, as blank as the end of a file
+        return float(value), np.zeros((frames, 0))
     if len(rows) != frames:
         where = rows[frames][0] if len(rows) > frames else frames_line  # the first extra line, or the count
         raise BvhError(f"Frames says {frames} but {len(rows)} frame lines follow", where, source)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -11,12 +12,12 @@ import pytest
 import torch
 
 import model.data.preprocessed as mc
+from model.data.location import cache_root
 from model.data.preprocessed import (
     DATA_FILE,
     INDEX_FILE,
     MotionCache,
     cache_key,
-    cache_root,
     load_motion_cache,
 )
 from model.data.takes import index_takes
@@ -115,6 +116,17 @@ def test_key_follows_data_and_settings(tmp_path: Path) -> None:
     key3 = cache_key(index_takes(tmp_path))
     write_bvh(tmp_path / "data" / "dataset-2_run_normal_001.bvh")  # a new file
     assert cache_key(index_takes(tmp_path)) != key3
+
+
+def test_a_copy_of_the_data_elsewhere_gets_its_own_cache(tmp_path: Path) -> None:
+    # Same files, sizes and modification times in another folder: the cache must still point at the folder asked for.
+    make_bandai_tree(tmp_path / "data", takes_per_group=1)
+    shutil.copytree(tmp_path / "data", tmp_path / "copy")  # copy2: modification times kept
+    first = load(tmp_path / "data", tmp_path / "cache")
+    second = load(tmp_path / "copy", tmp_path / "cache")
+    assert second.key != first.key
+    assert first.data_root == (tmp_path / "data").resolve() and second.data_root == (tmp_path / "copy").resolve()
+    assert all(t.path.is_relative_to(second.data_root) for t in second.takes)
 
 
 def test_reuse_and_rebuild(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
