@@ -17,9 +17,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Run each --model on the same deterministic cases of a split (10 context frames; gaps of 10, 20 and "
             "40 frames; on the 40 gap the target moved by d = 2 and d = -1 and the duration scaled by dt = 0.5 "
-            "and 2) and print Markdown tables side by side. Scores are taken in the canonical frame of the last "
-            "context frame; L2P is standardised with training-split statistics. With --out, also writes "
-            "report.json, report.md, PNG plots and a contact sheet of a few transitions."))
+            "and 2, and on the locomotion cases the target turned by +-90 degrees and moved 1 m sideways) and "
+            "print Markdown tables side by side: the locomotion cases (walk, walk turns, run) first, all "
+            "contents second. Models are sent the target frame alone (--target-frames 2: with the frame before "
+            "it). Scores are taken in the canonical frame of the last context frame; L2P is standardised with "
+            "training-split statistics. With --out, also writes report.json, report.md, PNG plots and a contact "
+            "sheet of a few transitions."))
     p.add_argument("--model", action="append", required=True, metavar="BUNDLE|interp|zerovel|gt",
                    help="a model bundle folder, or a baseline: interp, zerovel (gt: the ground truth, a sanity "
                         "check); repeat to compare")
@@ -27,6 +30,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--split", default="test", choices=["train", "val", "test"], help="split to evaluate (default test)")
     p.add_argument("--classifier", type=Path, metavar="DIR",
                    help="style classifier folder (rsmt train classifier) for style accuracy and FMD")
+    p.add_argument("--judge", type=Path, metavar="DIR",
+                   help="style judge folder (rsmt train judge): the style accuracy of the acceptance figures")
+    p.add_argument("--target-frames", type=int, default=1, choices=[1, 2],
+                   help="target frames sent to bundles: 1, the target alone (what a game has; default), or 2, "
+                        "with the frame before it (the target's velocity)")
     p.add_argument("--out", type=Path, metavar="DIR", help="folder for report.json, report.md and the pictures")
     p.add_argument("--limit", type=int, metavar="N", help="evaluate at most N cases, spread evenly over the split")
     p.add_argument("--styles", nargs="+", default=[], metavar="STYLE",
@@ -53,6 +61,7 @@ def eval_command(args: argparse.Namespace) -> int:
     from model.data.preprocessed import load_motion_cache
     from model.evaluation import EvalSettings, evaluate, resolve_method
     from model.evaluation.report import markdown
+    from model.evaluation.style_judge import StyleJudge
     from model.nets.style_classifier import StyleClassifier
 
     if args.threads:
@@ -65,12 +74,13 @@ def eval_command(args: argparse.Namespace) -> int:
     overrides = output_overrides(args)
     methods = [resolve_method(spec, args.batch, args.exact_arrival, **overrides) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
+    judge = StyleJudge.load(args.judge) if args.judge else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
                             diversity_samples=args.diversity_samples, render_cases=args.render_cases,
-                            styles=tuple(args.styles))
+                            styles=tuple(args.styles), target_frames=args.target_frames)
     run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
-                   progress=not args.quiet)
+                   progress=not args.quiet, judge=judge, judge_path=str(args.judge) if args.judge else None)
     command = _command(args)
     run.report["command"] = command
     text = markdown(run.report, command)
@@ -86,12 +96,11 @@ def _command(args: argparse.Namespace) -> str:
     for m in args.model:
         parts += ["--model", str(m)]
     parts += ["--data", str(args.data or find_data_dir()), "--split", args.split]
-    if args.classifier:
-        parts += ["--classifier", str(args.classifier)]
-    if args.out:
-        parts += ["--out", str(args.out)]
-    if args.limit is not None:
-        parts += ["--limit", str(args.limit)]
+    for flag, optional in (("--classifier", args.classifier), ("--judge", args.judge), ("--out", args.out),
+                           ("--limit", args.limit)):
+        if optional is not None:
+            parts += [flag, str(optional)]
+    parts += ["--target-frames", str(args.target_frames)]
     if args.styles:
         parts += ["--styles", *args.styles]
     parts += ["--seed", str(args.seed)]

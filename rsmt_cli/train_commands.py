@@ -46,15 +46,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="stop each stage after S seconds with a checkpoint; run again to resume")
         p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
         p.add_argument("--compile", action="store_true",
-                       help="train the sampler's per-frame functions through torch.compile: about a third faster "
-                            "per step after a minute or two of compiling (needs a C++ compiler on the CPU)")
+                       help="train the sampler's per-frame functions through torch.compile: about 20%% faster "
+                            "sampler steps after a minute or two of compiling (needs a C++ compiler on the CPU)")
         add_device_argument(p)
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         p.set_defaults(func=_run, stage=stage)
     _register_recipe(sub)
-    from rsmt_cli import classifier_commands
+    from rsmt_cli import classifier_commands, judge_commands
 
     classifier_commands.register(sub)
+    judge_commands.register(sub)
 
 
 def _register_recipe(sub: argparse._SubParsersAction) -> None:

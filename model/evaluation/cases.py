@@ -13,8 +13,17 @@ the take (every start with ``start + 50 <= frames``; the reference benchmark als
     ``x9 + d * (x49 - x9)`` and the whole target (both of its frames) is moved by that shift,
     for ``d = 2`` (twice as far) and ``d = -1`` (as far behind); 40 frames are generated;
   * duration ``dt``: ``int(40 * dt)`` frames are generated to the unchanged target, for
-    ``dt = 0.5`` and ``dt = 2``.
+    ``dt = 0.5`` and ``dt = 2``;
+  * on **locomotion** cases only (:data:`LOCOMOTION` contents): the target **turned** by +90 and
+    -90 degrees about its own vertical axis (the target pose's root rotation is turned, its root
+    position kept), and the target **moved 1 m sideways**: 100 cm to the left of the horizontal
+    direction from frame 9's root to the target's root (the facing of frame 9 where those roots are
+    less than 1 cm apart).
   Ground truth exists only for unchanged controls.
+
+The target a method is sent is the target frame **alone** by default (what a game has: a key pose,
+no velocity; the LaFAN1 convention); ``target_frames=2`` also sends the frame before it, i.e. the
+target's velocity (turned and moved with it). Baselines use the target frame only.
 
 Everything is scored in the **canonical frame of frame 9**, the last context frame (facing +Z,
 its root over the origin), not the reference code's frame 10, which is a ground-truth in-between
@@ -31,6 +40,7 @@ frames of its take (fewer when the take is shorter), as the reference's style po
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -41,7 +51,7 @@ from model.data.preprocessed import MotionCache
 from model.motion.clip import Clip
 from model.motion.features import CanonicalFrame
 from model.motion.kinematics import forward_kinematics
-from model.motion.rotations import quat_make_continuous, quat_normalize
+from model.motion.rotations import quat_make_continuous, quat_mul, quat_normalize, quat_rotate, yaw_quat
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -52,6 +62,10 @@ SPAN = CONTEXT + max(GAPS)
 CASE_STEP = 40
 STYLE_CLIP_FRAMES = 120
 LAST_CONTEXT = CONTEXT - 1
+LOCOMOTION = ("walk", "walk-turn-left", "walk-turn-right", "run")
+"""The contents of the data whose takes travel: every acceptance figure is taken on their cases."""
+SIDE_STEP_CM = 100.0
+TURN_DEG = 90.0
 
 
 @dataclass(frozen=True)
@@ -59,16 +73,26 @@ class Variant:
     """One evaluation condition.
 
     Attributes:
-        name: ``gap10``, ``gap20``, ``gap40``, ``gap40-d2``, ``gap40-d-1``, ``gap40-dt0.5``, ``gap40-dt2``.
+        name: ``gap10``, ``gap20``, ``gap40``, ``gap40-d2``, ``gap40-d-1``, ``gap40-dt0.5``, ``gap40-dt2``,
+            ``gap40-turn+90``, ``gap40-turn-90``, ``gap40-side1m``.
         gap: the ground-truth gap; the target is window frame ``9 + gap``.
         d: target-location factor (1 = unchanged).
         dt: duration factor (1 = unchanged); ``frames = int(gap * dt)`` are generated.
+        turn: degrees the target is turned about its own vertical axis (0 = unchanged).
+        side: cm the target is moved to the left of the context-to-target direction (0 = unchanged).
     """
 
     name: str
     gap: int
     d: float = 1.0
     dt: float = 1.0
+    turn: float = 0.0
+    side: float = 0.0
+
+    @property
+    def locomotion_only(self) -> bool:
+        """Turned and moved targets are asked of the locomotion cases only."""
+        return self.turn != 0.0 or self.side != 0.0
 
     @property
     def frames(self) -> int:
@@ -76,7 +100,7 @@ class Variant:
 
     @property
     def has_ground_truth(self) -> bool:
-        return self.d == 1.0 and self.dt == 1.0
+        return self.d == 1.0 and self.dt == 1.0 and not self.locomotion_only
 
     @property
     def target_frame(self) -> int:
@@ -89,6 +113,10 @@ class Variant:
             return f"gap {self.gap}"
         if self.d != 1.0:
             return f"gap {self.gap}, d={self.d:g}"
+        if self.turn != 0.0:
+            return f"gap {self.gap}, turned {self.turn:+g}°"
+        if self.side != 0.0:
+            return f"gap {self.gap}, {self.side / 100:g} m sideways"
         return f"gap {self.gap}, dt={self.dt:g}"
 
 
@@ -98,6 +126,9 @@ CONTROL_VARIANTS = (
     Variant("gap40-dt0.5", 40, dt=0.5),
     Variant("gap40-d2", 40, d=2.0),
     Variant("gap40-d-1", 40, d=-1.0),
+    Variant("gap40-turn+90", 40, turn=TURN_DEG),
+    Variant("gap40-turn-90", 40, turn=-TURN_DEG),
+    Variant("gap40-side1m", 40, side=SIDE_STEP_CM),
 )
 VARIANTS = GAP_VARIANTS + CONTROL_VARIANTS
 
@@ -257,20 +288,54 @@ class CaseSet:
         )
 
     # ------------------------------------------------------------------ per-variant pieces
+    @cached_property
+    def locomotion_index(self) -> list[int]:
+        """Indices of the cases whose content is a locomotion content (:data:`LOCOMOTION`)."""
+        return [i for i, c in enumerate(self.cases) if c.content in LOCOMOTION]
+
     def target_shift(self, v: Variant) -> Tensor:
-        """``[B, 3]`` horizontal shift applied to the target: ``(d - 1) * (x_target - x_9)``, y = 0."""
+        """``[B, 3]`` horizontal shift applied to the target: ``(d - 1) * (x_target - x_9)`` plus ``side`` cm
+        to the left of that direction (y = 0)."""
         delta = self.roots[:, v.target_frame] - self.roots[:, LAST_CONTEXT]
         delta = delta * torch.tensor([1.0, 0.0, 1.0])
-        return (v.d - 1.0) * delta
+        shift = (v.d - 1.0) * delta
+        if v.side != 0.0:
+            length = delta.norm(dim=-1, keepdim=True)
+            facing = torch.stack([torch.sin(self.frame.yaw), torch.zeros_like(self.frame.yaw),
+                                  torch.cos(self.frame.yaw)], dim=-1)
+            direction = torch.where(length >= 1.0, delta / length.clamp_min(1e-6), facing)
+            left = torch.stack([direction[:, 2], torch.zeros_like(direction[:, 0]), -direction[:, 0]], dim=-1)
+            shift = shift + v.side * left
+        return shift
 
-    def targets(self, v: Variant) -> tuple[Tensor, Tensor]:
-        """The two target frames ``(local rotations [B, 2, J, 4], roots [B, 2, 3])``, shifted for ``d``."""
+    def _turn(self, v: Variant) -> Tensor:
+        """``[B, 4]`` the yaw quaternion the target is turned by."""
+        return yaw_quat(torch.full((len(self.cases),), math.radians(v.turn)))
+
+    def targets(self, v: Variant, frames: int = 1) -> tuple[Tensor, Tensor]:
+        """The last ``frames`` (1 or 2) frames of the target, ``(local rotations [B, frames, J, 4], roots [B, frames, 3])``,
+        turned about the target root's vertical axis and shifted for ``d`` and ``side``."""
+        if frames not in (1, 2):
+            raise ValueError(f"a target has 1 or 2 frames, not {frames}")
         t = v.target_frame
-        return self.rotations[:, t - 1:t + 1], self.roots[:, t - 1:t + 1] + self.target_shift(v).unsqueeze(1)
+        rot = self.rotations[:, t + 1 - frames:t + 1]
+        root = self.roots[:, t + 1 - frames:t + 1]
+        if v.turn != 0.0:
+            q = self._turn(v).unsqueeze(1).expand(-1, frames, -1)
+            r = self.skeleton.roles.root
+            rot = rot.clone()
+            rot[:, :, r] = quat_normalize(quat_mul(q, rot[:, :, r]))
+            pivot = self.roots[:, t].unsqueeze(1)
+            root = pivot + quat_rotate(q, root - pivot)
+        return rot, root + self.target_shift(v).unsqueeze(1)
 
     def target_positions(self, v: Variant) -> Tensor:
-        """``[B, J, 3]`` world positions of the (shifted) target pose."""
-        return self.positions[:, v.target_frame] + self.target_shift(v).unsqueeze(1)
+        """``[B, J, 3]`` world positions of the (turned, shifted) target pose."""
+        pos = self.positions[:, v.target_frame]
+        if v.turn != 0.0:
+            pivot = self.roots[:, v.target_frame].unsqueeze(1)
+            pos = pivot + quat_rotate(self._turn(v).unsqueeze(1).expand(-1, pos.shape[1], -1), pos - pivot)
+        return pos + self.target_shift(v).unsqueeze(1)
 
     def ground_truth(self, v: Variant) -> tuple[Tensor, Tensor]:
         """World ``(positions [B, gap, J, 3], rotations [B, gap, J, 4])`` of frames ``10..9+gap``."""
@@ -291,8 +356,8 @@ class CaseSet:
         return Clip(self.skeletons[b], self.rotations[b, :CONTEXT], self.roots[b, :CONTEXT], self.fps,
                     name=self.cases[b].id)
 
-    def target_clip(self, b: int, v: Variant) -> Clip:
-        rot, root = self.targets(v)
+    def target_clip(self, b: int, v: Variant, frames: int = 1) -> Clip:
+        rot, root = self.targets(v, frames)
         return Clip(self.skeletons[b], rot[b], root[b], self.fps, name=f"{self.cases[b].id}:target")
 
     def forward(self, local_rotations: Tensor, roots: Tensor) -> tuple[Tensor, Tensor]:

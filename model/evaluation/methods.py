@@ -8,7 +8,9 @@ generated frames ``1..N`` as world-space local rotations ``[B, N, J, 4]`` and ro
   the target; hold the last context pose, then jump). They ignore the style clip.
 * ``gt``: the ground truth itself (only where it exists), a sanity check that must score 0.
 * a bundle folder: the trained model through :class:`model.inference.engine.Engine`, noise off
-  (``deterministic=True``) for every score except diversity.
+  (``deterministic=True``) for every score except diversity. It is sent the target frame alone
+  (``Request.target_frames = 1``, the default: what a game has) or with the frame before it
+  (``target_frames = 2``: the target's velocity).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ class Request:
     variant: Variant
     cross_style: bool = False
     seeds: Sequence[int] | None = None  # one per case: sample with noise; None: deterministic
+    target_frames: int = 1  # 1: the target frame alone; 2: with the frame before it (its velocity)
 
     def style_clips(self, cases: CaseSet) -> list[Clip]:
         return cases.cross_clips if self.cross_style else cases.style_clips
@@ -71,7 +74,7 @@ class BaselineMethod(Method):
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
         v = request.variant
-        rot, root = cases.targets(v)
+        rot, root = cases.targets(v, 1)
         return self.fn(cases.rotations[:, LAST_CONTEXT], cases.roots[:, LAST_CONTEXT], rot[:, -1], root[:, -1], v.frames)
 
 
@@ -119,6 +122,7 @@ class BundleMethod(Method):
         if v.frames > limit:
             raise Unavailable(f"{v.frames} frames exceed the model's limit of {limit} frames")
         clips = request.style_clips(cases)
+        target_rot, target_root = cases.targets(v, request.target_frames)
         rots: list[Tensor] = []
         roots: list[Tensor] = []
         bar = tqdm(total=len(cases), desc=f"{self.name} {v.name}{' cross' if request.cross_style else ''}",
@@ -130,7 +134,9 @@ class BundleMethod(Method):
                     style, _ = self.engine.encode_style(clips[b])
                     seed = None if request.seeds is None else int(request.seeds[b])
                     extra = {"exact_arrival": True} if self.exact_arrival else {}
-                    chars.append(self.engine.prepare(cases.context_clip(b), cases.target_clip(b, v), v.frames, style,
+                    target = Clip(cases.skeletons[b], target_rot[b], target_root[b], cases.fps,
+                                  name=f"{cases.cases[b].id}:target")
+                    chars.append(self.engine.prepare(cases.context_clip(b), target, v.frames, style,
                                                      seed=seed, deterministic=request.seeds is None,
                                                      character_id=f"{cases.cases[b].id}:{v.name}", **extra))
                 for rot, root in self.engine.generate(chars):

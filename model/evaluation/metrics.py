@@ -386,6 +386,27 @@ def foot_skate(
     return total / count.clamp_min(1.0)
 
 
+# --------------------------------------------------------------------------- root speed
+def max_root_speed(pos: Tensor, fps: float, root: int = 0) -> Tensor:
+    """Per sequence, the largest speed of the root joint between consecutive frames, in cm/s.
+
+    A transition that corrects its course by jumping shows here: one frame's jump of ``x`` cm is a
+    speed of ``x * fps`` cm/s.
+
+    Args:
+        pos: ``[B, T, J, 3]`` global positions in cm, ``T >= 2`` (put the last context frame first).
+        fps: frames per second of ``pos``.
+        root: index of the root joint.
+
+    Returns:
+        ``[B]`` tensor, cm/s.
+    """
+    if pos.dim() != 4 or pos.shape[-1] != 3 or pos.shape[1] < 2:
+        raise ValueError(f"max_root_speed: pos must be [B, T>=2, J, 3], got {list(pos.shape)}")
+    step = pos[:, 1:, root] - pos[:, :-1, root]
+    return step.norm(dim=-1).amax(dim=1) * fps
+
+
 # --------------------------------------------------------------------------- diversity
 def diversity(samples: Tensor) -> Tensor:
     """Mean pairwise distance in cm between ``S`` sampled transitions of the same case.

@@ -33,9 +33,10 @@ def _variants(report: dict[str, Any], ground_truth: bool) -> list[dict[str, Any]
 
 
 def markdown(report: dict[str, Any], command: str | None = None) -> str:
-    """Three tables: unchanged controls (per gap), changed controls (40-frame gap), style (40-frame gap)."""
+    """The locomotion tables first (the acceptance figures), then all contents; see the sections below."""
     methods = report["methods"]
-    lines = [f"## Evaluation on the {report['split']} split: {report['cases']} cases from {report['takes']} takes", ""]
+    lines = [f"## Evaluation on the {report['split']} split: {report['cases']} cases from {report['takes']} takes, "
+             f"{report.get('locomotion_cases', 0)} of them locomotion", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
     lines += [
@@ -45,57 +46,121 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
         + ", ".join(f"{n} {g:.2f}" for n, g in zip(report["reference"]["feet"], report["reference"]["ground_cm"]))
         + ".",
         "",
+        f"Target sent to the models: {report['protocol'].get('target', 'the target frame and the frame before it')} "
+        "(baselines use the target frame only).",
+        "",
     ]
-
-    lines += _unchanged_controls(methods, report)
-    lines += _changed_controls(methods, report)
+    lines += _judge_line(report)
+    if report.get("locomotion_cases"):
+        lines += [f"# Locomotion cases ({', '.join(report['locomotion_contents'])}): the acceptance figures", ""]
+        lines += _unchanged_controls(methods, report, "locomotion", "ground_truth_locomotion")
+        lines += _changed_controls(methods, report, "locomotion", "ground_truth_locomotion")
+        lines += _judge_tables(methods, report, "locomotion", "ground_truth_locomotion")
+    lines += ["# All contents", ""]
+    lines += _unchanged_controls(methods, report, "variants", "ground_truth")
+    lines += _changed_controls(methods, report, "variants", "ground_truth")
+    lines += _judge_tables(methods, report, "variants", "ground_truth")
     lines += _style_tables(methods, report)
     lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]
     return "\n".join(lines)
 
 
-def _unchanged_controls(methods: dict[str, Any], report: dict[str, Any]) -> list[str]:
+def _judge_line(report: dict[str, Any]) -> list[str]:
+    judge = report.get("judge")
+    if not judge:
+        return ["No style judge given (`--judge DIR`, from `rsmt train judge`): no acceptance style figures.", ""]
+    return [f"Style scored by the judge `{judge['path']}`: {judge['kind']}; {judge['features']} features of "
+            f"{judge['window']}-pose windows; {len(judge['styles'])} styles, chance {1 / len(judge['styles']):.3f}. "
+            "No training critic shares its inputs or its architecture.", ""]
+
+
+def _unchanged_controls(methods: dict[str, Any], report: dict[str, Any], key: str, gt_key: str) -> list[str]:
     """Per gap: the figures that need ground truth."""
     header = ["gap", "method", "L2P", "L2Q", "NPSS", "100×NPSS", "MPJPE cm", "foot skate", "GT foot skate",
-              "last frame cm", "diversity cm"]
+              "last frame cm", "max root speed cm/s", "style (judge)", "style (judge), other-style clip",
+              "diversity cm"]
     rows = []
+    gts = report.get(gt_key, {})
     for v in _variants(report, True):
-        gt = report["ground_truth"].get(v["name"], {})
+        gt = gts.get(v["name"], {})
+        rows.append([str(v["gap"]), GT_NAME, "–", "–", "–", "–", "–", _fmt(gt.get("foot_skate")), "–", "–",
+                     _fmt(gt.get("max_root_speed_cm_s"), 1), _fmt(gt.get("judge_accuracy")), "–", "–"])
         for name, m in methods.items():
-            r = m["variants"].get(v["name"], {})
+            r = m.get(key, {}).get(v["name"], {})
             if "unavailable" in r:
                 rows.append([str(v["gap"]), name] + ["n/a"] * (len(header) - 2))
                 continue
             rows.append([str(v["gap"]), name, _fmt(r.get("l2p")), _fmt(r.get("l2q")), _fmt(r.get("npss"), 5),
                          _fmt(r.get("npss_x100")), _fmt(r.get("mpjpe_cm"), 2), _fmt(r.get("foot_skate")),
                          _fmt(gt.get("foot_skate")), _fmt(r.get("last_frame_cm"), 2),
-                         _fmt(r.get("diversity_cm"), 2)])
-    return ["### Unchanged controls (ground truth exists)", "", *_table(header, rows), ""]
+                         _fmt(r.get("max_root_speed_cm_s"), 1), _fmt(r.get("judge_accuracy")),
+                         _fmt(r.get("judge_accuracy_cross")), _fmt(r.get("diversity_cm"), 2)])
+    where = "locomotion cases" if key == "locomotion" else "all contents"
+    return [f"### Unchanged controls, {where} (ground truth exists)", "", *_table(header, rows), "",
+            "Max root speed: per case the largest root speed between consecutive frames (the last context "
+            "frame first), averaged over cases; style (judge): the judge's accuracy on the requested style, 40-frame "
+            "gap, with a clip of the case's own style and with a clip of another style (baselines ignore the clip).",
+            ""]
 
 
-def _changed_controls(methods: dict[str, Any], report: dict[str, Any]) -> list[str]:
-    """The 40-frame gap with the target moved or the duration scaled (no ground truth)."""
-    header = ["variant", "method", "frames", "last frame cm", "last-frame L2P", "foot skate"]
-    clf = report.get("classifier")
+def _changed_controls(methods: dict[str, Any], report: dict[str, Any], key: str, gt_key: str) -> list[str]:
+    """The 40-frame gap with the target moved, turned or the duration scaled (no ground truth)."""
+    header = ["variant", "method", "frames", "arrival cm", "last-frame L2P", "foot skate", "max root speed cm/s",
+              "worst root speed cm/s", "style (judge)"]
+    clf = report.get("classifier") if key == "variants" else None
     if clf:
-        header.append("style acc")
+        header.append("style (classifier)")
     rows = []
     for v in _variants(report, False):
+        if v.get("locomotion_only") and key != "locomotion":
+            continue
         for name, m in methods.items():
-            r = m["variants"].get(v["name"], {})
+            r = m.get(key, {}).get(v["name"], {})
             if "unavailable" in r:
-                rows.append([v["label"], name, str(v["frames"]), "n/a", "n/a", "n/a"] + (["n/a"] if clf else []))
+                rows.append([v["label"], name, str(v["frames"])] + ["n/a"] * (len(header) - 3))
                 continue
             cells = [v["label"], name, str(v["frames"]), _fmt(r.get("last_frame_cm"), 2), _fmt(r.get("last_frame_l2p")),
-                     _fmt(r.get("foot_skate"))]
+                     _fmt(r.get("foot_skate")), _fmt(r.get("max_root_speed_cm_s"), 1),
+                     _fmt(r.get("max_root_speed_cm_s_worst"), 1), _fmt(r.get("judge_accuracy"))]
             if clf:
                 cells.append(_fmt(r.get("style_accuracy")))
             rows.append(cells)
-    lines = ["### Changed controls on the 40-frame gap (no ground truth)", "", *_table(header, rows), ""]
+    where = "locomotion cases" if key == "locomotion" else "all contents"
+    lines = [f"### Changed controls on the 40-frame gap, {where} (no ground truth)", "", *_table(header, rows), ""]
+    gt = report.get(gt_key, {}).get("gap40", {})
+    if "context_max_root_speed_cm_s" in gt:
+        lines += [f"For scale, largest root speed of the ground truth's 40-frame transitions "
+                  f"{_fmt(gt.get('max_root_speed_cm_s'), 1)} cm/s (mean), {_fmt(gt.get('max_root_speed_cm_s_worst'), 1)} "
+                  f"(worst); of the contexts {_fmt(gt.get('context_max_root_speed_cm_s'), 1)} (mean), "
+                  f"{_fmt(gt.get('context_max_root_speed_cm_s_worst'), 1)} (worst). Arrival: mean joint distance "
+                  "of the last generated frame to the (changed) target. Style (judge): 40 frames or more only.", ""]
     unavailable = sorted({f"{name} {vn}: {r['unavailable']}" for name, m in methods.items()
-                          for vn, r in m["variants"].items() if "unavailable" in r})
+                          for vn, r in m.get(key, {}).items() if "unavailable" in r})
     if unavailable:
         lines += ["Not produced: " + "; ".join(unavailable) + ".", ""]
+    return lines
+
+
+def _judge_tables(methods: dict[str, Any], report: dict[str, Any], key: str, gt_key: str) -> list[str]:
+    """The judge's accuracy per requested style, a row per method (and the ground truth): on the locomotion
+    cases one table per variant of 40 frames or more, on all contents the 40-frame gap's."""
+    if not report.get("judge"):
+        return []
+    where = "locomotion cases" if key == "locomotion" else "all contents"
+    lines: list[str] = []
+    for v in report["variants"]:
+        if v["frames"] < 40 or (key != "locomotion" and v["name"] != "gap40"):
+            continue
+        per: dict[str, dict[str, float] | None] = {}
+        if v["ground_truth"]:
+            per[GT_NAME] = report.get(gt_key, {}).get(v["name"], {}).get("judge_accuracy_by_style")
+        per.update({name: m.get(key, {}).get(v["name"], {}).get("judge_accuracy_by_style") for name, m in methods.items()})
+        lines += _per_style_table(f"Style (judge) per requested style, {v['label']}, {where}:", per)
+        if v["name"] == "gap40":
+            cross = {name: m.get(key, {}).get("gap40", {}).get("judge_accuracy_cross_by_style")
+                     for name, m in methods.items()}
+            lines += _per_style_table(f"Style (judge) with another style's clip, per requested (clip) style, "
+                                      f"{v['label']}, {where}:", cross)
     return lines
 
 

@@ -6,6 +6,12 @@ transitions (noise off) with the same-style clip, scored (:mod:`model.evaluation
 the 40-frame gap also the cross-style clip, and with a classifier the style accuracy and FMD
 (:mod:`model.evaluation.style_scores`); for methods that can sample, diversity on a bounded,
 evenly spread subset of the cases (``diversity_samples`` transitions each, noise on).
+
+Every variant is scored twice: on all cases (``variants``) and on the locomotion cases alone
+(``locomotion``: walk, walk turns, run; the acceptance figures). The turned and moved targets are
+asked of the locomotion cases only. With a style judge (:mod:`model.evaluation.style_judge`), every
+transition of at least 40 frames also gets the judge's style accuracy, overall and per style.
+Methods are sent ``settings.target_frames`` target frames (1: the target alone, the default).
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from model.evaluation.cases import (
     CASE_STEP,
     CONTEXT,
     GAP_VARIANTS,
+    LOCOMOTION,
     SPAN,
     STYLE_CLIP_FRAMES,
     VARIANTS,
@@ -35,14 +42,15 @@ from model.evaluation.cases import (
 )
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
-from model.evaluation.scoring import Transitions, ground_truth_transitions, score, to_canonical
-from model.evaluation.style_scores import StyleScorer, matched_reference
+from model.evaluation.scoring import Transitions, ground_truth_transitions, root_speed, score, to_canonical
+from model.evaluation.style_judge import StyleJudge
+from model.evaluation.style_scores import StyleScorer, judge_rows, matched_reference
 from model.nets.style_classifier import StyleClassifier
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
 
-FORMAT = "rsmt-eval/1"
+FORMAT = "rsmt-eval/2"
 STYLE_GAP = 40
 GT_NAME = "ground truth"
 
@@ -58,6 +66,7 @@ class EvalSettings:
     diversity_samples: int = 10
     render_cases: int = 4
     styles: tuple[str, ...] = ()  # only cases of these styles (e.g. a held-out one); all when empty
+    target_frames: int = 1  # target frames sent to bundles: 1 (the target alone) or 2 (with its velocity)
 
 
 @dataclass
@@ -67,6 +76,8 @@ class EvalRun:
     report: dict[str, Any]
     cases: CaseSet
     stats: ReferenceStats
+    loco: CaseSet | None = None  # the locomotion cases (None when there are none)
+    judge: StyleJudge | None = None
     render_index: list[int] = field(default_factory=list)
     render: dict[str, dict[str, Tensor]] = field(default_factory=dict)  # method -> variant -> [R, N+1, J, 3]
 
@@ -98,6 +109,8 @@ def evaluate(
     classifier_path: str | None = None,
     progress: bool = True,
     stats: ReferenceStats | None = None,
+    judge: StyleJudge | None = None,
+    judge_path: str | None = None,
 ) -> EvalRun:
     """Evaluate ``methods`` on the cases of ``settings.split`` of ``cache``; see the module docstring."""
     began = time.perf_counter()
@@ -113,7 +126,10 @@ def evaluate(
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]
     render_index = _render_cases(cases, settings.render_cases)
-    run = EvalRun(report={}, cases=cases, render_index=render_index, stats=stats)
+    if settings.target_frames not in (1, 2):
+        raise ValueError(f"target frames must be 1 or 2, not {settings.target_frames}")
+    loco = cases.subset(cases.locomotion_index) if cases.locomotion_index else None
+    run = EvalRun(report={}, cases=cases, render_index=render_index, stats=stats, loco=loco, judge=judge)
 
     gt_rows, gt_features = _score_ground_truth(run, scorer)
     method_reports: dict[str, Any] = {}
@@ -125,13 +141,15 @@ def evaluate(
         names.append(name)
         t0 = time.perf_counter()
         rows = _score_method(run, method, name, settings, scorer, gt_features, progress)
+        loco_rows = rows.pop("locomotion")
         method_reports[name] = {**method.describe(), "name": name, "seconds": round(time.perf_counter() - t0, 2),
-                                "variants": rows}
+                                "locomotion": loco_rows, "variants": rows}
 
     if render_index and not any(isinstance(m, BaselineMethod) and m.name == "interp" for m in methods):
         # The contact sheet always shows interpolation beside the model and the ground truth.
         interp, sub = BaselineMethod("interp"), cases.subset(render_index)
-        run.render["interp"] = {v.name: to_canonical(sub, *interp.generate(sub, Request(v))).positions for v in VARIANTS}
+        run.render["interp"] = {v.name: to_canonical(sub, *interp.generate(sub, Request(v))).positions
+                                for v in VARIANTS if not v.locomotion_only}
 
     run.report = {
         "format": FORMAT,
@@ -140,6 +158,9 @@ def evaluate(
         "split": settings.split,
         "settings": asdict(settings),
         "cases": len(cases),
+        "locomotion_cases": len(cases.locomotion_index),
+        "locomotion_contents": list(LOCOMOTION),
+        "target_frames": settings.target_frames,
         "takes": len({c.take for c in cases.cases}),
         "case_ids": [c.id for c in cases.cases],
         "styles": sorted(set(styles)),
@@ -147,10 +168,13 @@ def evaluate(
             "context_frames": CONTEXT, "case_frames": SPAN, "case_step": CASE_STEP,
             "canonical_frame": "last context frame (window frame 9)",
             "style_clip_frames": STYLE_CLIP_FRAMES,
+            "target": "the target frame alone" if settings.target_frames == 1
+                      else "the target frame and the frame before it (its velocity)",
             "style_pairing": "same style, another take of the split (120+ frames first, same content first), "
                              "hash-ranked; cross: a hash-chosen other style, same ranking",
         },
         "variants": [{"name": v.name, "label": v.label, "gap": v.gap, "frames": v.frames, "d": v.d, "dt": v.dt,
+                      "turn_deg": v.turn, "side_cm": v.side, "locomotion_only": v.locomotion_only,
                       "ground_truth": v.has_ground_truth} for v in VARIANTS],
         "reference": {"takes": stats.takes, "windows": stats.windows,
                       "feet": [cases.skeleton.names[j] for j in stats.feet],
@@ -158,7 +182,9 @@ def evaluate(
         "classifier": None if classifier is None else {
             "path": classifier_path, "styles": classifier.styles, "inputs": classifier.config.inputs,
             "window": classifier.config.window},
+        "judge": None if judge is None else {"path": judge_path, **judge.describe()},
         "ground_truth": gt_rows,
+        "ground_truth_locomotion": _score_ground_truth_locomotion(run),
         "methods": method_reports,
         "seconds": round(time.perf_counter() - began, 2),
     }
@@ -176,7 +202,10 @@ def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[
     for v in GAP_VARIANTS:
         gt = ground_truth_transitions(cases, v)
         row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
-                               "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground))}
+                               "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground)),
+                               **root_speed(gt.positions, cases)}
+        if run.judge is not None and v.gap == STYLE_GAP:
+            row.update(judge_rows(run.judge, gt.positions, styles))
         if scorer is not None and v.gap == STYLE_GAP:
             logits, gt_features = scorer.classify(gt)
             row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
@@ -188,32 +217,100 @@ def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[
     return gt_rows, gt_features
 
 
-def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSettings, scorer: StyleScorer | None,
-                  gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
-    """One method's rows, one per variant."""
-    cases = run.cases
-    rows: dict[str, Any] = {}
-    run.render[name] = {}
-    for v in tqdm(VARIANTS, desc=name, unit="variant", disable=not progress, leave=False, file=sys.stderr):
-        try:
-            rot, root = method.generate(cases, Request(v), progress)
-        except Unavailable as exc:
-            rows[v.name] = {"unavailable": str(exc)}
-            continue
-        out = to_canonical(cases, rot, root)
-        row: dict[str, Any] = score(cases, v, out, run.stats)
-        run.render[name][v.name] = out.positions[run.render_index]
-        if scorer is not None and v.gap == STYLE_GAP:
-            row.update(_style_row(run, method, v, out, scorer, gt_features, progress))
-        if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
-                and settings.diversity_cases > 0):
-            row.update(_diversity(method, cases, v, settings, progress))
+def _score_ground_truth_locomotion(run: EvalRun) -> dict[str, dict[str, Any]]:
+    """Ground truth's rows on the locomotion cases: foot skate, largest root speed (also the context's, for
+    scale) and the judge's accuracy on real 40-frame transitions."""
+    loco = run.loco
+    if loco is None:
+        return {}
+    rows: dict[str, dict[str, Any]] = {}
+    styles = [c.style for c in loco.cases]
+    for v in GAP_VARIANTS:
+        gt = ground_truth_transitions(loco, v)
+        row: dict[str, Any] = {"cases": len(loco), "frames": v.gap,
+                               "foot_skate": float(metrics.foot_skate(gt.positions, run.stats.feet, run.stats.ground)),
+                               **root_speed(gt.positions, loco)}
+        context = root_speed(loco.canonical_positions[:, :CONTEXT], loco)
+        row.update({f"context_{k}": x for k, x in context.items()})
+        if run.judge is not None and v.gap == STYLE_GAP:
+            row.update(judge_rows(run.judge, gt.positions, styles))
         rows[v.name] = row
     return rows
 
 
-def _style_row(run: EvalRun, method: Method, v: Variant, out: Transitions, scorer: StyleScorer,
-               gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
+def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSettings, scorer: StyleScorer | None,
+                  gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
+    """One method's rows, one per variant, on all cases (returned) and on the locomotion cases
+    (``rows["locomotion"]``, a dict by variant like the rest)."""
+    cases = run.cases
+    rows: dict[str, Any] = {}
+    loco_rows: dict[str, Any] = {}
+    run.render[name] = {}
+    for v in tqdm(VARIANTS, desc=name, unit="variant", disable=not progress, leave=False, file=sys.stderr):
+        on = run.loco if v.locomotion_only else cases
+        if on is None:
+            loco_rows[v.name] = {"unavailable": "no locomotion case"}
+            continue
+        try:
+            rot, root = method.generate(on, Request(v, target_frames=settings.target_frames), progress)
+        except Unavailable as exc:
+            loco_rows[v.name] = {"unavailable": str(exc)}
+            if not v.locomotion_only:
+                rows[v.name] = {"unavailable": str(exc)}
+            continue
+        out = to_canonical(on, rot, root)
+        if v.locomotion_only:
+            loco_rows[v.name] = _judged(run, v, on, out)
+            continue
+        row: dict[str, Any] = _judged(run, v, cases, out)
+        run.render[name][v.name] = out.positions[run.render_index]
+        cross = None
+        if v.gap == STYLE_GAP and v.has_ground_truth and (scorer is not None or run.judge is not None):
+            cross = _cross_style(run, method, v, out, settings, progress)
+        if scorer is not None and v.gap == STYLE_GAP:
+            row.update(_style_row(run, v, out, cross, scorer, gt_features))
+        if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
+                and settings.diversity_cases > 0):
+            row.update(_diversity(method, cases, v, settings, progress))
+        rows[v.name] = row
+        if cross is not None and run.judge is not None:
+            row.update(_judge_cross(run.judge, cases, cross.positions))
+        if run.loco is not None:
+            idx = cases.locomotion_index
+            loco_rows[v.name] = _judged(run, v, run.loco, Transitions(out.positions[idx], out.rotations[idx]))
+            if cross is not None and run.judge is not None:
+                loco_rows[v.name].update(_judge_cross(run.judge, run.loco, cross.positions[idx]))
+    rows["locomotion"] = loco_rows
+    return rows
+
+
+def _judged(run: EvalRun, v: Variant, cases: CaseSet, out: Transitions) -> dict[str, Any]:
+    """:func:`score` of ``out`` plus, for 40 frames or more and a judge, the judge's style accuracy."""
+    row: dict[str, Any] = score(cases, v, out, run.stats)
+    if run.judge is not None and v.frames >= STYLE_GAP:
+        row.update(judge_rows(run.judge, out.positions, [c.style for c in cases.cases]))
+    return row
+
+
+def _cross_style(run: EvalRun, method: Method, v: Variant, out: Transitions, settings: EvalSettings,
+                 progress: bool) -> Transitions:
+    """The method's transitions with each case's other-style clip (``out`` itself where the style clip is ignored)."""
+    if not method.uses_style:
+        return out
+    rot, root = method.generate(run.cases, Request(v, cross_style=True, target_frames=settings.target_frames), progress)
+    return to_canonical(run.cases, rot, root)
+
+
+def _judge_cross(judge: StyleJudge, cases: CaseSet, positions: Tensor) -> dict[str, Any]:
+    """The judge's accuracy with other-style clips, on the clip's style, and the share read as the context's style."""
+    row = judge_rows(judge, positions, [c.cross_style for c in cases.cases], prefix="judge_accuracy_cross")
+    as_context = judge_rows(judge, positions, [c.style for c in cases.cases], prefix="judge_cross_as_context")
+    as_context.pop("judge_cross_as_context_by_style", None)
+    return {**row, **as_context}
+
+
+def _style_row(run: EvalRun, v: Variant, out: Transitions, cross: Transitions | None, scorer: StyleScorer,
+               gt_features: Tensor | None) -> dict[str, Any]:
     """Style accuracy of a method's transitions; with ground truth also FMD and the other-style clip figures."""
     cases = run.cases
     styles = [c.style for c in cases.cases]
@@ -225,11 +322,8 @@ def _style_row(run: EvalRun, method: Method, v: Variant, out: Transitions, score
         return row
     assert gt_features is not None
     row["fmd"] = scorer.fmd(feats, gt_features)
-    if method.uses_style:
-        rot_x, root_x = method.generate(cases, Request(v, cross_style=True), progress)
-        logits_x, feats_x = scorer.classify(to_canonical(cases, rot_x, root_x))
-    else:  # the output does not depend on the style clip
-        logits_x, feats_x = logits, feats
+    assert cross is not None
+    logits_x, feats_x = (logits, feats) if cross is out else scorer.classify(cross)
     row["style_accuracy_cross"] = scorer.accuracy(logits_x, scorer.labels(cross_styles))
     # Where the misses go: the share read as the context's own style (the clip ignored).
     row["style_cross_as_context"] = scorer.accuracy(logits_x, scorer.labels(styles))
@@ -250,7 +344,7 @@ def _diversity(method: Method, cases: CaseSet, v: Variant, settings: EvalSetting
     for k in range(settings.diversity_samples):
         seeds = [stable_hash(settings.seed, c.id, v.name, k) % (2**31) for c in sub.cases]
         try:
-            rot, root = method.generate(sub, Request(v, seeds=seeds), progress)
+            rot, root = method.generate(sub, Request(v, seeds=seeds, target_frames=settings.target_frames), progress)
         except Unavailable:
             return {}
         samples.append(to_canonical(sub, rot, root).generated_positions)

@@ -16,7 +16,10 @@ frame before scoring. With ground truth (unchanged controls):
 
 Always: ``last_frame_cm`` (mean joint distance of the last generated frame to the target pose,
 after any target shift), ``last_frame_l2p`` (the same in standardised units, the paper's
-"L2 norm of global position of the last frame") and ``foot_skate``.
+"L2 norm of global position of the last frame"), ``foot_skate``, and the largest root speed over
+the transition (last context frame included, cm/s): ``max_root_speed_cm_s``, the mean over cases of
+each case's largest, and ``max_root_speed_cm_s_worst``, the largest of all (a course correction by
+jumping shows there).
 """
 
 from __future__ import annotations
@@ -66,6 +69,12 @@ def ground_truth_transitions(cases: CaseSet, v: Variant) -> Transitions:
     return Transitions(cases.canonical_positions[:, sl], cases.canonical_rotations[:, sl])
 
 
+def root_speed(positions: Tensor, cases: CaseSet) -> dict[str, float]:
+    """``max_root_speed_cm_s`` (mean over cases of each one's largest) and ``max_root_speed_cm_s_worst`` of ``positions``."""
+    speed = metrics.max_root_speed(positions, cases.fps, cases.skeleton.roles.root)
+    return {"max_root_speed_cm_s": float(speed.mean()), "max_root_speed_cm_s_worst": float(speed.max())}
+
+
 def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> dict[str, float]:
     """Scores of ``out`` on variant ``v`` (see the module docstring)."""
     pred_pos = out.generated_positions
@@ -76,6 +85,7 @@ def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> 
         "last_frame_cm": float(metrics.last_frame_error_cm(pred_pos, target)),
         "last_frame_l2p": float(metrics.l2p(pred_pos[:, -1:], target, ref.positions)),
         "foot_skate": float(metrics.foot_skate(out.positions, ref.feet, ref.ground)),
+        **root_speed(out.positions, cases),
     }
     if v.has_ground_truth:
         gt = ground_truth_transitions(cases, v)

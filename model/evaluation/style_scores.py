@@ -13,6 +13,9 @@
   a case whose own style is ``s`` (round robin over those cases, deterministic), so both sets have
   the same style mix.
 
+:func:`judge_rows`: the same accuracy from the style judge (:mod:`model.evaluation.style_judge`), a
+classifier of another kind than any training critic, which gives the acceptance figures.
+
 The classifier sees the last context frame followed by the generated frames (``N + 1`` poses give
 ``N`` frames of motion).
 """
@@ -25,6 +28,7 @@ import torch
 
 from model.evaluation.metrics import frechet_distance
 from model.evaluation.scoring import Transitions
+from model.evaluation.style_judge import StyleJudge
 from model.motion.skeleton import Skeleton
 from model.nets.style_classifier import StyleClassifier, motion_features
 
@@ -92,3 +96,17 @@ def matched_reference(gt_features: Tensor, case_styles: Sequence[str], requested
         kept.append(k)
     idx = torch.tensor(rows, dtype=torch.long)
     return gt_features[idx] if rows else gt_features[:0], torch.tensor(kept, dtype=torch.long)
+
+
+def judge_rows(judge: StyleJudge, positions: Tensor, requested: Sequence[str], prefix: str = "judge_accuracy") -> dict:
+    """The style judge's accuracy on sequences ``[B, T, J, 3]`` against the requested styles, overall
+    (``prefix``) and per requested style (``prefix + "_by_style"``); styles it does not know are left out."""
+    index = {s: k for k, s in enumerate(judge.styles)}
+    labels = torch.tensor([index.get(s, -1) for s in requested], dtype=torch.long)
+    known = labels >= 0
+    if not bool(known.any()):
+        return {}
+    hit = judge.predict(positions) == labels
+    return {prefix: float(hit[known].float().mean()),
+            prefix + "_by_style": {s: float(hit[labels == k].float().mean()) for s, k in index.items()
+                                   if bool((labels == k).any())}}

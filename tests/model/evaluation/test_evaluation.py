@@ -23,6 +23,7 @@ from rsmt_cli.main import main
 
 GAPS = ("gap10", "gap20", "gap40")
 CONTROLS = ("gap40-dt2", "gap40-dt0.5", "gap40-d2", "gap40-d-1")
+LOCOMOTION_CONTROLS = ("gap40-turn+90", "gap40-turn-90", "gap40-side1m")  # asked of locomotion cases only
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -59,6 +60,16 @@ def classifier_dir(cache: MotionCache, tmp_path_factory: pytest.TempPathFactory)
     return result.model.save(tmp_path_factory.mktemp("clf") / "clf")
 
 
+@pytest.fixture(scope="module")
+def judge_dir(cache: MotionCache, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from model.evaluation.style_judge import fit_judge, take_windows
+
+    feats, styles, _ = take_windows(cache, cache.split.train, step=20)
+    labels = torch.tensor([cache.styles.index(s) for s in styles])
+    judge = fit_judge(feats, labels, cache.styles, list(synthetic_skeleton().names), cache.fps)
+    return judge.save(tmp_path_factory.mktemp("judge") / "judge")
+
+
 # ------------------------------------------------------------------ cases
 def test_cases_are_deterministic_and_paired(cache: MotionCache) -> None:
     takes = cache.split.test
@@ -82,8 +93,9 @@ def test_cases_are_deterministic_and_paired(cache: MotionCache) -> None:
 
 def test_variants_and_targets(cache: MotionCache) -> None:
     cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=4))
-    assert [v.frames for v in VARIANTS] == [10, 20, 40, 80, 20, 40, 40]
-    assert [v.has_ground_truth for v in VARIANTS] == [True] * 3 + [False] * 4
+    assert [v.frames for v in VARIANTS] == [10, 20, 40, 80, 20, 40, 40, 40, 40, 40]
+    assert [v.has_ground_truth for v in VARIANTS] == [True] * 3 + [False] * 7
+    assert [v.name for v in VARIANTS if v.locomotion_only] == list(LOCOMOTION_CONTROLS)
     base = variant("gap40")
     assert base.target_frame == LAST_CONTEXT + 40 == SPAN - 1
     torch.testing.assert_close(cs.target_positions(base), cs.positions[:, -1])
@@ -93,7 +105,7 @@ def test_variants_and_targets(cache: MotionCache) -> None:
         travel = cs.positions[:, -1, 0] - cs.positions[:, LAST_CONTEXT, 0]
         torch.testing.assert_close(shift[:, [0, 2]], d * travel[:, [0, 2]])
         torch.testing.assert_close(shift[:, 1], travel[:, 1])  # heights unchanged
-        rot, root = cs.targets(v)
+        rot, root = cs.targets(v, 2)
         assert rot.shape[1] == 2 and torch.equal(rot, cs.rotations[:, -2:])
         torch.testing.assert_close(root[:, 1] - root[:, 0], cs.roots[:, -1] - cs.roots[:, -2], atol=1e-3, rtol=0)
     with pytest.raises(ValueError):
@@ -121,8 +133,8 @@ def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
     methods = [resolve_method(m) for m in ("interp", "zerovel", "gt")]
     run = evaluate(cache, methods, EvalSettings(limit=9, render_cases=2), progress=False, stats=stats)
     report = run.report
-    assert report["format"] == "rsmt-eval/1" and report["cases"] == 9 and report["classifier"] is None
-    assert [v["name"] for v in report["variants"]] == list(GAPS + CONTROLS)
+    assert report["format"] == "rsmt-eval/2" and report["cases"] == 9 and report["classifier"] is None
+    assert [v["name"] for v in report["variants"]] == list(GAPS + CONTROLS + LOCOMOTION_CONTROLS)
     assert set(report["methods"]) == {"interp", "zerovel", "gt"}
     json.dumps(report)  # JSON-ready
     for name in ("interp", "zerovel"):
@@ -144,19 +156,23 @@ def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
         assert gt["foot_skate"] == pytest.approx(gt["foot_skate_gt"]) == pytest.approx(report["ground_truth"][v]["foot_skate"])
     for v in CONTROLS:
         assert "no ground truth" in report["methods"]["gt"]["variants"][v]["unavailable"]
+    for v in LOCOMOTION_CONTROLS:  # the synthetic contents are all locomotion
+        assert "no ground truth" in report["methods"]["gt"]["locomotion"][v]["unavailable"]
+        assert report["methods"]["interp"]["locomotion"][v]["last_frame_cm"] < 1e-3
     assert len(run.render_index) == 2 and run.render["interp"]["gap40"].shape == (2, 41, 21, 3)
     text = markdown(report, "rsmt eval ...")
     assert "| 40 | interp |" in text and "gap 40, d=-1" in text and "n/a" in text
 
 
 def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bundle_dir: Path, classifier_dir: Path,
-                                                 tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 judge_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     data, root = dataset
     monkeypatch.setenv("RSMT_CACHE", str(root))
     out = tmp_path / "out"
     code = main(["eval", "--model", str(bundle_dir), "--model", "interp", "--model", "zerovel", "--data", str(data),
-                 "--classifier", str(classifier_dir), "--out", str(out), "--limit", "4", "--diversity-cases", "2",
+                 "--classifier", str(classifier_dir), "--judge", str(judge_dir),
+                 "--out", str(out), "--limit", "4", "--diversity-cases", "2",
                  "--diversity-samples", "2", "--render-cases", "2", "--quiet"])
     assert code == 0
     stdout = capsys.readouterr().out
@@ -194,6 +210,11 @@ def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bun
     interp = report["methods"]["interp"]["variants"]
     assert "diversity_cm" not in interp["gap40"] and interp["gap40"]["last_frame_cm"] < 1e-3
     assert report["classifier"]["styles"] == ["bouncy", "brisk", "slow"]
+    for group in (rows, model["locomotion"]):  # the judge, with the same-style and the other-style clip
+        g40 = group["gap40"]
+        assert 0.0 <= g40["judge_accuracy"] <= 1.0 and 0.0 <= g40["judge_accuracy_cross"] <= 1.0
+        assert g40["judge_accuracy_cross"] + g40["judge_cross_as_context"] <= 1.0 + 1e-9
+    assert "judge_accuracy" in model["locomotion"]["gap40-side1m"]
 
 
 def test_contact_sheet_always_has_interpolation(cache: MotionCache, stats) -> None:

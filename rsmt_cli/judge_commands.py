@@ -1,0 +1,74 @@
+"""``rsmt train judge``: fit the style judge that ``rsmt eval --judge`` scores style with."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+from pathlib import Path
+
+from model.data.location import find_data_dir
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``judge`` stage to ``rsmt train``."""
+    p = sub.add_parser(
+        "judge", help="the style judge for evaluation: logistic regression on window statistics, unlike any critic",
+        description=(
+            "Fit the style judge (model/evaluation/style_judge.py): multinomial logistic regression on summary "
+            "statistics of 41-pose windows (joint speeds, speeds relative to the root, spread of heights and reach, root "
+            "bob; no postures, no accelerations), taken "
+            "every --step frames of the train split's takes. Prints its accuracy on the val split's windows, "
+            "overall, on the locomotion contents, per style and per content. Writes DIR/judge.json and "
+            "DIR/weights.safetensors."))
+    p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="judge folder to write")
+    p.add_argument("--step", type=int, default=10, help="frames between training windows (default 10)")
+    p.add_argument("--l2", type=float, default=1e-3, help="L2 penalty on the weights (default 0.001)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=judge_command)
+
+
+def judge_command(args: argparse.Namespace) -> int:
+    import torch
+
+    from model.data.preprocessed import load_motion_cache
+    from model.evaluation.cases import LOCOMOTION
+    from model.evaluation.style_judge import accuracy_report, fit_judge, take_windows
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.step < 1:
+        raise ValueError("--step must be at least 1")
+    data = args.data or find_data_dir()
+    if data is None:
+        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    cache = load_motion_cache(Path(data), progress=not args.quiet)
+    split = cache.split
+    feats, styles, contents = take_windows(cache, split.train, args.step, progress=not args.quiet)
+    index = {s: k for k, s in enumerate(cache.styles)}
+    skeleton = cache.skeleton(split.train[0])
+    judge = fit_judge(feats, torch.tensor([index[s] for s in styles]), cache.styles, list(skeleton.names), cache.fps,
+                      skeleton.roles.root, l2=args.l2)
+    train = accuracy_report(judge, feats, styles, contents, LOCOMOTION)
+    vf, vs, vc = take_windows(cache, split.val, args.step, progress=not args.quiet)
+    val = accuracy_report(judge, vf, vs, vc, LOCOMOTION)
+    command = "rsmt train judge " + " ".join(shlex.quote(a) for a in _argv(args, data))
+    judge.info.update({"command": command, "data": str(data), "train_accuracy": train["accuracy"],
+                       "val_accuracy": val["accuracy"], "val_locomotion_accuracy": val["locomotion_accuracy"],
+                       "val_windows": val["windows"]})
+    judge.save(args.out)
+    (Path(args.out) / "training.json").write_text(json.dumps({"command": command, "train": train, "val": val}, indent=1))
+    print(f"train windows {train['windows']}: accuracy {train['accuracy']:.4f}")
+    print(f"val windows {val['windows']}: accuracy {val['accuracy']:.4f}, locomotion {val['locomotion_accuracy']:.4f} "
+          f"(chance {val['chance']:.3f})")
+    for group in ("per_style", "per_content"):
+        print(f"val {group.replace('_', ' ')}: " + ", ".join(
+            f"{k} {'–' if a is None else f'{a:.3f}'}" for k, a in val[group].items()))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _argv(args: argparse.Namespace, data: Path) -> list[str]:
+    return ["--data", str(data), "--out", str(args.out), "--step", str(args.step), "--l2", f"{args.l2:g}"]
