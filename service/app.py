@@ -9,7 +9,7 @@ from __future__ import annotations
 from fastapi import FastAPI
 
 from service.errors import install_error_handlers
-from service.http.auth import DocsAndMetricsKeyMiddleware
+from service.http.auth import ApiKeyMiddleware
 from service.http.body_limit import BodyLimitMiddleware
 from service.http.logs import ensure_service_logging
 from service.http.ratelimit import RateLimiter
@@ -37,13 +37,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None)  # served by routes.docs, from local files
     app.state.service = ServiceState(settings=settings, metrics=Metrics(),
-                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst))
+                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst),
+                                     auth_failures=RateLimiter(settings.auth_failure_rate_per_s,
+                                                               settings.auth_failure_burst))
     app.dependency_overrides[get_settings] = lambda: settings
     install_error_handlers(app)
     # Added last = outermost: metrics see every request, including 413s.
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RawSendMiddleware)
-    app.add_middleware(DocsAndMetricsKeyMiddleware, keys=settings.api_keys, open_=settings.open_docs_and_metrics)
+    # Outside the body cap: a request without a valid key is answered before any of its body is read.
+    app.add_middleware(ApiKeyMiddleware, keys=settings.all_keys, open_docs=settings.open_docs_and_metrics)
     app.add_middleware(MetricsMiddleware, metrics=app.state.service.metrics)
     for module in (health, models, styles, transition, stream, metrics, viewer):
         app.include_router(module.router)

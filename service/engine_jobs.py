@@ -16,14 +16,18 @@ from service.errors import ServiceError, from_engine
 from service.motion import frames_bvh, frames_json, motion_to_clip
 from service.registry import LoadedModel
 from service.schemas import BvhMotion, PoseMotion, StartMessage, TransitionRequest
+from service.style_book import Caller
 
 
-def lookup_style(model: LoadedModel, style_id: str) -> EncodedStyle:
-    style = model.engine.styles.get(style_id)
+def lookup_style(model: LoadedModel, caller: Caller, style_id: str) -> EncodedStyle:
+    """One of the caller's registered styles (an admin's: anyone's); ``unknown_style`` otherwise, also when
+    another key registered it."""
+    style = model.book.get(caller, style_id)
     if style is None:
-        raise ServiceError("unknown_style", f"no style {style_id!r} for model {model.name!r}: register the clip with "
-                                            "POST /v1/styles (ids are content hashes, so re-registering gives the same "
-                                            "id; cached styles may be evicted)")
+        raise ServiceError("unknown_style", f"no style {style_id!r} for model {model.name!r} under this API key: "
+                                            "register the clip with POST /v1/styles (ids are content hashes, so "
+                                            "re-registering gives the same id; styles live in memory only, per key, "
+                                            "and are evicted and lost on restart)")
     return style
 
 
@@ -35,9 +39,10 @@ def encode_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) 
         raise from_engine(exc) from exc
 
 
-def resolve_style(model: LoadedModel, style_id: str | None, motion: BvhMotion | PoseMotion | None) -> EncodedStyle:
+def resolve_style(model: LoadedModel, caller: Caller, style_id: str | None,
+                  motion: BvhMotion | PoseMotion | None) -> EncodedStyle:
     if style_id is not None:
-        return lookup_style(model, style_id)
+        return lookup_style(model, caller, style_id)
     assert motion is not None
     return encode_style(model, motion, "inline")[0]
 
@@ -46,9 +51,11 @@ def style_info(model: LoadedModel, style: EncodedStyle, cached: bool) -> dict[st
     return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "cached": cached, "model": model.name}
 
 
-def register_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
-    style, cached = encode_style(model, motion, name)
-    return style_info(model, style, cached)
+def register_style(model: LoadedModel, caller: Caller, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
+    """Encode (or find the shared encoding of) a clip and file it under the caller; ``cached`` says whether
+    the caller had registered it already."""
+    style, _ = encode_style(model, motion, name)
+    return style_info(model, style, model.book.add(caller.owner, style))
 
 
 def new_seed() -> int:
@@ -56,7 +63,7 @@ def new_seed() -> int:
     return secrets.randbits(53)
 
 
-def run_transition(model: LoadedModel, req: TransitionRequest, queued_at: float) -> dict[str, Any]:
+def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float) -> dict[str, Any]:
     """Generate a whole transition alone (batch of one, so a seed always gives the same frames).
 
     Returns the response body; ``timing_ms.total`` is left for the caller, which sees the whole request.
@@ -66,7 +73,7 @@ def run_transition(model: LoadedModel, req: TransitionRequest, queued_at: float)
     model.check_frames(req.frames)
     context = motion_to_clip(req.context, engine, model.limits, "context")
     target = motion_to_clip(req.target, engine, model.limits, "target")
-    style = resolve_style(model, req.style_id, req.style)
+    style = resolve_style(model, caller, req.style_id, req.style)
     parsed = time.perf_counter()
     seed = req.seed if req.seed is not None else new_seed()
     try:
@@ -93,13 +100,14 @@ def run_transition(model: LoadedModel, req: TransitionRequest, queued_at: float)
     return body
 
 
-def prepare_character(model: LoadedModel, msg: StartMessage, character_id: str) -> tuple[Character, EncodedStyle, int]:
+def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage,
+                      character_id: str) -> tuple[Character, EncodedStyle, int]:
     """Build a streamed character's initial state (the scheduler steps it from then on)."""
     engine = model.engine
     model.check_frames(msg.frames)
     context = motion_to_clip(msg.context, engine, model.limits, "context")
     target = motion_to_clip(msg.target, engine, model.limits, "target")
-    style = resolve_style(model, msg.style_id, msg.style)
+    style = resolve_style(model, caller, msg.style_id, msg.style)
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,

@@ -24,6 +24,7 @@ from service.metrics import Metrics
 from service.motion import MotionLimits
 from service.settings import Settings
 from service.streaming.scheduler import Scheduler
+from service.style_book import StyleBook
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -60,6 +61,7 @@ class LoadedModel:
     step: ThreadPoolExecutor
     max_transition: int
     limits: MotionLimits
+    book: StyleBook  # the styles registered through this model, by owner (service.style_book)
     scheduler: Scheduler | None = None
     warmup: dict[str, Any] = field(default_factory=dict)
 
@@ -170,6 +172,7 @@ def load_registry(settings: Settings) -> Registry:
             name=name, path=path, engine=engine, max_transition=max_transition, limits=limits,
             work=_threads(settings.request_threads, f"work-{name}", settings.threads),
             step=_threads(1, f"step-{name}", settings.threads),
+            book=StyleBook(settings.styles_per_owner, settings.style_cache_entries, settings.style_cache_bytes),
         ))
         log.info("loaded model", extra={"model": name, "path": str(path), "version": engine.version})
     return Registry(models, settings.default_model)

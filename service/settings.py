@@ -57,6 +57,9 @@ class Settings(BaseSettings):
     # ------------------------------------------------------------------ style cache
     style_cache_entries: int = Field(default=1024, ge=1)
     style_cache_bytes: int = Field(default=256 << 20, ge=1)
+    style_cache_entries_per_key: int = Field(
+        default=256, ge=1, description="registered styles one API key may hold per model (its least recently used go "
+        "first); with keys off the one anonymous owner is bounded by style_cache_entries alone")
 
     # ------------------------------------------------------------------ limits
     max_body_bytes: int = Field(default=1 << 20, ge=1024, description="HTTP request bodies above this get 413")
@@ -91,9 +94,17 @@ class Settings(BaseSettings):
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="accepted API keys; empty: no authentication"
     )
+    admin_api_keys: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="API keys that are accepted too and also see, use and delete every key's "
+        "registered styles")
     rate_limit_per_s: float = Field(default=0.0, ge=0,
                                     description="requests per second per key (per client address without keys); 0: off")
     rate_limit_burst: int = Field(default=20, ge=1, description="token-bucket size of the per-key rate limit")
+    auth_failure_burst: int = Field(
+        default=20, ge=1, description="requests with a missing or wrong API key one client address may make before "
+        "the next get 429 rate_limited instead of 401 (a token bucket refilled at auth_failure_rate_per_s)")
+    auth_failure_rate_per_s: float = Field(
+        default=1.0, ge=0, description="refill rate of the per-address bucket of failed authentications; 0: no limit")
     open_docs_and_metrics: bool = Field(
         default=False, description="with API keys on, serve /metrics, /docs, /redoc and /openapi.json without a key")
     forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
@@ -110,7 +121,7 @@ class Settings(BaseSettings):
     )
     shutdown_grace_s: float = Field(default=8.0, gt=0, description="in-flight requests get this long to finish after the drain")
 
-    @field_validator("api_keys", "forwarded_allow_ips", mode="before")
+    @field_validator("api_keys", "admin_api_keys", "forwarded_allow_ips", mode="before")
     @classmethod
     def _split_keys(cls, value: object) -> object:
         if isinstance(value, str):
@@ -122,7 +133,7 @@ class Settings(BaseSettings):
             return [k.strip() for k in text.split(",") if k.strip()]
         return value
 
-    @field_validator("api_keys")
+    @field_validator("api_keys", "admin_api_keys")
     @classmethod
     def _check_keys(cls, keys: list[str]) -> list[str]:
         short = [k for k in keys if len(k) < 16]
@@ -139,7 +150,17 @@ class Settings(BaseSettings):
 
     @property
     def auth_enabled(self) -> bool:
-        return bool(self.api_keys)
+        return bool(self.api_keys or self.admin_api_keys)
+
+    @property
+    def all_keys(self) -> list[str]:
+        """Every accepted key: ``api_keys`` and ``admin_api_keys``."""
+        return [*self.api_keys, *self.admin_api_keys]
+
+    @property
+    def styles_per_owner(self) -> int:
+        """The per-owner style bound: the per-key cap with keys on, the whole bound without."""
+        return self.style_cache_entries_per_key if self.auth_enabled else self.style_cache_entries
 
 
 @lru_cache(maxsize=1)

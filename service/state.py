@@ -27,6 +27,7 @@ class ServiceState:
     settings: Settings
     metrics: Metrics
     limiter: RateLimiter
+    auth_failures: RateLimiter  # requests with a missing or wrong key, per client address
     registry: Registry | None = None
     phase: Phase = Phase.STARTING
     connections: set[Connection] = field(default_factory=set)

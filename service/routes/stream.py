@@ -12,6 +12,7 @@ from service.http.auth import check_access, key_from
 from service.state import ServiceState
 from service.streaming.connection import Connection
 from service.streaming.protocol import Session
+from service.style_book import Caller
 
 log = logging.getLogger(__name__)
 router = APIRouter()
@@ -23,7 +24,7 @@ async def stream(ws: WebSocket) -> None:
     settings = state.settings
     encoding = ws.query_params.get("encoding", "json")
     try:
-        _admit(ws, state, encoding)
+        caller = _admit(ws, state, encoding)
     except ServiceError as exc:
         state.metrics.errors.labels(exc.code).inc()
         await _deny(ws, exc)
@@ -34,7 +35,7 @@ async def stream(ws: WebSocket) -> None:
                       max_pending_messages=settings.max_pending_messages, metrics=state.metrics)
     state.connections.add(conn)
     state.metrics.live_streams.inc()
-    session = Session(state, conn)
+    session = Session(state, conn, caller)
     conn.start(settings.ws_send_buffer_bytes)
     conn.send_message(session.hello())
     try:
@@ -54,17 +55,18 @@ async def stream(ws: WebSocket) -> None:
         state.metrics.live_streams.dec()
 
 
-def _admit(ws: WebSocket, state: ServiceState, encoding: str) -> None:
-    """Raise the error that refuses this handshake, if any: not serving, key or rate limit, then bad encoding
-    (after the key, so that nothing about the request is answered to a client without one)."""
+def _admit(ws: WebSocket, state: ServiceState, encoding: str) -> Caller:
+    """The caller, or raise the error that refuses this handshake: not serving, key or rate limit, then bad
+    encoding (after the key, so that nothing about the request is answered to a client without one)."""
     if state.stopping:
         raise ServiceError("shutting_down", "the server is shutting down; reconnect to another replica")
     if state.registry is None:
         raise ServiceError("not_ready", "the models are still loading; retry shortly")
     client = ws.client.host if ws.client else "unknown"
-    check_access(state, key_from(ws.headers, ws.query_params), client)
+    caller = check_access(state, key_from(ws.headers, ws.query_params), client)
     if encoding not in ("json", "binary"):
         raise ServiceError("validation_error", f"encoding must be 'json' or 'binary', got {encoding!r}")
+    return caller
 
 
 async def _deny(ws: WebSocket, exc: ServiceError) -> None:

@@ -1,4 +1,5 @@
-"""Style clips: register (encode once, cache by content hash), list, get, delete."""
+"""Style clips: register (encode once, cache by content hash), list, get, delete; each API key sees only the
+styles it registered (:mod:`service.style_book`), an admin key everyone's."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from fastapi import APIRouter, Depends, Query, Response
 from service.deps import RegistryDep
 from service.engine_jobs import register_style, style_info
 from service.errors import ServiceError
-from service.http.auth import require_access
+from service.http.auth import CallerDep, require_access
 from service.registry import Registry
 from service.schemas import (
     ERROR_RESPONSES,
@@ -19,6 +20,7 @@ from service.schemas import (
     StyleInfo,
     StyleList,
 )
+from service.style_book import Caller
 
 router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(require_access)],
                    responses={k: ERROR_RESPONSES[k] for k in (401, 429, 503)})
@@ -26,41 +28,40 @@ router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(r
 
 @router.post("", status_code=201, response_model=StyleInfo,
              responses={k: ERROR_RESPONSES[k] for k in (400, 404, 413, 422)},
-             summary="register a style clip; the same clip always gets the same id (cached: true on a repeat)")
-async def create_style(body: StyleCreate, registry: RegistryDep) -> dict:
+             summary="register a style clip under your API key; the same clip always gets the same id "
+                     "(cached: true when you registered it already)")
+async def create_style(body: StyleCreate, registry: RegistryDep, caller: CallerDep) -> dict:
     model = registry.get(body.model)
-    return await model.run(register_style, model, body.motion, body.name)
+    return await model.run(register_style, model, caller, body.motion, body.name)
 
 
-def _find(registry: Registry, style_id: str) -> dict:
-    for model in registry:
-        style = model.engine.styles.peek(style_id)
+def _find(registry: Registry, caller: Caller, style_id: str) -> dict:
+    for model in sorted(registry, key=lambda m: m.name):
+        style = model.book.peek(caller, style_id)
         if style is not None:
             return style_info(model, style, True)
-    raise ServiceError("unknown_style", f"no style {style_id!r}: register the clip with POST /v1/styles")
+    raise ServiceError("unknown_style", f"no style {style_id!r} under this API key: register the clip with "
+                                        "POST /v1/styles")
 
 
-@router.get("", response_model=StyleList, summary="cached styles (of one model, or of all)")
-async def list_styles(registry: RegistryDep, model: Annotated[ModelName | None, Query()] = None) -> dict:
+@router.get("", response_model=StyleList, summary="your registered styles (of one model, or of all); an admin key's: "
+                                                   "everyone's")
+async def list_styles(registry: RegistryDep, caller: CallerDep,
+                      model: Annotated[ModelName | None, Query()] = None) -> dict:
     models = [registry.get(model)] if model is not None else sorted(registry, key=lambda m: m.name)
-    styles = []
-    for m in models:
-        for sid in m.engine.styles.keys():
-            style = m.engine.styles.peek(sid)
-            if style is not None:
-                styles.append(style_info(m, style, True))
-    return {"styles": styles}
+    return {"styles": [style_info(m, style, True) for m in models for style in m.book.styles_of(caller)]}
 
 
-@router.get("/{style_id}", response_model=StyleInfo, responses={404: ERROR_RESPONSES[404]}, summary="one cached style")
-async def get_style(style_id: StyleId, registry: RegistryDep) -> dict:
-    return _find(registry, style_id)
+@router.get("/{style_id}", response_model=StyleInfo, responses={404: ERROR_RESPONSES[404]},
+            summary="one of your registered styles")
+async def get_style(style_id: StyleId, registry: RegistryDep, caller: CallerDep) -> dict:
+    return _find(registry, caller, style_id)
 
 
 @router.delete("/{style_id}", status_code=204, response_class=Response, responses={404: ERROR_RESPONSES[404]},
-               summary="forget a style (characters already using it keep it)")
-async def delete_style(style_id: StyleId, registry: RegistryDep) -> Response:
-    deleted = [m.name for m in registry if m.engine.styles.delete(style_id)]
+               summary="forget one of your styles (characters already using it keep it; an admin key's: everyone's)")
+async def delete_style(style_id: StyleId, registry: RegistryDep, caller: CallerDep) -> Response:
+    deleted = [m.name for m in registry if m.book.delete(caller, style_id)]
     if not deleted:
-        raise ServiceError("unknown_style", f"no style {style_id!r}")
+        raise ServiceError("unknown_style", f"no style {style_id!r} under this API key")
     return Response(status_code=204)

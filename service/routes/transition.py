@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, Response
 
 from service.deps import RegistryDep, StateDep
 from service.engine_jobs import run_transition
-from service.http.auth import require_access
+from service.http.auth import CallerDep, require_access
 from service.motion import dumps
 from service.schemas import (
     ERROR_RESPONSES,
@@ -28,10 +28,10 @@ router = APIRouter(prefix="/v1", tags=["transitions"], dependencies=[Depends(req
     description="Same input and seed give the same frames. `output: bvh` returns BVH text of exactly `frames` "
                 "frames. The engine runs on the model's worker thread, so other requests keep flowing.",
 )
-async def transition(body: TransitionRequest, registry: RegistryDep, state: StateDep) -> Response:
+async def transition(body: TransitionRequest, registry: RegistryDep, state: StateDep, caller: CallerDep) -> Response:
     arrived = time.perf_counter()
     model = registry.get(body.model)
-    result = await model.run(run_transition, model, body, arrived)
+    result = await model.run(run_transition, model, caller, body, arrived)
     result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)
     state.metrics.transition_frames.labels(model.name).inc(body.frames)
     return Response(dumps(result), media_type="application/json")

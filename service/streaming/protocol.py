@@ -33,6 +33,7 @@ from service.state import ServiceState
 from service.streaming.connection import CLOSE_TOO_BIG, Connection
 from service.streaming.frames import floats_per_frame, frame_layout
 from service.streaming.stream import Stream
+from service.style_book import Caller
 
 log = logging.getLogger(__name__)
 PROTOCOL = 1
@@ -47,9 +48,10 @@ def request_id(obj: dict[str, Any]) -> str | int | None:
 class Session:
     """The message handlers of one connection."""
 
-    def __init__(self, state: ServiceState, conn: Connection) -> None:
+    def __init__(self, state: ServiceState, conn: Connection, caller: Caller) -> None:
         self.state = state
         self.conn = conn
+        self.caller = caller  # whose registered styles ``style_id`` names
         self.settings = state.settings
         assert state.registry is not None
         self.registry = state.registry
@@ -166,7 +168,7 @@ class Session:
         self.state.reserved_characters += 1
         began = time.perf_counter()
         try:
-            character, style, seed = await model.run(prepare_character, model, msg, cid)
+            character, style, seed = await model.run(prepare_character, model, self.caller, msg, cid)
             self.state.metrics.prepare_seconds.labels(model.name).observe(time.perf_counter() - began)
         finally:
             conn.reserved.discard(cid)
@@ -216,9 +218,9 @@ class Session:
     async def style(self, msg: StyleMessage) -> None:
         stream, model = self._live(msg.character)
         if msg.style_id is not None:
-            style = lookup_style(model, msg.style_id)
+            style = lookup_style(model, self.caller, msg.style_id)
         else:
-            style = await model.run(resolve_style, model, None, msg.style)
+            style = await model.run(resolve_style, model, self.caller, None, msg.style)
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.set_style(stream, style)
         self.conn.send_message({"type": "style_changed", "character": msg.character, "from_seq": from_seq,

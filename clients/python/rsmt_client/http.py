@@ -17,6 +17,7 @@ import httpx
 
 from rsmt_client import http_protocol as ops
 from rsmt_client._retry import RetryHook, RetryPolicy
+from rsmt_client.errors import RsmtError
 from rsmt_client.http_protocol import DEFAULT_URL, ClientState, Operation, Request
 from rsmt_client.motion import Poses
 
@@ -90,10 +91,16 @@ class Client(_Settings):
             self._sleep(wait)
 
     def _run(self, op: Operation[T]) -> T:
+        """Carry the operation's requests; an error answer is thrown into it (it may recover, else it propagates)."""
         try:
             req: Request = next(op)
             while True:
-                req = op.send(self.request(req.method, req.path, json=req.json, params=req.params))
+                try:
+                    resp = self.request(req.method, req.path, json=req.json, params=req.params)
+                except RsmtError as exc:
+                    req = op.throw(exc)
+                else:
+                    req = op.send(resp)
         except StopIteration as done:
             return done.value
 
@@ -118,9 +125,12 @@ class Client(_Settings):
     def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> dict[str, Any]:
         """``POST /v1/styles``: register a style clip (a BVH path or text, payload, Poses or Clip).
 
-        Returns ``{"style_id", "name", "frames", "cached"}``.
+        Returns ``{"style_id", "name", "frames", "cached"}``. The server keeps styles in memory only, per API
+        key (evicted when the key holds too many, lost on restart): this client keeps the clips of its last
+        256 registrations, and a transition by ``style_id`` that meets ``unknown_style`` registers the clip
+        again and retries once.
         """
-        return self._run(ops.register_style(motion, name, model))
+        return self._run(ops.register_style(self._state, motion, name, model))
 
     def styles(self, model: str | None = None) -> list[dict[str, Any]]:
         return self._run(ops.styles(model))
@@ -129,7 +139,7 @@ class Client(_Settings):
         return self._run(ops.style(style_id))
 
     def delete_style(self, style_id: str) -> None:
-        self._run(ops.delete_style(style_id))
+        self._run(ops.delete_style(self._state, style_id))
 
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, model: str | None = None,
@@ -142,8 +152,8 @@ class Client(_Settings):
                        seed: int | None = None, deterministic: bool = False, model: str | None = None,
                        exact_arrival: bool = False) -> str:
         """``POST /v1/transition`` with ``output: bvh``: the server's BVH text of exactly ``frames`` frames."""
-        return self._run(ops.transition_bvh(context, target, frames, style_id, style, seed, deterministic, model,
-                                            exact_arrival))
+        return self._run(ops.transition_bvh(self._state, context, target, frames, style_id, style, seed, deterministic,
+                                            model, exact_arrival))
 
 
 class AsyncClient(_Settings):
@@ -183,7 +193,12 @@ class AsyncClient(_Settings):
         try:
             req: Request = next(op)
             while True:
-                req = op.send(await self.request(req.method, req.path, json=req.json, params=req.params))
+                try:
+                    resp = await self.request(req.method, req.path, json=req.json, params=req.params)
+                except RsmtError as exc:
+                    req = op.throw(exc)
+                else:
+                    req = op.send(resp)
         except StopIteration as done:
             return done.value
 
@@ -203,7 +218,7 @@ class AsyncClient(_Settings):
         return await self._run(ops.models())
 
     async def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> dict[str, Any]:
-        return await self._run(ops.register_style(motion, name, model))
+        return await self._run(ops.register_style(self._state, motion, name, model))
 
     async def styles(self, model: str | None = None) -> list[dict[str, Any]]:
         return await self._run(ops.styles(model))
@@ -212,7 +227,7 @@ class AsyncClient(_Settings):
         return await self._run(ops.style(style_id))
 
     async def delete_style(self, style_id: str) -> None:
-        await self._run(ops.delete_style(style_id))
+        await self._run(ops.delete_style(self._state, style_id))
 
     async def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                          seed: int | None = None, deterministic: bool = False, model: str | None = None,
@@ -223,5 +238,5 @@ class AsyncClient(_Settings):
     async def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None,
                              style: Any = None, seed: int | None = None, deterministic: bool = False,
                              model: str | None = None, exact_arrival: bool = False) -> str:
-        return await self._run(ops.transition_bvh(context, target, frames, style_id, style, seed, deterministic, model,
-                                                  exact_arrival))
+        return await self._run(ops.transition_bvh(self._state, context, target, frames, style_id, style, seed,
+                                                  deterministic, model, exact_arrival))

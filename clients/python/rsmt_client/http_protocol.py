@@ -13,6 +13,7 @@ same by construction::
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,7 @@ class Request:
 
 
 Operation = Generator[Request, httpx.Response, T]
+REMEMBERED_STYLES = 256  # style clips a client keeps to register again (its most recently registered)
 
 
 @dataclass
@@ -50,6 +52,10 @@ class ClientState:
     retry: RetryPolicy = field(default_factory=RetryPolicy)
     on_retry: RetryHook | None = None
     model_info: dict[str, Any] | None = None
+    # The POST /v1/styles bodies of the styles registered through this client, by (model, style id): the
+    # server keeps styles in memory only (evicted, lost on restart), so an unknown_style for one of them is
+    # answered by registering it again.
+    registered: OrderedDict[tuple[str | None, str], dict[str, Any]] = field(default_factory=OrderedDict)
 
     def __post_init__(self) -> None:
         self.url = self.url.rstrip("/")
@@ -62,6 +68,12 @@ class ClientState:
 
     def retrying(self) -> Retrying:
         return Retrying(self.retry, self.on_retry)
+
+    def remember(self, model_name: str | None, style_id: str, body: dict[str, Any]) -> None:
+        self.registered[(model_name, style_id)] = body
+        self.registered.move_to_end((model_name, style_id))
+        while len(self.registered) > REMEMBERED_STYLES:
+            self.registered.popitem(last=False)
 
     def joints(self) -> tuple[str, ...] | None:
         info = self.model_info
@@ -110,11 +122,14 @@ def models() -> Operation[dict[str, Any]]:
     return (yield Request("GET", "/v1/models")).json()
 
 
-def register_style(motion: Any, name: str | None, model_name: str | None) -> Operation[dict[str, Any]]:
+def register_style(state: ClientState, motion: Any, name: str | None,
+                   model_name: str | None) -> Operation[dict[str, Any]]:
     body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": motion_payload(motion)}
     if model_name is not None:
         body["model"] = model_name
-    return (yield Request("POST", "/v1/styles", json=body)).json()
+    info = (yield Request("POST", "/v1/styles", json=body)).json()
+    state.remember(model_name, info["style_id"], body)
+    return info
 
 
 def styles(model_name: str | None) -> Operation[list[dict[str, Any]]]:
@@ -125,15 +140,33 @@ def style(style_id: str) -> Operation[dict[str, Any]]:
     return (yield Request("GET", f"/v1/styles/{style_id}")).json()
 
 
-def delete_style(style_id: str) -> Operation[None]:
+def delete_style(state: ClientState, style_id: str) -> Operation[None]:
+    for key in [k for k in state.registered if k[1] == style_id]:  # deleted on purpose: not registered again
+        del state.registered[key]
     yield Request("DELETE", f"/v1/styles/{style_id}")
+
+
+def with_style(state: ClientState, request: Request, style_id: str | None,
+               model_name: str | None) -> Operation[httpx.Response]:
+    """Send ``request``; when the server answers ``unknown_style`` for a style this client registered (it was
+    evicted, or the server restarted), register the clip again and send ``request`` once more.
+
+    The clients throw each error answer into the operation, so this is where it is caught."""
+    try:
+        return (yield request)
+    except RsmtError as exc:
+        body = state.registered.get((model_name, style_id)) if style_id is not None else None
+        if exc.code != "unknown_style" or body is None:
+            raise
+    yield Request("POST", "/v1/styles", json=body)
+    return (yield request)
 
 
 def transition(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any,
                seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool) -> Operation[Poses]:
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "json", model_name,
                            exact_arrival)
-    data = (yield Request("POST", "/v1/transition", json=body)).json()
+    data = (yield from with_style(state, Request("POST", "/v1/transition", json=body), style_id, model_name)).json()
     if state.model_info is None and model_name is None:
         yield from model(state)
     joints = state.joints() if model_name is None else None
@@ -141,11 +174,13 @@ def transition(state: ClientState, context: Any, target: Any, frames: int, style
                              model=data.get("model"), timing_ms=dict(data.get("timing_ms") or {}))
 
 
-def transition_bvh(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
-                   deterministic: bool, model_name: str | None, exact_arrival: bool) -> Operation[str]:
+def transition_bvh(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None,
+                   style_motion: Any, seed: int | None, deterministic: bool, model_name: str | None,
+                   exact_arrival: bool) -> Operation[str]:
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "bvh", model_name,
                            exact_arrival)
-    return (yield Request("POST", "/v1/transition", json=body)).json()["bvh"]
+    request = Request("POST", "/v1/transition", json=body)
+    return (yield from with_style(state, request, style_id, model_name)).json()["bvh"]
 
 
 def transition_body(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
