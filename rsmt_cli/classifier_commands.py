@@ -7,7 +7,7 @@ import json
 import shlex
 from pathlib import Path
 
-from model.data.location import find_data_dir
+from model.data.location import find_data_dir, require_data_dir
 
 # model.nets.style_classifier.INPUTS, repeated here so that building the parser does not import torch
 # (tests/cli/test_startup.py checks that the two agree).
@@ -50,9 +50,7 @@ def classifier_command(args: argparse.Namespace) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    data = args.data or find_data_dir()
-    if data is None:
-        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    data = require_data_dir(args.data)
     progress = not args.quiet
     cache = load_motion_cache(Path(data), progress=progress)
     unknown = [s for s in args.holdout_style if s not in cache.styles]

@@ -7,7 +7,7 @@ import json
 import shlex
 from pathlib import Path
 
-from model.data.location import find_data_dir
+from model.data.location import find_data_dir, require_data_dir
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 
 
@@ -68,9 +68,7 @@ def eval_command(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     if args.limit is not None and args.limit < 1:
         raise ValueError("--limit must be at least 1")
-    data = args.data or find_data_dir()
-    if data is None:
-        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    data = require_data_dir(args.data)
     overrides = output_overrides(args)
     methods = [resolve_method(spec, args.batch, args.exact_arrival, **overrides) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None

@@ -7,7 +7,7 @@ import json
 import shlex
 from pathlib import Path
 
-from model.data.location import find_data_dir
+from model.data.location import require_data_dir
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,9 +41,7 @@ def judge_command(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     if args.step < 1:
         raise ValueError("--step must be at least 1")
-    data = args.data or find_data_dir()
-    if data is None:
-        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    data = require_data_dir(args.data)
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     split = cache.split
     feats, styles, contents = take_windows(cache, split.train, args.step, progress=not args.quiet)

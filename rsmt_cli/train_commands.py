@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from model.data.location import find_data_dir
+from model.data.location import require_data_dir
 
 if TYPE_CHECKING:
     import torch
@@ -122,9 +122,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.time_limit:
         for st in (cfg.phase_stage, cfg.manifold_stage, cfg.sampler_stage):
             st.loop.time_limit_s = args.time_limit
-    data = args.data or find_data_dir()
-    if data is None:
-        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    data = require_data_dir(args.data)
     run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / cfg.name
     stages = STAGES if args.stage == "all" else (args.stage,)
     if "sampler" in stages and args.out is None:
@@ -152,9 +150,7 @@ def _run_recipe(args: argparse.Namespace) -> int:
         raise ValueError("name a recipe and its bundle: rsmt train recipe NAME --out BUNDLE (--list shows the recipes)")
     recipe = load_recipe(args.name)
     device = resolve_cli_device(args.device)
-    data = args.data or find_data_dir()
-    if data is None:
-        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    data = require_data_dir(args.data)
     run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / f"recipe-{recipe.name}"
     began = time.monotonic()
     command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None

@@ -28,6 +28,14 @@ def find_data_dir() -> Path | None:
     return None
 
 
+def require_data_dir(given: Path | None) -> Path:
+    """``given`` (a ``--data`` option), else the configured folder; an error saying how to name one when neither is set."""
+    data = given or find_data_dir()
+    if data is None:
+        raise FileNotFoundError("no data folder: pass --data DIR or set RSMT_DATA")
+    return data
+
+
 def cache_root() -> Path:
     """Where preprocessed-data caches live: ``$RSMT_CACHE`` or ``~/.cache/rsmt/preprocessed``."""
     value = os.environ.get(CACHE_ENV)
