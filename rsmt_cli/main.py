@@ -16,13 +16,14 @@ from rsmt_cli import (
     finetune_commands,
     loadtest_commands,
     package_commands,
+    rig_commands,
     serve_commands,
     train_commands,
 )
 
 # Each command group module exposes ``register(subparsers)``; later groups are appended here.
 GROUPS = [data_commands, train_commands, bench_commands, serve_commands, eval_commands, finetune_commands, average_commands,
-          package_commands, client_commands, loadtest_commands]
+          package_commands, client_commands, loadtest_commands, rig_commands]
 
 
 def build_parser() -> argparse.ArgumentParser:

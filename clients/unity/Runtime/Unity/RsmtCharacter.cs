@@ -23,6 +23,9 @@ namespace Rsmt.Link.Unity
         [Tooltip("Keep streaming while the window is unfocused (sets Application.runInBackground)")]
         public bool runInBackground = true;
 
+        [Tooltip("Optional: bound from hello when it has no referencePose; StartTransitionFromRecorder reads its context")]
+        public RsmtPoseRecorder recorder;
+
         [Header("Style")]
         [Tooltip("A BVH style clip registered at start (its id goes to styleId)")]
         public TextAsset styleClip;
@@ -33,6 +36,9 @@ namespace Rsmt.Link.Unity
         readonly Queue<System.Func<string>> pending = new Queue<System.Func<string>>();  // built when hello has come
 
         public bool Ready { get { return client != null && client.Hello != null && bones != null; } }
+
+        /// <summary>True while a transition's frames are being applied (false before the first and after the last).</summary>
+        public bool Playing { get; private set; }
 
         async void Start()
         {
@@ -63,6 +69,12 @@ namespace Rsmt.Link.Unity
                 ? jointMap.Resolve(skeletonRoot, hello.Model.JointNames, missing)
                 : RsmtJointBinding.Resolve(hello.Model.JointNames, null, true, n => FindBone(n), missing);
             if (missing.Count > 0) Debug.LogWarning("RSMT: no Transform for joint(s) " + string.Join(", ", missing.ToArray()), this);
+            if (recorder != null && !recorder.Bound)
+            {
+                var parents = new int[hello.Model.Joints.Length];
+                for (int j = 0; j < parents.Length; j++) parents[j] = hello.Model.Joints[j].Parent;
+                recorder.Bind(hello.Model.JointNames, parents, client.MetresPerUnit);
+            }
             while (pending.Count > 0) client.Send(pending.Dequeue()());
         }
 
@@ -76,10 +88,35 @@ namespace Rsmt.Link.Unity
         /// <summary>Start a transition from the context (>= context_frames frames) to the target's last frame.</summary>
         public void StartTransition(string contextBvh, string targetBvh, int frames, long? seed = null, bool deterministic = false)
         {
+            StartMotion(RsmtMessages.BvhMotion(contextBvh), RsmtMessages.BvhMotion(targetBvh), frames, seed, deterministic);
+        }
+
+        /// <summary>
+        /// The same with poses in the model's axes and units (RsmtPoseRecorder.Last, RsmtPoseCapture), sent as pose arrays
+        /// at `fps` (the model's when null; the server resamples others).
+        /// </summary>
+        public void StartTransition(IList<RsmtPose> context, IList<RsmtPose> target, int frames, long? seed = null,
+                                    bool deterministic = false, double? fps = null)
+        {
+            StartMotion(RsmtMessages.PoseMotion(context, fps), RsmtMessages.PoseMotion(target, fps), frames, seed, deterministic);
+        }
+
+        /// <summary>Context: the recorder's last `contextFrames` samples (at least the model's context_frames, 10 by default).</summary>
+        public void StartTransitionFromRecorder(IList<RsmtPose> target, int frames, int contextFrames = 10, long? seed = null,
+                                                bool deterministic = false)
+        {
+            var context = recorder.Last(contextFrames);
+            if (context.Count < contextFrames) Debug.LogWarning("RSMT: the recorder holds " + context.Count + " of " + contextFrames + " frames", this);
+            StartTransition(context, target, frames, seed, deterministic, recorder.fps);
+        }
+
+        /// <summary>A start message with Motion payloads (RsmtMessages.BvhMotion / PoseMotion / RsmtPoseHistory.MotionJson).</summary>
+        public void StartMotion(string contextMotionJson, string targetMotionJson, int frames, long? seed = null, bool deterministic = false)
+        {
             // Built when sent, so a style registered meanwhile (styleClip) is used.
             System.Func<string> message = () => RsmtMessages.Start(new RsmtStartOptions
             {
-                Character = characterId, ContextJson = RsmtMessages.BvhMotion(contextBvh), TargetJson = RsmtMessages.BvhMotion(targetBvh),
+                Character = characterId, ContextJson = contextMotionJson, TargetJson = targetMotionJson,
                 Frames = frames, StyleId = styleId, Seed = seed, Deterministic = deterministic,
             });
             if (Ready && !string.IsNullOrEmpty(styleId)) client.Send(message());
@@ -90,6 +127,12 @@ namespace Rsmt.Link.Unity
         public void Retarget(string targetBvh, int frames = 0)
         {
             if (client != null) client.Retarget(characterId, targetBvh == null ? null : RsmtMessages.BvhMotion(targetBvh), frames);
+        }
+
+        /// <summary>A new target given as poses in the model's axes and units.</summary>
+        public void Retarget(IList<RsmtPose> target, int frames = 0, double? fps = null)
+        {
+            if (client != null) client.Retarget(characterId, target == null ? null : RsmtMessages.PoseMotion(target, fps), frames);
         }
 
         public void Cancel()
@@ -106,7 +149,9 @@ namespace Rsmt.Link.Unity
         void LateUpdate()
         {
             RsmtPose pose;
+            Playing = false;
             if (!Ready || !client.TrySample(characterId, Time.realtimeSinceStartupAsDouble, out pose)) return;
+            Playing = !client.Buffer(characterId).Finished;
             for (int j = 0; j < bones.Length && j < pose.Rotations.Length; j++)
             {
                 if (bones[j] == null) continue;

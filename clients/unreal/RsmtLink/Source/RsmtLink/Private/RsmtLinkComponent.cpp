@@ -270,10 +270,26 @@ void URsmtLinkComponent::SendText(const std::string& Text)
 void URsmtLinkComponent::StartTransition(const FString& ContextBvh, const FString& TargetBvh, int32 Frames, int32 Seed,
 	bool bDeterministic)
 {
+	StartTransitionMotion(BvhMotion(ContextBvh), BvhMotion(TargetBvh), Frames, Seed, bDeterministic);
+}
+
+FString URsmtLinkComponent::BvhMotion(const FString& BvhText)
+{
+	return FromStd(rsmt::BvhMotionJson(ToStd(BvhText)));
+}
+
+void URsmtLinkComponent::RetargetMotion(const FString& TargetMotionJson, int32 Frames)
+{
+	SendText(rsmt::BuildRetarget(ToStd(CharacterId), ToStd(TargetMotionJson), Frames));
+}
+
+void URsmtLinkComponent::StartTransitionMotion(const FString& ContextMotionJson, const FString& TargetMotionJson, int32 Frames,
+	int32 Seed, bool bDeterministic)
+{
 	rsmt::StartOptions Options;
 	Options.character = ToStd(CharacterId);
-	Options.contextJson = rsmt::BvhMotionJson(ToStd(ContextBvh));
-	Options.targetJson = rsmt::BvhMotionJson(ToStd(TargetBvh));
+	Options.contextJson = ToStd(ContextMotionJson);
+	Options.targetJson = ToStd(TargetMotionJson);
 	Options.frames = Frames;
 	Options.styleId = ToStd(StyleId);
 	Options.hasSeed = Seed >= 0;

@@ -85,6 +85,19 @@ public:
 	/** A new target and/or length from the next frame on (Frames <= 0 keeps the length). */
 	UFUNCTION(BlueprintCallable, Category = "RSMT")
 	void Retarget(const FString& TargetBvh, int32 Frames = 0);
+	/**
+	 * StartTransition with Motion payloads (JSON): URsmtPoseRecorderComponent::MotionJson for poses read from a mesh,
+	 * or BvhMotion(BvhText). Context: >= context_frames frames; target: its last frame (and the one before it).
+	 */
+	UFUNCTION(BlueprintCallable, Category = "RSMT")
+	void StartTransitionMotion(const FString& ContextMotionJson, const FString& TargetMotionJson, int32 Frames, int32 Seed = -1,
+		bool bDeterministic = false);
+	/** Retarget with a Motion payload (empty: keep the target, change the length only). */
+	UFUNCTION(BlueprintCallable, Category = "RSMT")
+	void RetargetMotion(const FString& TargetMotionJson, int32 Frames = 0);
+	/** BVH text as a Motion payload ({"bvh": ...}). */
+	UFUNCTION(BlueprintPure, Category = "RSMT")
+	static FString BvhMotion(const FString& BvhText);
 	UFUNCTION(BlueprintCallable, Category = "RSMT")
 	void Cancel();
 	UFUNCTION(BlueprintPure, Category = "RSMT")

@@ -1,0 +1,403 @@
+"""The model's rig as files game engines import: a T-pose for the skeleton, a BVH and a skinned glTF.
+
+Torch-free (numpy only) so that ``rsmt rig export`` runs from a bare install. The model's joints keep their
+own local frames (the Bandai-Namco rig's bones point along local +-X, so all-identity rotations are not a
+standing pose); :func:`t_pose` finds local rotations that stand the rig up in a T-pose, facing +Z with its
+left on +X (the model's axes, which are also glTF's). Engines then play the model's local rotations on the
+imported bones unchanged (after their axis conversion), since the bones keep the model's frames.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from model.motion.bvh import BvhDocument, BvhJoint
+
+UP = np.array([0.0, 1.0, 0.0])
+LEFT = np.array([1.0, 0.0, 0.0])
+FORWARD = np.array([0.0, 0.0, 1.0])
+FOOT_PITCH_DEG = 30.0     # ankle-to-toe bone, below horizontal
+TOE_HEIGHT = 2.0          # toe joint above the ground, model units
+ARMS_DOWN_DEG = 40.0      # the sample motion lowers the arms by this much
+MOTION_FRAMES = 31
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A skeleton as ``skeleton.json`` stores it (``GET /v1/model`` ``skeleton``)."""
+
+    names: tuple[str, ...]
+    parents: tuple[int, ...]
+    offsets: np.ndarray            # [J, 3], model units, in the parent's frame
+    end_sites: dict[int, tuple[float, float, float]]
+    roles: dict[str, Any]
+    units: str
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Rig:
+        joints = data["joints"]
+        ends = {int(e["joint"]): tuple(float(v) for v in e["offset"]) for e in data.get("end_sites", [])}
+        return cls(tuple(j["name"] for j in joints), tuple(int(j["parent"]) for j in joints),
+                   np.array([j["offset"] for j in joints], dtype=np.float64), ends,  # type: ignore[arg-type]
+                   dict(data["roles"]), str(data.get("units", "cm")))
+
+    @classmethod
+    def load(cls, path: Path) -> Rig:
+        return cls.from_json(json.loads(path.read_text()))
+
+    def children(self, j: int) -> list[int]:
+        return [k for k, p in enumerate(self.parents) if p == j]
+
+    def descendants(self, j: int) -> list[int]:
+        out = [j]
+        for k in range(j + 1, len(self.parents)):
+            if self.parents[k] in out:
+                out.append(k)
+        return out
+
+
+# ---------------------------------------------------------------------- rotations (3x3 matrices, x,y,z,w quaternions)
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def axis_angle(axis: np.ndarray, deg: float) -> np.ndarray:
+    """Right-handed rotation matrix of ``deg`` degrees about ``axis``."""
+    x, y, z = _unit(np.asarray(axis, dtype=np.float64))
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    k = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+    return np.eye(3) * c + s * k + (1 - c) * np.outer([x, y, z], [x, y, z])
+
+
+def between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotation taking direction u onto v (for opposite directions: about world forward, else left)."""
+    u, v = _unit(u), _unit(v)
+    axis = np.cross(u, v)
+    if np.linalg.norm(axis) < 1e-9:
+        if float(u @ v) > 0:
+            return np.eye(3)
+        axis = FORWARD if abs(float(u @ FORWARD)) < 0.9 else LEFT
+        return axis_angle(axis - (axis @ u) * u, 180.0)
+    return axis_angle(axis, math.degrees(math.atan2(np.linalg.norm(axis), float(u @ v))))
+
+
+def frame_from(primary_local: np.ndarray, primary_world: np.ndarray, second_local: np.ndarray,
+               second_world: np.ndarray) -> np.ndarray:
+    """The rotation taking local primary onto world primary exactly and local second as close as possible to world second."""
+    def basis(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        e0 = _unit(a)
+        e1 = _unit(b - (b @ e0) * e0)
+        return np.stack([e0, e1, np.cross(e0, e1)], axis=1)
+    return basis(primary_world, second_world) @ basis(primary_local, second_local).T
+
+
+def matrix_to_quat(m: np.ndarray) -> tuple[float, float, float, float]:
+    """x, y, z, w with w >= 0 (Shepperd's method: from the largest of w, x, y, z, exact near 180 degrees too)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    cands = [tr, m[0, 0], m[1, 1], m[2, 2]]
+    i = int(np.argmax(cands))
+    if i == 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
+    elif i == 1:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
+    elif i == 2:
+        s = 2.0 * math.sqrt(1.0 - m[0, 0] + m[1, 1] - m[2, 2])
+        q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 - m[0, 0] - m[1, 1] + m[2, 2])
+        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
+    n = math.sqrt(sum(v * v for v in q)) * (1.0 if q[3] >= 0 else -1.0)
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def matrix_to_euler_zxy(m: np.ndarray) -> tuple[float, float, float]:
+    """Degrees (z, x, y) with m = Rz(z) Rx(x) Ry(y): BVH channels ``Zrotation Xrotation Yrotation``."""
+    x = math.asin(max(-1.0, min(1.0, m[2, 1])))
+    z = math.atan2(-m[0, 1], m[1, 1])
+    y = math.atan2(-m[2, 0], m[2, 2])
+    return (math.degrees(z), math.degrees(x), math.degrees(y))
+
+
+# ---------------------------------------------------------------------- the T-pose
+
+@dataclass(frozen=True)
+class Pose:
+    """Local rotation matrices [J, 3, 3] and the root position (model units and axes)."""
+
+    local: np.ndarray
+    root: np.ndarray
+
+    def world(self, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations [J, 3, 3] and positions [J, 3] by forward kinematics."""
+        rot = np.zeros_like(self.local)
+        pos = np.zeros((len(rig.names), 3))
+        for j, p in enumerate(rig.parents):
+            if p < 0:
+                rot[j], pos[j] = self.local[j], self.root
+            else:
+                rot[j] = rot[p] @ self.local[j]
+                pos[j] = pos[p] + rot[p] @ rig.offsets[j]
+        return rot, pos
+
+
+def _bone_targets(rig: Rig) -> dict[int, np.ndarray]:
+    """Per joint with a bone to aim, the world direction of the bone towards its primary child."""
+    r, names = rig.roles, rig.names
+    chain = [r["head"]]
+    while rig.parents[chain[-1]] >= 0:
+        chain.append(rig.parents[chain[-1]])
+    spine = list(reversed(chain))
+    targets: dict[int, np.ndarray] = dict.fromkeys(spine, UP)
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        clavicle = rig.parents[r[f"{side}_shoulder"]]
+        for j in rig.descendants(clavicle):
+            targets[j] = sign * LEFT
+        ankle, _toe = r[f"{side}_foot"][:2]
+        for j in rig.descendants(r[f"{side}_hip"]):
+            targets[j] = -UP
+        for j in rig.descendants(ankle):
+            targets[j] = _unit(FORWARD - math.tan(math.radians(FOOT_PITCH_DEG)) * UP)
+    missing = [names[j] for j in range(len(names)) if j not in targets]
+    if missing:
+        raise ValueError(f"no T-pose direction for joint(s) {', '.join(missing)}: not on the spine, an arm or a leg")
+    return targets
+
+
+def _primary_child(rig: Rig, j: int, spine_next: dict[int, int]) -> int | None:
+    kids = [k for k in rig.children(j) if np.linalg.norm(rig.offsets[k]) > 1e-6]
+    if j in spine_next:
+        return spine_next[j]
+    return kids[0] if len(kids) == 1 else None
+
+
+def t_pose(rig: Rig) -> Pose:
+    """Arms out along +-X, legs down, spine up, feet forward and 30 degrees down, facing +Z, toes 2 units above y=0.
+
+    Each bone is aimed with the shortest rotation from where its parent leaves it (so twists follow the
+    parent); a joint with a left and a right child (hips, chest) also turns them to +X and -X.
+    """
+    r = rig.roles
+    targets = _bone_targets(rig)
+    chain = [r["head"]]
+    while rig.parents[chain[-1]] >= 0:
+        chain.append(rig.parents[chain[-1]])
+    spine_next = {chain[i + 1]: chain[i] for i in range(len(chain) - 1)}
+    left = set(rig.descendants(rig.parents[r["left_shoulder"]])) | set(rig.descendants(r["left_hip"]))
+    right = set(rig.descendants(rig.parents[r["right_shoulder"]])) | set(rig.descendants(r["right_hip"]))
+    world = np.zeros((len(rig.names), 3, 3))
+    for j, p in enumerate(rig.parents):
+        parent = np.eye(3) if p < 0 else world[p]
+        child = _primary_child(rig, j, spine_next)
+        if child is None:                       # a leaf (or a zero-length bone): keep the parent's frame
+            world[j] = parent
+            continue
+        kids = rig.children(j)
+        lk = [k for k in kids if k in left and k not in spine_next.values()]
+        rk = [k for k in kids if k in right and k not in spine_next.values()]
+        if lk and rk:
+            lateral = rig.offsets[lk[0]] - rig.offsets[rk[0]]
+            world[j] = frame_from(rig.offsets[child], targets[j], lateral, LEFT)
+        else:
+            aim = parent @ rig.offsets[child]
+            world[j] = between(aim, targets[j]) @ parent
+    local = np.stack([world[j] if p < 0 else world[p].T @ world[j] for j, p in enumerate(rig.parents)])
+    _, pos = Pose(local, np.zeros(3)).world(rig)
+    return Pose(local, np.array([0.0, TOE_HEIGHT - pos[:, 1].min(), 0.0]))
+
+
+def sample_motion(rig: Rig, rest: Pose, frames: int = MOTION_FRAMES) -> list[Pose]:
+    """From the T-pose, both arms lower by ARMS_DOWN_DEG (about the forward axis) over ``frames`` frames."""
+    world, _ = rest.world(rig)
+    out = []
+    for f in range(frames):
+        deg = ARMS_DOWN_DEG * f / max(frames - 1, 1)
+        local = rest.local.copy()
+        for side, sign in (("left", -1.0), ("right", 1.0)):
+            j = rig.roles[f"{side}_shoulder"]
+            p = rig.parents[j]
+            local[j] = world[p].T @ axis_angle(FORWARD, sign * deg) @ world[j]
+        out.append(Pose(local, rest.root.copy()))
+    return out
+
+
+# ---------------------------------------------------------------------- BVH
+
+def to_bvh(rig: Rig, poses: list[Pose], fps: float) -> str:
+    """Position channels on the root only, ``Zrotation Xrotation Yrotation`` everywhere, 6 decimals."""
+    joints = []
+    for j, name in enumerate(rig.names):
+        channels = (("Xposition", "Yposition", "Zposition") if j == 0 else ()) + ("Zrotation", "Xrotation", "Yrotation")
+        end = rig.end_sites.get(j)
+        if end is None and not rig.children(j):
+            end = (0.0, 0.0, 0.0)
+        joints.append(BvhJoint(name, rig.parents[j], tuple(float(v) for v in rig.offsets[j]), channels, end))  # type: ignore[arg-type]
+    rows = []
+    for pose in poses:
+        row = list(pose.root)
+        for m in pose.local:
+            row.extend(matrix_to_euler_zxy(m))
+        rows.append(row)
+    return BvhDocument(joints, 1.0 / fps, np.array(rows)).format(precision=6)
+
+
+# ---------------------------------------------------------------------- glTF
+
+_FLOAT, _USHORT = 5126, 5123
+
+
+class _Buffer:
+    def __init__(self) -> None:
+        self.data = bytearray()
+        self.views: list[dict[str, Any]] = []
+        self.accessors: list[dict[str, Any]] = []
+
+    def add(self, values: np.ndarray, kind: str, component: int, target: int | None = None,
+            bounds: bool = False) -> int:
+        raw = values.astype("<f4" if component == _FLOAT else "<u2").tobytes()
+        while len(self.data) % 4:
+            self.data.append(0)
+        view: dict[str, Any] = {"buffer": 0, "byteOffset": len(self.data), "byteLength": len(raw)}
+        if target is not None:
+            view["target"] = target
+        self.data += raw
+        self.views.append(view)
+        width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[kind]
+        acc: dict[str, Any] = {"bufferView": len(self.views) - 1, "componentType": component,
+                               "count": int(values.size // width), "type": kind}
+        if bounds:
+            flat = values.reshape(-1, width).astype(np.float32).astype(np.float64)
+            acc["min"] = [round(float(v), 6) for v in flat.min(0)]
+            acc["max"] = [round(float(v), 6) for v in flat.max(0)]
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+
+def _stick_mesh(rig: Rig, pos: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An octahedral bone from each joint to each child with a non-zero offset, skinned to the joint."""
+    verts: list[np.ndarray] = []
+    joints: list[int] = []
+    index: list[int] = []
+    for k, j in enumerate(rig.parents):
+        if j < 0 or np.linalg.norm(rig.offsets[k]) < 1e-3:
+            continue
+        a, b = pos[j] * scale, pos[k] * scale
+        d = b - a
+        length = float(np.linalg.norm(d))
+        side = np.cross(d, FORWARD if abs(float(_unit(d) @ FORWARD)) < 0.9 else UP)
+        u = _unit(side) * min(0.1 * length, 0.03)
+        v = _unit(np.cross(d, u)) * min(0.1 * length, 0.03)
+        mid = a + 0.2 * d
+        base = len(verts)
+        verts += [a, mid + u, mid + v, mid - u, mid - v, b]
+        joints += [j] * 6
+        for i in range(4):
+            r0, r1 = base + 1 + i, base + 1 + (i + 1) % 4
+            index += [base, r1, r0, base + 5, r0, r1]
+    return np.array(verts), np.array(joints), np.array(index)
+
+
+def to_gltf(rig: Rig, rest: Pose, motion: list[Pose], fps: float) -> dict[str, Any]:
+    """A glTF 2.0 document (buffer embedded): a node per joint in the T-pose, a skinned stick mesh, the sample motion.
+
+    glTF's axes are the model's (right-handed, Y up, +Z forward, +X left); lengths are metres.
+    """
+    scale = {"cm": 0.01, "m": 1.0, "mm": 0.001}.get(rig.units, 0.01)
+    world, pos = rest.world(rig)
+    buf = _Buffer()
+    nodes: list[dict[str, Any]] = []
+    for j, name in enumerate(rig.names):
+        t = rest.root if j == 0 else rig.offsets[j]
+        node: dict[str, Any] = {"name": name, "translation": [round(float(v) * scale, 7) for v in t],
+                                "rotation": [round(v, 7) for v in matrix_to_quat(rest.local[j])]}
+        kids = rig.children(j)
+        if kids:
+            node["children"] = kids
+        nodes.append(node)
+    inverse_bind = []
+    for j in range(len(rig.names)):
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = world[j], pos[j] * scale
+        inverse_bind.append(np.linalg.inv(m).T.reshape(-1))   # column-major
+    verts, vjoints, index = _stick_mesh(rig, pos, scale)
+    attrs = {"POSITION": buf.add(verts, "VEC3", _FLOAT, 34962, bounds=True),
+             "JOINTS_0": buf.add(np.stack([vjoints, 0 * vjoints, 0 * vjoints, 0 * vjoints], 1), "VEC4", _USHORT, 34962),
+             "WEIGHTS_0": buf.add(np.tile([1.0, 0.0, 0.0, 0.0], (len(verts), 1)), "VEC4", _FLOAT, 34962)}
+    indices = buf.add(index, "SCALAR", _USHORT, 34963)
+    ibm = buf.add(np.array(inverse_bind), "MAT4", _FLOAT)
+    nodes.append({"name": "RsmtStickMesh", "mesh": 0, "skin": 0})
+    times = buf.add(np.arange(len(motion)) / fps, "SCALAR", _FLOAT, bounds=True)
+    channels, samplers = [], []
+    for j in range(len(rig.names)):
+        quats = np.array([matrix_to_quat(p.local[j]) for p in motion])
+        samplers.append({"input": times, "output": buf.add(quats, "VEC4", _FLOAT), "interpolation": "LINEAR"})
+        channels.append({"sampler": len(samplers) - 1, "target": {"node": j, "path": "rotation"}})
+    samplers.append({"input": times, "output": buf.add(np.array([p.root * scale for p in motion]), "VEC3", _FLOAT),
+                     "interpolation": "LINEAR"})
+    channels.append({"sampler": len(samplers) - 1, "target": {"node": 0, "path": "translation"}})
+    return {
+        "asset": {"version": "2.0", "generator": "rsmt rig export"},
+        "scene": 0,
+        "scenes": [{"name": "RsmtRig", "nodes": [0, len(nodes) - 1]}],
+        "nodes": nodes,
+        "meshes": [{"name": "RsmtStickMesh", "primitives": [{"attributes": attrs, "indices": indices, "mode": 4}]}],
+        "skins": [{"name": "RsmtRig", "joints": list(range(len(rig.names))), "skeleton": 0, "inverseBindMatrices": ibm}],
+        "animations": [{"name": "ArmsDown", "channels": channels, "samplers": samplers}],
+        "accessors": buf.accessors,
+        "bufferViews": buf.views,
+        "buffers": [{"byteLength": len(buf.data),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(buf.data)).decode()}],
+    }
+
+
+def reference_json(rig: Rig, rest: Pose) -> dict[str, Any]:
+    """The skeleton with its T-pose, for the engine helpers' rest-pose correction (``RsmtReferencePose``)."""
+    world, _ = rest.world(rig)
+    return {
+        "format": 1, "units": rig.units, "up_axis": "y", "handedness": "right",
+        "joints": [{"name": n, "parent": p, "offset": [float(v) for v in rig.offsets[j]],
+                    "t_pose_rotation": [round(v, 9) for v in matrix_to_quat(rest.local[j])],
+                    "t_pose_world_rotation": [round(v, 9) for v in matrix_to_quat(world[j])]}
+                   for j, (n, p) in enumerate(zip(rig.names, rig.parents))],
+        "t_pose_root_position": [round(float(v), 6) for v in rest.root],
+    }
+
+
+def export(skeleton: Path, out: Path, stem: str, fps: float) -> dict[str, Path]:
+    """Write ``STEM.bvh``, ``STEM.gltf`` and ``STEM.tpose.json`` under ``out``; returns the paths."""
+    rig = Rig.load(skeleton)
+    rest = t_pose(rig)
+    motion = sample_motion(rig, rest)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"bvh": out / f"{stem}.bvh", "gltf": out / f"{stem}.gltf", "tpose": out / f"{stem}.tpose.json"}
+    files["bvh"].write_text(to_bvh(rig, motion, fps), encoding="utf-8")
+    files["gltf"].write_text(json.dumps(to_gltf(rig, rest, motion, fps), indent=1) + "\n", encoding="utf-8")
+    files["tpose"].write_text(json.dumps(reference_json(rig, rest), indent=1) + "\n", encoding="utf-8")
+    return files
+
+
+def buffer_bytes(gltf: dict[str, Any]) -> bytes:
+    """The embedded buffer of a document written by :func:`to_gltf`."""
+    uri = gltf["buffers"][0]["uri"]
+    return base64.b64decode(uri.split(",", 1)[1])
+
+
+def read_accessor(gltf: dict[str, Any], index: int) -> np.ndarray:
+    """An accessor's values as float64 [count, width] (float32 and uint16 components)."""
+    acc = gltf["accessors"][index]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[acc["type"]]
+    fmt = "f" if acc["componentType"] == _FLOAT else "H"
+    size = struct.calcsize("<" + fmt)
+    raw = buffer_bytes(gltf)[view["byteOffset"]:view["byteOffset"] + acc["count"] * width * size]
+    return np.array(struct.unpack(f"<{acc['count'] * width}{fmt}", raw), dtype=np.float64).reshape(acc["count"], width)
