@@ -3,6 +3,7 @@
     rsmt loadtest --spawn --characters 64 --seconds 60
     rsmt loadtest --url http://127.0.0.1:8000 --characters 256 --seconds 30 --soak
     rsmt loadtest --spawn --transition 100 --frames 40
+    rsmt loadtest --url http://127.0.0.1:8000 --slow-clients --partial-headers 20000 --half-bodies 5000
 
 Streams ``--characters`` characters at the model's fps (realtime pacing) for ``--seconds``, each
 starting a new transition when the last one ends (at most ``--max-transitions`` each), over
@@ -23,6 +24,9 @@ connections of ``--per-connection`` characters, binary frames, through the Pytho
 concurrency 1 (stopping early after ``--seconds``), p50/p99 against the engine's own time for
 the same transition (as the server reports it, and measured in this process with ``--bundle``).
 Progress goes to stderr every ``--progress-s`` seconds.
+
+``--slow-clients``: instead, hold connections that stall in their headers or body and time
+``/v1/health/ready`` meanwhile (:mod:`rsmt_cli.slow_clients`).
 """
 
 from __future__ import annotations
@@ -31,7 +35,6 @@ import argparse
 import asyncio
 import json
 import os
-import platform
 import signal
 import socket
 import subprocess
@@ -45,6 +48,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from rsmt_cli.load_figures import machine, metric_totals, percentiles
 
 SERVER_METRICS = ("process_cpu_seconds_total", "rsmt_step_seconds_sum", "rsmt_step_seconds_count", "rsmt_frames_sent_total",
                   "rsmt_step_cpu_seconds_total", "rsmt_character_prepare_seconds_sum",
@@ -81,6 +86,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--progress-s", type=float, default=5.0, metavar="S",
                    help="a progress line on stderr every S seconds (default 5; 0: none)")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures here")
+    from rsmt_cli.slow_clients import add_arguments as add_slow_client_arguments
+
+    add_slow_client_arguments(p)
     p.set_defaults(func=_run, parser=p)
 
 
@@ -96,7 +104,11 @@ def _run(args: argparse.Namespace) -> int:
     progress = Progress(args.progress_s)
     try:
         with _service(args) as (url, bundle):
-            if args.transition:
+            if args.slow_clients:
+                from rsmt_cli.slow_clients import slow_client_load
+
+                result = slow_client_load(args, url)
+            elif args.transition:
                 result = transition_load(url, args.api_key, args.transition, args.frames, bundle, args.seconds, progress)
             else:
                 result = stream_load(url, args.api_key, StreamPlan(args.characters, args.seconds, args.per_connection,
@@ -145,37 +157,6 @@ def rest_motion(model: dict[str, Any], frames: int, yaw_deg: float = 0.0, shift:
     rot[..., 3] = 1.0
     rot[:, 0] = [0.0, np.sin(yaw / 2), 0.0, np.cos(yaw / 2)]
     return {"root_positions": root.round(4).tolist(), "rotations": rot.round(6).tolist()}
-
-
-def percentiles(values: list[float], digits: int | None = None) -> dict[str, float]:
-    if not values:
-        return {"p50": float("nan"), "p99": float("nan"), "max": float("nan"), "n": 0}
-    import numpy as np
-
-    a = np.asarray(values)
-    out = {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
-    return {**({k: round(v, digits) for k, v in out.items()} if digits is not None else out), "n": len(a)}
-
-
-def metric_totals(text: str) -> dict[str, float]:
-    """Every sample of a Prometheus text exposition, summed over its labels, by sample name."""
-    from prometheus_client.parser import text_string_to_metric_families
-
-    totals: dict[str, float] = defaultdict(float)
-    for family in text_string_to_metric_families(text):
-        for sample in family.samples:
-            totals[sample.name] += float(sample.value)
-    return totals
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                    if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores ({cpu}), {platform.system()} {platform.release()}, Python {platform.python_version()}"
 
 
 # ---------------------------------------------------------------------- streaming load

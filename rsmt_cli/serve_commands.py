@@ -56,6 +56,7 @@ def _run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
+    from service.http.connection_guard import GuardedHttpToolsProtocol
     from service.http.logs import log_config
 
     fmt = choose_log_format(args.log_format, settings)
@@ -68,6 +69,9 @@ def _run(args: argparse.Namespace) -> int:
         # FORWARDED_ALLOW_IPS), which would let any local client pick its address for the rate limit.
         "proxy_headers": bool(settings.forwarded_allow_ips),
         "forwarded_allow_ips": ",".join(settings.forwarded_allow_ips) or None,
+        # httptools with read timeouts for headers, bodies and WebSocket handshakes and a cap on connections
+        # per client address (RSMT_HEADER_TIMEOUT_S, ...; service/http/connection_guard.py).
+        "http": GuardedHttpToolsProtocol,
     }
     # Bound before the app is made, so that the app knows its port even when the OS picks it (--port 0).
     config = uvicorn.Config(serve_app, factory=True, workers=args.workers, **common)

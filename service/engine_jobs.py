@@ -12,16 +12,21 @@ from typing import Any
 
 from model.inference.engine import Character, EncodedStyle
 from model.inference.errors import EngineError
+from model.motion.clip import Clip
+from service.builtin_styles import builtin_style, is_builtin
 from service.errors import ServiceError, from_engine
 from service.motion import frames_bvh, frames_json, motion_to_clip
 from service.registry import LoadedModel
 from service.schemas import BvhMotion, PoseMotion, StartMessage, TransitionRequest
 from service.style_book import Caller
+from service.style_store import StyleEntry
 
 
 def lookup_style(model: LoadedModel, caller: Caller, style_id: str) -> EncodedStyle:
     """One of the caller's registered styles (an admin's: anyone's); ``unknown_style`` otherwise, also when
-    another key registered it."""
+    another key registered it. A ``builtin:NAME`` id is one of the bundle's built-in styles, for every key."""
+    if is_builtin(style_id):
+        return builtin_style(model.engine, model.name, style_id)
     style = model.book.get(caller, style_id)
     if style is None:
         raise ServiceError("unknown_style", f"no style {style_id!r} for model {model.name!r} under this API key: "
@@ -32,7 +37,10 @@ def lookup_style(model: LoadedModel, caller: Caller, style_id: str) -> EncodedSt
 
 
 def encode_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> tuple[EncodedStyle, bool]:
-    clip = motion_to_clip(motion, model.engine, model.limits, "style")
+    return encode_clip(model, motion_to_clip(motion, model.engine, model.limits, "style"), name)
+
+
+def encode_clip(model: LoadedModel, clip: Clip, name: str) -> tuple[EncodedStyle, bool]:
     try:
         return model.engine.encode_style(clip, name)
     except EngineError as exc:
@@ -47,15 +55,16 @@ def resolve_style(model: LoadedModel, caller: Caller, style_id: str | None,
     return encode_style(model, motion, "inline")[0]
 
 
-def style_info(model: LoadedModel, style: EncodedStyle, cached: bool) -> dict[str, Any]:
+def style_info(model: LoadedModel, style: StyleEntry, cached: bool) -> dict[str, Any]:
     return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "cached": cached, "model": model.name}
 
 
 def register_style(model: LoadedModel, caller: Caller, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
     """Encode (or find the shared encoding of) a clip and file it under the caller; ``cached`` says whether
     the caller had registered it already."""
-    style, _ = encode_style(model, motion, name)
-    return style_info(model, style, model.book.add(caller.owner, style))
+    clip = motion_to_clip(motion, model.engine, model.limits, "style")
+    style, _ = encode_clip(model, clip, name)  # the store keeps the clip (RSMT_STYLE_STORE=redis: for other replicas)
+    return style_info(model, style, model.book.add(caller.owner, style, clip))
 
 
 def new_seed() -> int:

@@ -16,6 +16,7 @@ from starlette.responses import Response
 from model.inference.errors import EngineError, SkeletonMismatch, TooFewFrames, TooManyFrames
 
 log = logging.getLogger(__name__)
+CLIENT_CLOSED_REQUEST = 499
 
 # Every machine code of docs/protocol.md, with its HTTP status.
 STATUS: dict[str, int] = {
@@ -35,6 +36,8 @@ STATUS: dict[str, int] = {
     "unauthorized": 401,
     "not_ready": 503,
     "shutting_down": 503,
+    "overloaded": 503,  # a model's work queue is full (RSMT_QUEUE_LIMIT); with Retry-After
+    "style_store_unavailable": 503,  # RSMT_STYLE_STORE (Redis) cannot be reached; with Retry-After
     "internal": 500,
     # HTTP-only codes for requests that reach no route.
     "not_found": 404,
@@ -57,6 +60,11 @@ class ServiceError(Exception):
     @property
     def status(self) -> int:
         return STATUS[self.code]
+
+
+class ClientGone(Exception):
+    """The HTTP client of a queued job disconnected before it started: the job is dropped, and the answer
+    nobody reads is an empty 499 (nginx's "client closed request"), visible only in the request metrics."""
 
 
 # The engine's errors by contract code; any other (a length out of range) is a validation_error.
@@ -108,6 +116,10 @@ def install_error_handlers(app: FastAPI) -> None:
     async def _service_error(request: Request, exc: ServiceError) -> Response:
         _count(request, exc.code)
         return error_response(exc.code, exc.message, exc.headers)
+
+    @app.exception_handler(ClientGone)
+    async def _client_gone(request: Request, exc: ClientGone) -> Response:
+        return Response(status_code=CLIENT_CLOSED_REQUEST)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> Response:

@@ -5,10 +5,12 @@ uvicorn's own shutdown closes open WebSockets with 1012 and runs the lifespan's 
 every connection is gone, so the first steps cannot wait for the lifespan: the lifespan wraps
 uvicorn's SIGINT/SIGTERM handlers. On the first signal it starts :func:`begin_shutdown` (readiness
 503, every WebSocket closed with 1001), keeps serving HTTP for ``shutdown_drain_s`` so load
-balancers see the 503, then hands the signal to uvicorn, which waits up to its
-``timeout_graceful_shutdown`` (``rsmt serve`` sets it to ``shutdown_grace_s``) for in-flight
-requests. A second signal goes to uvicorn at once. Where signals cannot be caught (not the main
-thread, e.g. a test client), the lifespan's shutdown runs the same steps.
+balancers see the 503, then closes the models' work queues (:func:`end_drain`: HTTP work not yet
+started is answered JSON 503 ``shutting_down`` at once, new work too) and hands the signal to
+uvicorn, which waits up to its ``timeout_graceful_shutdown`` (``rsmt serve`` sets it to
+``shutdown_grace_s``) for the requests still running: at most ``request_threads`` per model, since
+nothing else is left to start. A second signal goes to uvicorn at once. Where signals cannot be
+caught (not the main thread, e.g. a test client), the lifespan's shutdown runs the same steps.
 
 When the app knows the address it is served at (``app.state.public_url``, set by ``rsmt serve``), the
 ready and stopped events go to the ``service.announce`` logger, which speaks at the default level.
@@ -84,6 +86,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     finally:
         warm_task.cancel()
         await begin_shutdown(state)
+        end_drain(state)
         await registry.stop()
         restore()
         if url is not None:
@@ -111,6 +114,15 @@ async def begin_shutdown(state: ServiceState) -> None:
     if connections:
         await asyncio.gather(*(c.close(CLOSE_GOING_AWAY, "server shutting down") for c in connections),
                              return_exceptions=True)
+
+
+def end_drain(state: ServiceState) -> None:
+    """The drain is over: every model's queued HTTP work that has not started is answered 503 ``shutting_down``
+    (JSON) now, and new work too, so the graceful shutdown waits only for the jobs already running."""
+    if state.registry is not None:
+        dropped = state.registry.close_queues()
+        if dropped:
+            log.info("queued requests refused at shutdown", extra={"requests": dropped})
 
 
 class _Restore:
@@ -145,11 +157,13 @@ def install_signal_hook(state: ServiceState, loop: asyncio.AbstractEventLoop) ->
             await begin_shutdown(state)
             await asyncio.sleep(state.settings.shutdown_drain_s)
         finally:
+            end_drain(state)
             hand_over(sig, frame)
 
     def handler(sig: int, frame: Any) -> None:
         nonlocal started
-        if started:
+        if started:  # a second signal: no more draining, uvicorn stops now
+            loop.call_soon_threadsafe(end_drain, state)
             hand_over(sig, frame)
             return
         started = True

@@ -50,6 +50,11 @@ class Metrics:
                                                ["model"], buckets=LATENCY_BUCKETS, registry=r)
         self.send_lag_seconds = Histogram("rsmt_frame_send_lag_seconds", "time from a frame's due time to its send",
                                           buckets=LATENCY_BUCKETS, registry=r)
+        self.work_jobs = Counter("rsmt_work_queue_jobs", "HTTP engine jobs by outcome: run, rejected (queue full), "
+                                 "abandoned (client gone before the start), shutting_down", ["model", "outcome"],
+                                 registry=r)
+        self.work_waiting = Gauge("rsmt_work_queue_waiting", "HTTP engine jobs waiting for a work thread", ["model"],
+                                  registry=r)
         self.errors = Counter("rsmt_errors", "errors returned, by contract code", ["code"], registry=r)
         self.closes = Counter("rsmt_ws_closes", "WebSocket closes initiated by the server, by close code",
                               ["code"], registry=r)

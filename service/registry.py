@@ -1,15 +1,17 @@
 """Loaded models: finding bundles on disk, one :class:`Engine` per bundle, and the threads that run it.
 
-Each model gets two executors: ``work`` (``request_threads`` threads) for HTTP requests and stream
-setup (parsing, style encoding, ``prepare``, ``generate``), and ``step``, a single thread that owns
-the scheduler's batches. Engine calls never run on the event loop.
+Each model gets three executors: ``work`` (``request_threads`` threads) for HTTP requests (parsing,
+style encoding, ``prepare``, ``generate``) behind a bounded :class:`~service.work_queue.WorkQueue`;
+``setup`` (as many threads) for stream setup (``start``, ``retarget`` and ``style`` payloads), a lane of
+its own so that an HTTP burst never delays a stream; and ``step``, a single thread that owns the
+scheduler's batches. Engine calls never run on the event loop.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,12 +21,14 @@ import torch
 
 from model.inference.bundle import Bundle, BundleError
 from model.inference.engine import Engine
+from service.builtin_styles import builtin_list
 from service.errors import ServiceError
 from service.metrics import Metrics
 from service.motion import MotionLimits
 from service.settings import Settings
 from service.streaming.scheduler import Scheduler
-from service.style_book import StyleBook
+from service.style_store import StyleStore, style_store_factory
+from service.work_queue import WorkQueue
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -59,9 +63,11 @@ class LoadedModel:
     engine: Engine
     work: ThreadPoolExecutor
     step: ThreadPoolExecutor
+    setup: ThreadPoolExecutor  # stream setup: its own lane, never behind HTTP work
+    queue: WorkQueue  # HTTP work waits here for ``work``
     max_transition: int
     limits: MotionLimits
-    book: StyleBook  # the styles registered through this model, by owner (service.style_book)
+    book: StyleStore  # the styles registered through this model, by owner (service.style_store)
     scheduler: Scheduler | None = None
     warmup: dict[str, Any] = field(default_factory=dict)
 
@@ -76,6 +82,7 @@ class LoadedModel:
             "fps": c.fps,
             "context_frames": c.context,
             "max_transition_frames": self.max_transition,
+            "target_velocity_flag": c.target_velocity_flag,
             "style_clip_frames": {"min": c.style_frames_min, "max": c.style_frames_max},
             "skeleton": {
                 "joints": [{"name": n, "parent": p, "offset": list(o)} for n, p, o in zip(sk.names, sk.parents, sk.offsets)],
@@ -85,11 +92,17 @@ class LoadedModel:
             },
             "training_data": engine.bundle.meta.training_data,
             "license": engine.bundle.meta.license,
+            "builtin_styles": builtin_list(engine),
         }
 
-    async def run(self, fn: Callable[..., T], *args: Any) -> T:
-        """Run ``fn(*args)`` on this model's work threads."""
-        return await asyncio.get_running_loop().run_in_executor(self.work, fn, *args)
+    async def run(self, fn: Callable[..., T], *args: Any, gone: Callable[[], Awaitable[None]] | None = None) -> T:
+        """Run ``fn(*args)`` for an HTTP request on this model's work threads, through its bounded queue
+        (``overloaded`` when full, ``shutting_down`` once closed; ``gone``: see :meth:`WorkQueue.run`)."""
+        return await self.queue.run(fn, *args, gone=gone)
+
+    async def run_stream(self, fn: Callable[..., T], *args: Any) -> T:
+        """Run ``fn(*args)`` for a stream's message on this model's stream-setup threads."""
+        return await asyncio.get_running_loop().run_in_executor(self.setup, fn, *args)
 
     def check_frames(self, frames: int) -> None:
         if frames > self.max_transition:
@@ -125,15 +138,22 @@ class Registry:
 
     def start_schedulers(self, metrics: Metrics | None) -> None:
         for m in self:
+            m.queue.metrics = metrics
             m.scheduler = Scheduler(m.engine, m.step, metrics, m.name)
             m.scheduler.start()
+
+    def close_queues(self) -> int:
+        """Shutdown: HTTP work not yet started is answered ``shutting_down``; returns how much there was."""
+        return sum(m.queue.close() for m in self)
 
     async def stop(self) -> None:
         for m in self:
             if m.scheduler is not None:
                 await m.scheduler.stop()
+        self.close_queues()
         for m in self:
             m.work.shutdown(wait=False, cancel_futures=True)
+            m.setup.shutdown(wait=False, cancel_futures=True)
             m.step.shutdown(wait=False, cancel_futures=True)
 
 
@@ -152,6 +172,7 @@ def load_registry(settings: Settings) -> Registry:
     paths = find_bundles(settings.models)
     models: list[LoadedModel] = []
     names: set[str] = set()
+    new_book = style_store_factory(settings)
     for path in paths:
         try:
             bundle = Bundle.load(path)
@@ -168,11 +189,13 @@ def load_registry(settings: Settings) -> Registry:
         cap = settings.max_transition_frames
         max_transition = min(engine.max_frames, cap) if cap else engine.max_frames
         limits = MotionLimits(settings.max_clip_frames, settings.quaternion_tolerance, settings.max_abs_position)
+        work = _threads(settings.request_threads, f"work-{name}", settings.threads)
         models.append(LoadedModel(
-            name=name, path=path, engine=engine, max_transition=max_transition, limits=limits,
-            work=_threads(settings.request_threads, f"work-{name}", settings.threads),
+            name=name, path=path, engine=engine, max_transition=max_transition, limits=limits, work=work,
+            queue=WorkQueue(work, settings.request_threads, settings.queue_limit, name=name),
+            setup=_threads(settings.request_threads, f"setup-{name}", settings.threads),
             step=_threads(1, f"step-{name}", settings.threads),
-            book=StyleBook(settings.styles_per_owner, settings.style_cache_entries, settings.style_cache_bytes),
+            book=new_book(name, engine),
         ))
         log.info("loaded model", extra={"model": name, "path": str(path), "version": engine.version})
     return Registry(models, settings.default_model)

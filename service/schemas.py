@@ -110,6 +110,12 @@ class SkeletonInfo(BaseModel):
     handedness: str
 
 
+class BuiltinStyleInfo(BaseModel):
+    style_id: str = Field(description="builtin:NAME")
+    name: str
+    frames: int
+
+
 class ModelInfo(BaseModel):
     """``GET /v1/model``: what a client needs to build requests and read frames."""
 
@@ -118,10 +124,15 @@ class ModelInfo(BaseModel):
     fps: float
     context_frames: int
     max_transition_frames: int
+    target_velocity_flag: bool = Field(
+        description="true: the model is told whether a target came with the frame before it (one frame is enough); "
+                    "false: a one-frame target is reached at rest")
     style_clip_frames: FrameRange
     skeleton: SkeletonInfo
     training_data: str
     license: str
+    builtin_styles: list[BuiltinStyleInfo] = Field(
+        default_factory=list, description="style clips shipped with the model: usable by every key as style_id")
 
 
 class ModelList(BaseModel):

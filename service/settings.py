@@ -61,6 +61,18 @@ class Settings(BaseSettings):
         default=256, ge=1, description="registered styles one API key may hold per model (its least recently used go "
         "first); with keys off the one anonymous owner is bounded by style_cache_entries alone")
 
+    # -- style store (replicas)
+    style_store: str = Field(
+        default="memory", pattern=r"^(memory|rediss?://\S+|unix://\S+)$",
+        description="where registered styles live: 'memory' (this process only, lost on restart) or a Redis URL "
+        "redis://HOST:PORT/DB shared by every replica (service/style_store)")
+    style_store_ttl_s: int = Field(
+        default=0, ge=0, description="with Redis: a registered style is forgotten this many seconds after it was last "
+        "registered or used (0: never; the per-key cap still applies)")
+    style_store_timeout_s: float = Field(
+        default=1.0, gt=0, description="with Redis: connect and reply timeout; past it the request gets 503 "
+        "style_store_unavailable")
+
     # ------------------------------------------------------------------ limits
     max_body_bytes: int = Field(default=1 << 20, ge=1024, description="HTTP request bodies above this get 413")
     max_clip_frames: int = Field(default=1200, ge=1, description="most frames one Motion payload may hold (before resampling)")
@@ -89,6 +101,26 @@ class Settings(BaseSettings):
     max_pending_messages: int = Field(
         default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )
+
+    # -- work queue and shutdown
+    queue_limit: int = Field(
+        default=32, ge=1, description="per model: HTTP requests that may wait for a work thread; beyond, 503 "
+        "overloaded with Retry-After at once (stream setup has its own threads and does not wait here)")
+
+    # -- connection limits (slow clients)
+    # Enforced by service.http.connection_guard (the uvicorn protocol `rsmt serve` runs), per process.
+    header_timeout_s: float = Field(
+        default=10.0, gt=0, description="a request's headers must be complete this long after its first byte (after "
+        "the connection opened, for its first request); else 408 and the connection is closed")
+    body_timeout_s: float = Field(
+        default=30.0, gt=0, description="a request's whole body must arrive within this long of the end of its "
+        "headers (a total, not a gap between chunks); else the connection is closed")
+    ws_handshake_timeout_s: float = Field(
+        default=10.0, gt=0, description="a WebSocket upgrade request must be answered (101 or refused) this long "
+        "after its first byte; else the connection is closed. After the handshake idle_timeout_s applies")
+    max_connections_per_address: int = Field(
+        default=256, ge=0, description="open connections (HTTP and WebSocket) per client address as the socket "
+        "sees it (IPv6 per /64); one more is closed at once. Peers in forwarded_allow_ips are not capped. 0: no cap")
 
     # ------------------------------------------------------------------ auth and rate limits
     api_keys: Annotated[list[str], NoDecode] = Field(

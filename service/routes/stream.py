@@ -24,7 +24,7 @@ async def stream(ws: WebSocket) -> None:
     settings = state.settings
     encoding = ws.query_params.get("encoding", "json")
     try:
-        caller = _admit(ws, state, encoding)
+        caller, bucket = _admit(ws, state, encoding)
     except ServiceError as exc:
         state.metrics.errors.labels(exc.code).inc()
         await _deny(ws, exc)
@@ -35,7 +35,7 @@ async def stream(ws: WebSocket) -> None:
                       max_pending_messages=settings.max_pending_messages, metrics=state.metrics)
     state.connections.add(conn)
     state.metrics.live_streams.inc()
-    session = Session(state, conn, caller)
+    session = Session(state, conn, caller, bucket)
     conn.start(settings.ws_send_buffer_bytes)
     conn.send_message(session.hello())
     try:
@@ -55,18 +55,21 @@ async def stream(ws: WebSocket) -> None:
         state.metrics.live_streams.dec()
 
 
-def _admit(ws: WebSocket, state: ServiceState, encoding: str) -> Caller:
-    """The caller, or raise the error that refuses this handshake: not serving, key or rate limit, then bad
-    encoding (after the key, so that nothing about the request is answered to a client without one)."""
+def _admit(ws: WebSocket, state: ServiceState, encoding: str) -> tuple[Caller, str]:
+    """The caller and its rate-limit bucket (its key, or its address without keys), or raise the error that
+    refuses this handshake: not serving, key or rate limit, then bad encoding (after the key, so that nothing
+    about the request is answered to a client without one)."""
     if state.stopping:
         raise ServiceError("shutting_down", "the server is shutting down; reconnect to another replica")
     if state.registry is None:
         raise ServiceError("not_ready", "the models are still loading; retry shortly")
     client = ws.client.host if ws.client else "unknown"
-    caller = check_access(state, key_from(ws.headers, ws.query_params), client)
+    key = key_from(ws.headers, ws.query_params)
+    caller = check_access(state, key, client)
     if encoding not in ("json", "binary"):
         raise ServiceError("validation_error", f"encoding must be 'json' or 'binary', got {encoding!r}")
-    return caller
+    # The same bucket as the caller's HTTP requests: each client message costs one request.
+    return caller, key if state.settings.auth_enabled and key is not None else client
 
 
 async def _deny(ws: WebSocket, exc: ServiceError) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from fastapi import APIRouter, Depends, Response
+from fastapi import APIRouter, Depends, Request, Response
 
 from service.deps import RegistryDep, StateDep
 from service.engine_jobs import run_transition
@@ -16,6 +16,7 @@ from service.schemas import (
     TransitionJson,
     TransitionRequest,
 )
+from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1", tags=["transitions"], dependencies=[Depends(require_access)],
                    responses={k: ERROR_RESPONSES[k] for k in (400, 401, 404, 413, 422, 429, 503)})
@@ -28,10 +29,11 @@ router = APIRouter(prefix="/v1", tags=["transitions"], dependencies=[Depends(req
     description="Same input and seed give the same frames. `output: bvh` returns BVH text of exactly `frames` "
                 "frames. The engine runs on the model's worker thread, so other requests keep flowing.",
 )
-async def transition(body: TransitionRequest, registry: RegistryDep, state: StateDep, caller: CallerDep) -> Response:
+async def transition(body: TransitionRequest, request: Request, registry: RegistryDep, state: StateDep,
+                     caller: CallerDep) -> Response:
     arrived = time.perf_counter()
     model = registry.get(body.model)
-    result = await model.run(run_transition, model, caller, body, arrived)
+    result = await model.run(run_transition, model, caller, body, arrived, gone=disconnect_of(request.receive))
     result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)
     state.metrics.transition_frames.labels(model.name).inc(body.frames)
     return Response(dumps(result), media_type="application/json")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi import Path as PathParam
 
 from service.deps import RegistryDep
@@ -20,6 +20,7 @@ from service.schemas import ERROR_RESPONSES, ModelName
 from service.viewer.rig import rig_info
 from service.viewer.schemas import ClipPoses, ClipRequest, DemoList, RigInfo
 from service.viewer.takes import demo_list, demo_poses, uploaded_poses
+from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1/viewer", tags=["viewer"], dependencies=[Depends(require_access)],
                    responses={k: ERROR_RESPONSES[k] for k in (401, 429, 503)})
@@ -31,21 +32,25 @@ async def rig(registry: RegistryDep, model: Annotated[ModelName | None, Query()]
     return rig_info(registry.get(model))
 
 
-@router.get("/demos", response_model=DemoList, summary="demo takes and style clips the viewer can load")
-async def demos() -> dict:
-    return demo_list()
+@router.get("/demos", response_model=DemoList, responses={404: ERROR_RESPONSES[404]},
+            summary="demo takes (and style clips) on the model's rig that the viewer can load")
+async def demos(registry: RegistryDep, model: Annotated[ModelName | None, Query()] = None) -> dict:
+    return demo_list(registry.get(model))
 
 
 @router.get("/demos/{name}", response_model=ClipPoses, responses={k: ERROR_RESPONSES[k] for k in (404, 422)},
-            summary="a demo (procedural walk on the synthetic rig, made now) as JSON poses on the model's rig")
-async def demo(name: Annotated[str, PathParam(max_length=64)], registry: RegistryDep,
+            summary="a demo take as JSON poses on the model's rig (a built-in style's captured clip, or a "
+                    "procedural walk on the synthetic test rig)")
+async def demo(name: Annotated[str, PathParam(max_length=64)], request: Request, registry: RegistryDep,
                model: Annotated[ModelName | None, Query()] = None) -> Response:
     m = registry.get(model)
-    return Response(dumps(await m.run(demo_poses, m, name)), media_type="application/json")
+    return Response(dumps(await m.run(demo_poses, m, name, gone=disconnect_of(request.receive))),
+                    media_type="application/json")
 
 
 @router.post("/clip", response_model=ClipPoses, responses={k: ERROR_RESPONSES[k] for k in (400, 404, 413, 422)},
              summary="read a take (BVH text or JSON poses) onto the model's rig and fps, as JSON poses")
-async def clip(body: ClipRequest, registry: RegistryDep) -> Response:
+async def clip(body: ClipRequest, request: Request, registry: RegistryDep) -> Response:
     m = registry.get(body.model)
-    return Response(dumps(await m.run(uploaded_poses, m, body)), media_type="application/json")
+    return Response(dumps(await m.run(uploaded_poses, m, body, gone=disconnect_of(request.receive))),
+                    media_type="application/json")

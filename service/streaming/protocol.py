@@ -8,6 +8,7 @@ stepping :mod:`service.streaming.scheduler`. Messages of one connection are hand
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -48,10 +49,11 @@ def request_id(obj: dict[str, Any]) -> str | int | None:
 class Session:
     """The message handlers of one connection."""
 
-    def __init__(self, state: ServiceState, conn: Connection, caller: Caller) -> None:
+    def __init__(self, state: ServiceState, conn: Connection, caller: Caller, bucket: str | None = None) -> None:
         self.state = state
         self.conn = conn
         self.caller = caller  # whose registered styles ``style_id`` names
+        self.bucket = bucket  # the rate limit's bucket (the key, or the address): every message costs a request
         self.settings = state.settings
         assert state.registry is not None
         self.registry = state.registry
@@ -74,20 +76,23 @@ class Session:
             },
         }
 
-    def error(self, code: str, message: str, character: str | None = None, rid: str | int | None = None) -> None:
+    def error(self, code: str, message: str, character: str | None = None, rid: str | int | None = None,
+              retry_after_s: int | None = None) -> None:
         self.state.metrics.errors.labels(code).inc()
         out: dict[str, Any] = {"type": "error", "code": code, "message": message}
         if character is not None:
             out["character"] = character
         if rid is not None:
             out["request_id"] = rid
+        if retry_after_s is not None:
+            out["retry_after_s"] = retry_after_s
         self.conn.send_message(out)
 
     async def handle(self, message: Mapping[str, Any]) -> None:
         """Handle one received WebSocket message; whatever goes wrong is answered with an ``error`` message
         (or, for a message over the size limit, by closing with 1009)."""
         text = await self._text(message)
-        if text is None:
+        if text is None or self._rate_limited(text):
             return
         parsed = self._parse(text)
         if parsed is None:
@@ -104,6 +109,28 @@ class Session:
         finally:
             self.conn.busy -= 1
             self.conn.touch()
+
+    def _rate_limited(self, text: str) -> bool:
+        """Spend a token of the connection's rate-limit bucket (that of its key's HTTP requests too); when there
+        is none, answer ``rate_limited`` (with ``retry_after_s``) and drop the message."""
+        limiter = self.state.limiter
+        if self.bucket is None or not limiter.enabled:
+            return False
+        wait = limiter.take(self.bucket)
+        if wait <= 0:
+            return False
+        try:
+            obj = orjson.loads(text)
+        except orjson.JSONDecodeError:
+            obj = None
+        obj = obj if isinstance(obj, dict) else {}
+        character = obj.get("character") if isinstance(obj.get("character"), str) else None
+        retry = max(1, math.ceil(wait))
+        self.error("rate_limited", f"rate limit of {self.settings.rate_limit_per_s:g} requests/s (burst "
+                                   f"{self.settings.rate_limit_burst}) exceeded, counting every message of this "
+                                   f"connection; this {obj.get('type', 'message')!s:.20} was dropped: retry in "
+                                   f"{wait:.2f} s", character, request_id(obj), retry_after_s=retry)
+        return True
 
     async def _text(self, message: Mapping[str, Any]) -> str | None:
         """The message's text, or None once a binary or oversized message has been answered."""
@@ -168,7 +195,7 @@ class Session:
         self.state.reserved_characters += 1
         began = time.perf_counter()
         try:
-            character, style, seed = await model.run(prepare_character, model, self.caller, msg, cid)
+            character, style, seed = await model.run_stream(prepare_character, model, self.caller, msg, cid)
             self.state.metrics.prepare_seconds.labels(model.name).observe(time.perf_counter() - began)
         finally:
             conn.reserved.discard(cid)
@@ -210,7 +237,7 @@ class Session:
             model.check_frames(msg.frames)
         target = None
         if msg.target is not None:
-            target = await model.run(motion_to_clip, msg.target, model.engine, model.limits, "target")
+            target = await model.run_stream(motion_to_clip, msg.target, model.engine, model.limits, "target")
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.retarget(stream, target, msg.frames)
         self.conn.send_message({"type": "retargeted", "character": msg.character, "from_seq": from_seq})
@@ -218,9 +245,9 @@ class Session:
     async def style(self, msg: StyleMessage) -> None:
         stream, model = self._live(msg.character)
         if msg.style_id is not None:
-            style = lookup_style(model, self.caller, msg.style_id)
+            style = await model.run_stream(lookup_style, model, self.caller, msg.style_id)  # may reach Redis
         else:
-            style = await model.run(resolve_style, model, self.caller, None, msg.style)
+            style = await model.run_stream(resolve_style, model, self.caller, None, msg.style)
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.set_style(stream, style)
         self.conn.send_message({"type": "style_changed", "character": msg.character, "from_seq": from_seq,

@@ -52,6 +52,7 @@ def test_model_description(client):
     m = client.get("/v1/model").json()
     # max_transition_frames: twice the 60-frame training horizon.
     assert m["fps"] == 30 and m["context_frames"] == 10 and m["max_transition_frames"] == 120
+    assert m["target_velocity_flag"] is False  # the test bundle predates the flag: one frame means "at rest"
     assert m["style_clip_frames"] == {"min": 16, "max": 240}
     sk = m["skeleton"]
     assert len(sk["joints"]) == 21 and sk["joints"][0] == {"name": "Hips", "parent": -1, "offset": [0.0, 0.0, 0.0]}

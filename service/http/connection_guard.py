@@ -1,0 +1,332 @@
+"""Connection guard: read timeouts and a per-address connection cap for uvicorn's httptools protocol.
+
+Uvicorn bounds the idle time between two requests of a keep-alive connection (``timeout_keep_alive``) but
+nothing else a client controls: a connection that sends part of its request headers, or a ``Content-Length``
+and part of the body, and then stalls is held open for as long as the client likes, and one address may open
+as many connections as the file-descriptor limit allows. :class:`GuardedHttpToolsProtocol` is uvicorn's
+:class:`~uvicorn.protocols.http.httptools_impl.HttpToolsProtocol` with four bounds added
+(:class:`ConnectionLimits`, from the ``RSMT_*`` settings of the app it serves):
+
+* **headers** (``header_timeout_s``): a request's headers must be complete this long after its first byte,
+  or after the connection opened for a connection's first request (a connection that sends nothing counts
+  too). Past it the connection gets ``408`` (when part of a request arrived) and is closed.
+* **body** (``body_timeout_s``): the whole body must have arrived this long after the end of the headers,
+  a total and not a gap between chunks, so that a body dripped one byte at a time is bounded as well. Past
+  it the connection is closed (``408`` first if the app has not answered yet). The clock runs whether or
+  not the app has read the body yet; the service's routes read it at once.
+* **WebSocket handshake** (``ws_handshake_timeout_s``): a request carrying ``Upgrade`` must have been
+  answered -- the socket open (``101``) or refused -- this long after its first byte. Before the headers
+  are complete this tightens the header bound as soon as the ``Upgrade`` header is seen; after them it
+  bounds the service's own answer. Once the socket is open the stream's idle timeout (``RSMT_IDLE_TIMEOUT_S``,
+  no message and no live character) and uvicorn's pings bound a silent client; a bound on the first
+  message would contradict the protocol's idle timeout, which lets a client open a stream before it has
+  characters to start.
+* **connections per address** (``max_connections_per_address``): open connections (HTTP and WebSocket)
+  per peer address as the socket sees it, IPv6 grouped by /64; one past the cap is closed at once, before
+  anything is read. Behind a proxy every client shares the proxy's address: the trusted proxies
+  (``RSMT_FORWARDED_ALLOW_IPS``) are not capped, and must enforce their own per-client limits.
+
+``rsmt serve`` passes this class to uvicorn; under plain uvicorn pass
+``--http service.http.connection_guard:GuardedHttpToolsProtocol``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import weakref
+from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING, Any, cast
+
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+if TYPE_CHECKING:
+    from uvicorn.config import Config
+    from uvicorn.server import ServerState
+
+log = logging.getLogger(__name__)
+IPNetwork = ipaddress.IPv4Network | ipaddress.IPv6Network
+
+#: A plain-text answer, like uvicorn's own ``400 Invalid HTTP request received.``: the request never
+#: reached the app, so it is not in the app's error envelope.
+_TIMEOUT_TEXT = b"request not received in time"
+REQUEST_TIMEOUT_RESPONSE = (b"HTTP/1.1 408 Request Timeout\r\ncontent-type: text/plain; charset=utf-8\r\n"
+                            b"content-length: " + str(len(_TIMEOUT_TEXT)).encode() + b"\r\nconnection: close\r\n\r\n"
+                            + _TIMEOUT_TEXT)
+#: After writing a 408, a client that does not read it is cut off this long later.
+_ABORT_AFTER_S = 1.0
+
+
+@dataclass(frozen=True)
+class ConnectionLimits:
+    """The guard's bounds (seconds; ``max_connections_per_address`` 0 turns the cap off)."""
+
+    header_timeout_s: float = 10.0
+    body_timeout_s: float = 30.0
+    ws_handshake_timeout_s: float = 10.0
+    max_connections_per_address: int = 256
+    #: Peers the cap leaves alone: the trusted proxies (``forwarded_allow_ips``: addresses, networks or ``*``),
+    #: whose connections carry many clients and which must enforce their own per-client limits.
+    uncapped: tuple[str, ...] = ()
+
+    @cached_property
+    def _uncapped_networks(self) -> tuple[bool, tuple[IPNetwork, ...], frozenset[str]]:
+        networks: list[IPNetwork] = []
+        literals: set[str] = set()
+        for entry in self.uncapped:
+            try:
+                networks.append(ipaddress.ip_network(entry, strict=False))
+            except ValueError:
+                literals.add(entry)
+        return "*" in literals, tuple(networks), frozenset(literals)
+
+    def capped(self, host: str) -> bool:
+        """Whether connections from ``host`` count under the per-address cap."""
+        if not self.max_connections_per_address:
+            return False
+        if not self.uncapped:
+            return True
+        everyone, networks, literals = self._uncapped_networks
+        if everyone or host in literals:
+            return False
+        try:
+            address = ipaddress.ip_address(host.split("%", 1)[0])
+        except ValueError:
+            return True
+        return not any(address in network for network in networks)
+
+    @classmethod
+    def from_app(cls, app: object) -> ConnectionLimits:
+        """The limits of the service's settings, found through uvicorn's middleware wrappers (each keeps the
+        app it wraps as ``.app``); the defaults for an app that is not the service."""
+        for _ in range(16):
+            settings = getattr(getattr(getattr(app, "state", None), "service", None), "settings", None)
+            if settings is not None:
+                return cls(header_timeout_s=settings.header_timeout_s, body_timeout_s=settings.body_timeout_s,
+                           ws_handshake_timeout_s=settings.ws_handshake_timeout_s,
+                           max_connections_per_address=settings.max_connections_per_address,
+                           uncapped=tuple(settings.forwarded_allow_ips))
+            app = getattr(app, "app", None)
+            if app is None:
+                break
+        return cls()
+
+
+_limits_of_config: weakref.WeakKeyDictionary[Config, ConnectionLimits] = weakref.WeakKeyDictionary()
+_open_per_server: weakref.WeakKeyDictionary[ServerState, dict[str, int]] = weakref.WeakKeyDictionary()
+
+
+def limits_for(config: Config) -> ConnectionLimits:
+    limits = _limits_of_config.get(config)
+    if limits is None:
+        limits = _limits_of_config[config] = ConnectionLimits.from_app(config.loaded_app)
+    return limits
+
+
+def address_key(host: str) -> str:
+    """The key the per-address cap counts under: the address itself, an IPv6 one by its /64 (one host
+    usually holds a whole /64), an IPv4-mapped IPv6 one as the IPv4 address."""
+    if ":" not in host:
+        return host
+    try:
+        address = ipaddress.IPv6Address(host.split("%", 1)[0])
+    except ValueError:
+        return host
+    if address.ipv4_mapped is not None:
+        return str(address.ipv4_mapped)
+    return str(ipaddress.IPv6Network((address, 64), strict=False))
+
+
+def open_connections(server_state: ServerState) -> dict[str, int]:
+    """Open connections per address key of one uvicorn server (a view for tests and diagnostics)."""
+    counts = _open_per_server.get(server_state)
+    if counts is None:
+        counts = _open_per_server[server_state] = {}
+    return counts
+
+
+def _release(server_state: ServerState, key: str | None) -> None:
+    if key is None:
+        return
+    counts = open_connections(server_state)
+    left = counts.get(key, 0) - 1
+    if left > 0:
+        counts[key] = left
+    else:
+        counts.pop(key, None)
+
+
+def _close(transport: asyncio.BaseTransport, loop: asyncio.AbstractEventLoop, answer: bool) -> None:
+    """Close a connection that ran out of time, with a 408 first if ``answer``; a client that does not read
+    even that is cut off shortly after. (uvloop's transports are no ``asyncio.Transport`` subclasses: hence
+    the cast rather than an isinstance check.)"""
+    stream = cast(asyncio.Transport, transport)
+    if stream.is_closing():
+        return
+    if answer:
+        stream.write(REQUEST_TIMEOUT_RESPONSE)
+    stream.close()
+    if stream.get_write_buffer_size():
+        loop.call_later(_ABORT_AFTER_S, stream.abort)
+
+
+class GuardedHttpToolsProtocol(HttpToolsProtocol):
+    """uvicorn's httptools protocol with header, body and WebSocket-handshake read timeouts and a cap on
+    open connections per client address (see the module's docstring)."""
+
+    def __init__(self, config: Config, server_state: ServerState, app_state: dict[str, Any],
+                 _loop: asyncio.AbstractEventLoop | None = None) -> None:
+        super().__init__(config, server_state, app_state, _loop)
+        self.limits = limits_for(config)
+        if self.ws_protocol_class is not None:
+            self.ws_protocol_class = guarded_ws_protocol(self.ws_protocol_class)
+        self._address: str | None = None  # the cap's key while this protocol holds a place under it
+        self._refused = False
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_deadline = 0.0
+        self._request_start = 0.0  # loop time of the current request's first byte (or of the connection)
+        self._request_bytes = False  # part of a request has arrived (a timeout answers 408)
+        self._in_body = False
+        self.handshake_deadline: float | None = None  # read by the WebSocket protocol this connection becomes
+
+    # ------------------------------------------------------------------ connection
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        peer = transport.get_extra_info("peername")
+        if isinstance(peer, tuple) and peer and isinstance(peer[0], str) and self.limits.capped(peer[0]):
+            key = address_key(peer[0])
+            counts = open_connections(self.server_state)
+            if counts.get(key, 0) >= self.limits.max_connections_per_address:
+                self._refused = True
+                transport.abort()  # at once, before anything is read or any state is made for it
+                return
+            counts[key] = counts.get(key, 0) + 1
+            self._address = key
+        super().connection_made(transport)
+        self._request_start = self.loop.time()
+        self._arm(self._request_start + self.limits.header_timeout_s)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._refused:
+            return
+        self._disarm()
+        _release(self.server_state, self._address)
+        self._address = None
+        super().connection_lost(exc)
+
+    def handle_websocket_upgrade(self) -> None:
+        self._disarm()
+        self.handshake_deadline = self._request_start + self.limits.ws_handshake_timeout_s
+        super().handle_websocket_upgrade()
+        self._address = None  # the WebSocket protocol holds the place from here and releases it when it ends
+
+    # ------------------------------------------------------------------ parser callbacks
+    def on_message_begin(self) -> None:
+        super().on_message_begin()
+        self._request_bytes = True
+        if self._timer is None:  # a later request of a keep-alive connection: its own header clock
+            self._request_start = self.loop.time()
+            self._arm(self._request_start + self.limits.header_timeout_s)
+
+    def on_header(self, name: bytes, value: bytes) -> None:
+        super().on_header(name, value)
+        if name.lower() == b"upgrade":
+            self._arm(min(self._timer_deadline, self._request_start + self.limits.ws_handshake_timeout_s))
+
+    def on_headers_complete(self) -> None:
+        self._disarm()
+        super().on_headers_complete()
+        if not (self.parser.should_upgrade() and self._should_upgrade()):
+            self._in_body = True
+            self._arm(self.loop.time() + self.limits.body_timeout_s)
+
+    def on_message_complete(self) -> None:
+        self._in_body = False
+        self._request_bytes = False
+        self._disarm()
+        super().on_message_complete()
+
+    # ------------------------------------------------------------------ timer
+    def _arm(self, deadline: float) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_deadline = deadline
+        self._timer = self.loop.call_at(deadline, self._timed_out)
+
+    def _disarm(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _timed_out(self) -> None:
+        self._timer = None
+        if self._in_body:
+            answer = self.cycle is not None and not self.cycle.response_started
+            log.debug("closing %s: request body not received within %.3g s", self.client, self.limits.body_timeout_s)
+        else:
+            answer = self._request_bytes
+            log.debug("closing %s: request headers not received in time", self.client)
+        _close(self.transport, self.loop, answer)
+
+
+class _WebSocketGuard(asyncio.Protocol):
+    """Mixed into uvicorn's WebSocket protocol class: keeps the connection's place under the per-address cap
+    until it ends, and closes it if the handshake is not answered by the deadline its HTTP protocol set."""
+
+    _guard_server_state: ServerState | None = None
+    _guard_address: str | None = None
+    _guard_timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        super().connection_made(transport)
+        upgraded_from = transport.get_protocol()  # still the HTTP protocol while it hands the connection over
+        if isinstance(upgraded_from, GuardedHttpToolsProtocol):
+            self._guard_server_state = upgraded_from.server_state
+            self._guard_address = upgraded_from._address
+            if upgraded_from.handshake_deadline is not None:
+                self._guard_timer = upgraded_from.loop.call_at(
+                    upgraded_from.handshake_deadline, self._handshake_timed_out, transport, upgraded_from.loop)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._guard_timer is not None:
+            self._guard_timer.cancel()
+            self._guard_timer = None
+        if self._guard_server_state is not None:
+            _release(self._guard_server_state, self._guard_address)
+        self._guard_address = None
+        super().connection_lost(exc)
+
+    def _handshake_timed_out(self, transport: asyncio.BaseTransport, loop: asyncio.AbstractEventLoop) -> None:
+        self._guard_timer = None
+        if not _handshake_answered(self):
+            log.debug("closing a WebSocket whose handshake was not answered in time")
+            _close(transport, loop, answer=False)
+
+
+def _handshake_answered(protocol: object) -> bool:
+    """Whether uvicorn's WebSocket protocol has answered the handshake (websockets-sansio and wsproto keep
+    ``handshake_complete``, the legacy websockets protocol an event)."""
+    done = getattr(protocol, "handshake_complete", None)
+    if isinstance(done, bool):
+        return done
+    event = getattr(protocol, "handshake_completed_event", None)
+    return bool(event is not None and event.is_set())
+
+
+_guarded_ws_classes: dict[type[asyncio.Protocol], type[asyncio.Protocol]] = {}
+
+
+def guarded_ws_protocol(base: type[asyncio.Protocol]) -> type[asyncio.Protocol]:
+    """uvicorn's WebSocket protocol class ``base`` with :class:`_WebSocketGuard` mixed in (made once per class)."""
+    if issubclass(base, _WebSocketGuard):
+        return base
+    guarded = _guarded_ws_classes.get(base)
+    if guarded is None:
+        guarded = type(f"Guarded{base.__name__}", (_WebSocketGuard, base), {"__module__": __name__})
+        _guarded_ws_classes[base] = guarded
+    return guarded
+
+
+__all__ = ["ConnectionLimits", "GuardedHttpToolsProtocol", "REQUEST_TIMEOUT_RESPONSE", "address_key",
+           "guarded_ws_protocol", "limits_for", "open_connections"]

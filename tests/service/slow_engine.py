@@ -1,0 +1,33 @@
+"""``python -m tests.service.slow_engine serve ...``: the ``rsmt`` command with every whole transition
+slowed by ``RSMT_TEST_GENERATE_DELAY_S`` seconds (a sleep before ``Engine.generate``: it holds a work
+thread without using CPU), so that a test can fill a model's work queue with a few requests on a
+small machine. Everything else is the real command: ``rsmt serve`` under uvicorn with its signals,
+drain and graceful shutdown."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from typing import Any
+
+from model.inference.engine import Engine
+
+DELAY_ENV = "RSMT_TEST_GENERATE_DELAY_S"
+
+
+def install(delay_s: float) -> None:
+    original = Engine.generate
+
+    def generate(self: Engine, *args: Any, **kwargs: Any) -> Any:
+        time.sleep(delay_s)
+        return original(self, *args, **kwargs)
+
+    Engine.generate = generate  # type: ignore[method-assign]
+
+
+if __name__ == "__main__":
+    install(float(os.environ.get(DELAY_ENV, "0")))
+    from rsmt_cli.main import main
+
+    sys.exit(main())
