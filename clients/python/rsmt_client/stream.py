@@ -6,25 +6,33 @@ then sends ``start`` / ``retarget`` / ``style`` / ``cancel`` / ``ping`` and read
 :class:`Frame` whichever encoding was chosen. The protocol itself (messages, frame decoding,
 per-character reassembly, retry decisions) is :mod:`rsmt_client.stream_protocol`; the two classes
 here only connect, send, receive and wait.
+
+With ``failover=True`` a lost connection (its replica died, restarted or drained) is opened again through
+the same URL and every live character resumes from the last frames it received
+(:mod:`rsmt_client.stream_failover`): the caller sees a stall, then the frames that were still to come,
+numbered on. Styles registered through :meth:`StreamClient.register_style` are registered again when a
+server answers ``unknown_style``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any, Self
 
 from websockets.asyncio.client import ClientConnection as AsyncConnection
 from websockets.asyncio.client import connect as async_connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
-from websockets.sync.client import connect
+from websockets.sync.client import ClientConnection, connect
 
 from rsmt_client._retry import Retrying, RetryPolicy
 from rsmt_client.errors import RsmtError
 from rsmt_client.frames import Frame, FrameLayout, Message
-from rsmt_client.http_protocol import DEFAULT_URL
-from rsmt_client.motion import Poses
+from rsmt_client.http import AsyncClient, Client
+from rsmt_client.http_protocol import DEFAULT_URL, default_style_name
+from rsmt_client.motion import Poses, motion_payload
+from rsmt_client.stream_failover import NO_RESUME_CLOSE_CODES, Actions, Failover, http_url
 from rsmt_client.stream_protocol import (
     MAX_MESSAGE_BYTES,
     StreamResult,
@@ -45,10 +53,40 @@ def _wait_after_failed_handshake(retrying: Retrying, url: str, exc: Exception) -
     return retrying.wait_or_raise(None, None, RsmtError("connection", f"cannot reach {url}: {exc}"), cause=exc)
 
 
+def _style_body(motion: Any, name: str | None, model: str | None) -> dict[str, Any]:
+    body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": motion_payload(motion)}
+    if model is not None:
+        body["model"] = model
+    return body
+
+
 class _SessionView:
-    """What both clients expose of their :class:`StreamSession`."""
+    """What both clients expose of their :class:`StreamSession`, and the failover decisions they share."""
 
     _session: StreamSession
+    _failover: Failover | None
+    _closing: bool
+
+    @property
+    def resumes(self) -> int:
+        """Reconnections that resumed characters (``failover=True``)."""
+        return 0 if self._failover is None else self._failover.resumes
+
+    def _new_failover(self, enabled: bool) -> Failover | None:
+        if not enabled:
+            return None
+        return Failover(int(self._session.model["context_frames"]), self._session.fps, self._session.joint_names)
+
+    def _can_resume(self, exc: ConnectionClosed) -> bool:
+        code = getattr(exc.rcvd, "code", None)
+        return (self._failover is not None and self._failover.live and not self._closing
+                and code not in NO_RESUME_CLOSE_CODES)
+
+    def _sending(self, message: Message) -> str:
+        text = self._session.encode(message)
+        if self._failover is not None:
+            self._failover.sent(message)
+        return text
 
     @property
     def hello(self) -> Message:
@@ -78,18 +116,65 @@ class StreamClient(_SessionView):
 
     def __init__(self, url: str = DEFAULT_URL, api_key: str | None = None, encoding: str = "json",
                  retry: RetryPolicy | None = None, open_timeout: float = 30.0, token_in_query: bool = False,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+                 sleep: Callable[[float], None] = time.sleep, failover: bool = False) -> None:
         self.url = stream_url(url, encoding, api_key if token_in_query else None)
         self.encoding = encoding
-        retrying = Retrying(retry or RetryPolicy())
+        self._api_key, self._token_in_query, self._open_timeout = api_key, token_in_query, open_timeout
+        self._retry, self._sleep, self._closing = retry or RetryPolicy(), sleep, False
+        self._http: Client | None = None
+        self._ws, self._session = self._open()
+        self._failover = self._new_failover(failover)
+
+    def _open(self) -> tuple[ClientConnection, StreamSession]:
+        """Connect (retrying refused handshakes with the policy) and read ``hello``."""
+        retrying = Retrying(self._retry)
         while True:
             try:
-                self._ws = connect(self.url, additional_headers=handshake_headers(api_key, token_in_query),
-                                   open_timeout=open_timeout, proxy=None, compression=None, max_size=MAX_MESSAGE_BYTES)
-                break
-            except (InvalidStatus, OSError) as exc:
-                sleep(_wait_after_failed_handshake(retrying, self.url, exc))
-        self._session = StreamSession.from_hello(self._ws.recv(open_timeout))
+                ws = connect(self.url, additional_headers=handshake_headers(self._api_key, self._token_in_query),
+                             open_timeout=self._open_timeout, proxy=None, compression=None, max_size=MAX_MESSAGE_BYTES)
+                return ws, StreamSession.from_hello(ws.recv(self._open_timeout))
+            except (InvalidStatus, OSError, ConnectionClosed) as exc:
+                self._sleep(_wait_after_failed_handshake(retrying, self.url, exc))
+
+    def _resume(self) -> None:
+        """A new connection through the same URL, the queued traffic kept, every live character started again."""
+        assert self._failover is not None
+        for attempt in range(self._retry.attempts):
+            pending = self._session.pending
+            self._ws, self._session = self._open()
+            self._session.pending.extend(pending)
+            try:
+                for message in self._failover.resume_messages():
+                    self._ws.send(self._session.encode(message))
+                return
+            except ConnectionClosed as exc:
+                if not self._can_resume(exc) or attempt + 1 == self._retry.attempts:
+                    raise closed_error(exc) from exc
+
+    def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> str:
+        """``POST /v1/styles`` on the same server; returns the id. With ``failover`` the clip is kept and
+        registered again wherever a stream meets ``unknown_style`` for it."""
+        body = _style_body(motion, name, model)
+        style_id = str(self._http_client().register_style(body["motion"], body["name"], model)["style_id"])
+        if self._failover is not None:
+            self._failover.remember_style(style_id, body)
+        return style_id
+
+    def _http_client(self) -> Client:
+        if self._http is None:
+            self._http = Client(http_url(self.url), api_key=self._api_key, retry=self._retry, sleep=self._sleep)
+        return self._http
+
+    def _act(self, actions: Actions) -> Frame | Message | None:
+        if actions.register is not None:
+            _, body = actions.register
+            self._http_client().register_style(body["motion"], body["name"], body.get("model"))
+        for message in actions.send:  # the message that named the style, once more (not recorded again)
+            try:
+                self._ws.send(self._session.encode(message))
+            except ConnectionClosed:
+                pass  # the next receive resumes
+        return actions.item
 
     def __enter__(self) -> Self:
         return self
@@ -98,14 +183,20 @@ class StreamClient(_SessionView):
         self.close()
 
     def close(self) -> None:
+        self._closing = True
         self._ws.close()
+        if self._http is not None:
+            self._http.close()
 
     # ------------------------------------------------------------------ sending
     def send(self, message: Message) -> None:
+        text = self._sending(message)
         try:
-            self._ws.send(self._session.encode(message))
+            self._ws.send(text)
         except ConnectionClosed as exc:
-            raise closed_error(exc) from exc
+            if not self._can_resume(exc):
+                raise closed_error(exc) from exc
+            self._resume()  # the resumed starts carry what this message said
 
     def start(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
               seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
@@ -136,13 +227,22 @@ class StreamClient(_SessionView):
         return queued if queued is not None else self._recv_socket(timeout)
 
     def _recv_socket(self, timeout: float | None) -> Frame | Message:
-        try:
-            raw = self._ws.recv(timeout)
-        except TimeoutError as exc:
-            raise RsmtError("timeout", f"nothing received within {timeout} s") from exc
-        except ConnectionClosed as exc:
-            raise closed_error(exc) from exc
-        return self._session.parse(raw)
+        while True:
+            try:
+                raw = self._ws.recv(timeout)
+            except TimeoutError as exc:
+                raise RsmtError("timeout", f"nothing received within {timeout} s") from exc
+            except ConnectionClosed as exc:
+                if not self._can_resume(exc):
+                    raise closed_error(exc) from exc
+                self._resume()
+                continue
+            item = self._session.parse(raw)
+            if self._failover is None:
+                return item
+            out = self._act(self._failover.received(item))
+            if out is not None:
+                return out
 
     def collect(self, character: str, timeout: float = 60.0,
                 on_frame: Callable[[StreamClient, Frame], None] | None = None) -> StreamResult:
@@ -173,29 +273,80 @@ class StreamClient(_SessionView):
 class AsyncStreamClient(_SessionView):
     """The asyncio twin of :class:`StreamClient`: ``client = await AsyncStreamClient.connect(url)``."""
 
-    def __init__(self, ws: AsyncConnection, session: StreamSession, url: str, encoding: str) -> None:
+    def __init__(self, ws: AsyncConnection, session: StreamSession, url: str, encoding: str,
+                 reconnect: Callable[[], Awaitable[tuple[AsyncConnection, StreamSession]]] | None = None,
+                 api_key: str | None = None, retry: RetryPolicy | None = None, failover: bool = False) -> None:
         self._ws = ws
         self._session = session
         self.url = url
         self.encoding = encoding
+        self._reconnect, self._api_key, self._retry = reconnect, api_key, retry or RetryPolicy()
+        self._closing = False
+        self._http: AsyncClient | None = None
+        self._failover = self._new_failover(failover and reconnect is not None)
 
     @classmethod
     async def connect(cls, url: str = DEFAULT_URL, api_key: str | None = None, encoding: str = "json",
                       retry: RetryPolicy | None = None, open_timeout: float = 30.0,
-                      token_in_query: bool = False, max_queue: int | None = 16) -> AsyncStreamClient:
+                      token_in_query: bool = False, max_queue: int | None = 16,
+                      failover: bool = False) -> AsyncStreamClient:
         """Connect and read ``hello``. ``max_queue``: messages buffered before reading from the socket pauses
-        (None: never pause, so a busy reader cannot slow the server down; a load test wants that)."""
+        (None: never pause, so a busy reader cannot slow the server down; a load test wants that).
+        ``failover``: resume live characters on a new connection when this one is lost (module doc)."""
         full = stream_url(url, encoding, api_key if token_in_query else None)
-        retrying = Retrying(retry or RetryPolicy())
-        while True:
+        policy = retry or RetryPolicy()
+
+        async def open_() -> tuple[AsyncConnection, StreamSession]:
+            retrying = Retrying(policy)
+            while True:
+                try:
+                    ws = await async_connect(full, additional_headers=handshake_headers(api_key, token_in_query),
+                                             open_timeout=open_timeout, proxy=None, compression=None,
+                                             max_size=MAX_MESSAGE_BYTES, max_queue=max_queue)
+                    return ws, StreamSession.from_hello(await asyncio.wait_for(ws.recv(), open_timeout))
+                except (InvalidStatus, OSError, ConnectionClosed) as exc:
+                    await asyncio.sleep(_wait_after_failed_handshake(retrying, full, exc))
+
+        ws, session = await open_()
+        return cls(ws, session, full, encoding, open_, api_key, policy, failover)
+
+    async def _resume(self) -> None:
+        assert self._failover is not None and self._reconnect is not None
+        for attempt in range(self._retry.attempts):
+            pending = self._session.pending
+            self._ws, self._session = await self._reconnect()
+            self._session.pending.extend(pending)
             try:
-                ws = await async_connect(full, additional_headers=handshake_headers(api_key, token_in_query),
-                                         open_timeout=open_timeout, proxy=None, compression=None,
-                                         max_size=MAX_MESSAGE_BYTES, max_queue=max_queue)
-                break
-            except (InvalidStatus, OSError) as exc:
-                await asyncio.sleep(_wait_after_failed_handshake(retrying, full, exc))
-        return cls(ws, StreamSession.from_hello(await asyncio.wait_for(ws.recv(), open_timeout)), full, encoding)
+                for message in self._failover.resume_messages():
+                    await self._ws.send(self._session.encode(message))
+                return
+            except ConnectionClosed as exc:
+                if not self._can_resume(exc) or attempt + 1 == self._retry.attempts:
+                    raise closed_error(exc) from exc
+
+    async def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> str:
+        """As :meth:`StreamClient.register_style`."""
+        body = _style_body(motion, name, model)
+        info = await self._http_client().register_style(body["motion"], body["name"], model)
+        if self._failover is not None:
+            self._failover.remember_style(str(info["style_id"]), body)
+        return str(info["style_id"])
+
+    def _http_client(self) -> AsyncClient:
+        if self._http is None:
+            self._http = AsyncClient(http_url(self.url), api_key=self._api_key, retry=self._retry)
+        return self._http
+
+    async def _act(self, actions: Actions) -> Frame | Message | None:
+        if actions.register is not None:
+            _, body = actions.register
+            await self._http_client().register_style(body["motion"], body["name"], body.get("model"))
+        for message in actions.send:
+            try:
+                await self._ws.send(self._session.encode(message))
+            except ConnectionClosed:
+                pass  # the next receive resumes
+        return actions.item
 
     async def __aenter__(self) -> Self:
         return self
@@ -204,13 +355,19 @@ class AsyncStreamClient(_SessionView):
         await self.close()
 
     async def close(self) -> None:
+        self._closing = True
         await self._ws.close()
+        if self._http is not None:
+            await self._http.aclose()
 
     async def send(self, message: Message) -> None:
+        text = self._sending(message)
         try:
-            await self._ws.send(self._session.encode(message))
+            await self._ws.send(text)
         except ConnectionClosed as exc:
-            raise closed_error(exc) from exc
+            if not self._can_resume(exc):
+                raise closed_error(exc) from exc
+            await self._resume()
 
     async def start(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                     seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
@@ -239,13 +396,22 @@ class AsyncStreamClient(_SessionView):
         return queued if queued is not None else await self._recv_socket(timeout)
 
     async def _recv_socket(self, timeout: float | None) -> Frame | Message:
-        try:
-            raw = await asyncio.wait_for(self._ws.recv(), timeout)
-        except TimeoutError as exc:
-            raise RsmtError("timeout", f"nothing received within {timeout} s") from exc
-        except ConnectionClosed as exc:
-            raise closed_error(exc) from exc
-        return self._session.parse(raw)
+        while True:
+            try:
+                raw = await asyncio.wait_for(self._ws.recv(), timeout)
+            except TimeoutError as exc:
+                raise RsmtError("timeout", f"nothing received within {timeout} s") from exc
+            except ConnectionClosed as exc:
+                if not self._can_resume(exc):
+                    raise closed_error(exc) from exc
+                await self._resume()
+                continue
+            item = self._session.parse(raw)
+            if self._failover is None:
+                return item
+            out = await self._act(self._failover.received(item))
+            if out is not None:
+                return out
 
     async def collect(self, character: str, timeout: float = 60.0) -> StreamResult:
         result, ended = self._session.begin_collect(character)

@@ -1,0 +1,23 @@
+"""The default store: each model's styles in this process only (:class:`service.style_book.StyleBook`).
+
+Styles are lost on restart and each process (each replica, each ``--workers`` worker) has its own;
+the per-key cap and the whole-book entry and byte bounds are the book's.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from service.style_book import StyleBook
+
+if TYPE_CHECKING:
+    from model.inference.engine import EncodedStyle
+    from model.motion.clip import Clip
+
+
+class MemoryStyleStore(StyleBook):
+    """A :class:`StyleBook` as a :class:`service.style_store.StyleStore`: the encoded style is all it keeps."""
+
+    def add(self, owner: str, style: EncodedStyle, clip: Clip | None = None) -> bool:
+        """File ``style`` under ``owner``; the clip is not needed in memory (the code is kept)."""
+        return super().add(owner, style)

@@ -1,0 +1,258 @@
+"""Registered styles in Redis: shared by every replica, kept across restarts.
+
+Per model (name and version), under ``rsmt:styles:<model>:<version>:``:
+
+* ``clip:<id>``: the registered clip (:mod:`service.style_store.codec`), content-addressed: one copy
+  whichever keys registered it; ``meta:<id>``: its id, name and length as JSON (for listings);
+* ``refs:<id>``: the owners (API key digests) that registered it; the clip goes when the last one lets go;
+* ``own:<owner>``: that owner's ids, scored by last use (Redis's clock), so its least recently used go
+  first over the per-key cap; ``owners``: every owner with styles (for admin listings).
+
+Each operation is one Lua script, so concurrent replicas never see half an update. With a TTL every key of
+a style is given that TTL again whenever it is registered or used. Codes are never stored: each replica
+encodes a stored clip the first time it is used there and keeps the code in its engine's bounded cache.
+
+When Redis cannot be reached, every call raises :class:`ServiceError` ``style_store_unavailable`` (503,
+``Retry-After``); the client's pool reconnects on the next call, so the service recovers by itself.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, TypeVar
+from urllib.parse import urlsplit
+
+import redis
+import torch
+from redis.backoff import ExponentialBackoff
+from redis.exceptions import RedisError
+from redis.retry import Retry
+
+from model.motion.clip import Clip
+from service.errors import ServiceError
+from service.style_book import Caller
+from service.style_store.base import StyleEntry, StyleMeta
+from service.style_store.codec import CodecError, StoredClip, decode_clip, encode_clip
+
+if TYPE_CHECKING:
+    from model.inference.engine import EncodedStyle, Engine
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+RETRY_AFTER_S = 1
+
+# ARGV: prefix, owner, id, clip, meta, cap, ttl  ->  {had, evicted}
+_ADD = """
+local p, owner, sid = ARGV[1], ARGV[2], ARGV[3]
+local cap, ttl = tonumber(ARGV[6]), tonumber(ARGV[7])
+local t = redis.call('TIME')
+local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
+local own, refs, clip, meta = p .. 'own:' .. owner, p .. 'refs:' .. sid, p .. 'clip:' .. sid, p .. 'meta:' .. sid
+local exists = redis.call('EXISTS', meta) == 1 and redis.call('EXISTS', clip) == 1
+local had = exists and redis.call('ZSCORE', own, sid) ~= false
+if not exists then
+  redis.call('SET', clip, ARGV[4])
+  redis.call('SET', meta, ARGV[5])
+end
+redis.call('ZADD', own, now, sid)
+redis.call('SADD', refs, owner)
+redis.call('SADD', p .. 'owners', owner)
+local evicted = 0
+while redis.call('ZCARD', own) > cap do
+  local victim = redis.call('ZPOPMIN', own)[1]
+  local vrefs = p .. 'refs:' .. victim
+  redis.call('SREM', vrefs, owner)
+  if redis.call('SCARD', vrefs) == 0 then
+    redis.call('DEL', vrefs, p .. 'clip:' .. victim, p .. 'meta:' .. victim)
+  end
+  evicted = evicted + 1
+end
+if ttl > 0 then
+  for _, k in ipairs({clip, meta, refs, own}) do redis.call('EXPIRE', k, ttl) end
+end
+return {had and 1 or 0, evicted}
+"""
+
+# ARGV: prefix, owner, id, admin (0/1), touch (0/1), want clip (0/1), ttl  ->  false | {meta, clip or false}
+_GET = """
+local p, owner, sid, admin, touch, want = ARGV[1], ARGV[2], ARGV[3], ARGV[4], ARGV[5], ARGV[6]
+local ttl = tonumber(ARGV[7])
+local own, clip, meta = p .. 'own:' .. owner, p .. 'clip:' .. sid, p .. 'meta:' .. sid
+local mine = redis.call('ZSCORE', own, sid) ~= false
+if not mine and admin ~= '1' then return false end
+local m = redis.call('GET', meta)
+if not m then
+  if mine then redis.call('ZREM', own, sid) end
+  return false
+end
+if touch == '1' then
+  if mine then
+    local t = redis.call('TIME')
+    redis.call('ZADD', own, 'XX', tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000), sid)
+    if ttl > 0 then redis.call('EXPIRE', own, ttl) end
+  end
+  if ttl > 0 then
+    for _, k in ipairs({clip, meta, p .. 'refs:' .. sid}) do redis.call('EXPIRE', k, ttl) end
+  end
+end
+local c = false
+if want == '1' then c = redis.call('GET', clip) end
+return {m, c}
+"""
+
+# ARGV: prefix, owner, admin (0/1)  ->  {meta, ...} least recently used first, one per id
+_LIST = """
+local p, owner, admin = ARGV[1], ARGV[2], ARGV[3]
+local owners = {owner}
+if admin == '1' then
+  local all = redis.call('SMEMBERS', p .. 'owners')
+  table.sort(all)
+  for _, o in ipairs(all) do if o ~= owner then table.insert(owners, o) end end
+end
+local out, seen = {}, {}
+for _, o in ipairs(owners) do
+  local own = p .. 'own:' .. o
+  for _, sid in ipairs(redis.call('ZRANGE', own, 0, -1)) do
+    if not seen[sid] then
+      local m = redis.call('GET', p .. 'meta:' .. sid)
+      if m then
+        seen[sid] = true
+        table.insert(out, m)
+      else
+        redis.call('ZREM', own, sid)
+      end
+    end
+  end
+end
+return out
+"""
+
+# ARGV: prefix, owner, id, admin (0/1)  ->  1 when there was an entry
+_DELETE = """
+local p, owner, sid, admin = ARGV[1], ARGV[2], ARGV[3], ARGV[4]
+local refs, clip, meta = p .. 'refs:' .. sid, p .. 'clip:' .. sid, p .. 'meta:' .. sid
+local live = redis.call('EXISTS', meta) == 1
+local owners = {owner}
+if admin == '1' then owners = redis.call('SMEMBERS', refs) end
+local found = 0
+for _, o in ipairs(owners) do
+  local own = p .. 'own:' .. o
+  if redis.call('ZREM', own, sid) == 1 and live then found = 1 end
+  redis.call('SREM', refs, o)
+  if redis.call('ZCARD', own) == 0 then redis.call('SREM', p .. 'owners', o) end
+end
+if redis.call('SCARD', refs) == 0 then redis.call('DEL', refs, clip, meta) end
+return found
+"""
+
+
+def safe_address(url: str) -> str:
+    """``host:port/db`` of a Redis URL, without any password, for messages and logs."""
+    parts = urlsplit(url)
+    return f"{parts.hostname or 'localhost'}:{parts.port or 6379}{parts.path or '/0'}"
+
+
+def connect(url: str, timeout_s: float) -> redis.Redis:
+    """A client with short timeouts and one quick retry (a pooled connection that died with a Redis restart
+    is replaced at once); nothing is sent until the first call, so the service starts with Redis down."""
+    return redis.Redis.from_url(url, socket_connect_timeout=timeout_s, socket_timeout=timeout_s,
+                                retry=Retry(ExponentialBackoff(cap=0.2, base=0.05), 1),
+                                health_check_interval=30, client_name="rsmt")
+
+
+class RedisStyleStore:
+    """One model's registered styles in Redis (see the module doc); thread-safe (redis-py's pool)."""
+
+    def __init__(self, client: redis.Redis, model: str, engine: Engine, per_owner: int, ttl_s: int = 0,
+                 address: str = "redis") -> None:
+        self.client, self.model, self.engine = client, model, engine
+        self.per_owner, self.ttl, self.address = per_owner, int(ttl_s), address
+        self.prefix = f"rsmt:styles:{model}:{engine.version}:"
+        self.evictions = 0
+        self._add, self._get = client.register_script(_ADD), client.register_script(_GET)
+        self._list, self._delete = client.register_script(_LIST), client.register_script(_DELETE)
+
+    # ------------------------------------------------------------------ the StyleStore questions
+    def add(self, owner: str, style: EncodedStyle, clip: Clip) -> bool:
+        stored = StoredClip(style.style_id, style.name, float(clip.fps), tuple(clip.skeleton.names), self.model,
+                            clip.rotations.detach().float().numpy(), clip.root_positions.detach().float().numpy())
+        meta = _meta_json(stored.meta())
+        had, evicted = self._call(self._add, self.prefix, owner, style.style_id, encode_clip(stored), meta,
+                                  self.per_owner, self.ttl)
+        self.evictions += int(evicted)
+        return bool(had)
+
+    def get(self, caller: Caller, style_id: str) -> EncodedStyle | None:
+        cached = self.engine.styles.peek(style_id)
+        found = self._fetch(caller, style_id, touch=True, want_clip=cached is None)
+        if found is None:
+            return None
+        if cached is not None:
+            again = self.engine.styles.get(style_id)  # counts the hit; None if evicted since the peek
+            if again is not None:
+                return again
+            found = self._fetch(caller, style_id, touch=False, want_clip=True)
+            if found is None:
+                return None
+        return self._encode(style_id, found[1])
+
+    def peek(self, caller: Caller, style_id: str) -> StyleEntry | None:
+        found = self._fetch(caller, style_id, touch=False, want_clip=False)
+        return None if found is None else found[0]
+
+    def styles_of(self, caller: Caller) -> Sequence[StyleEntry]:
+        metas = self._call(self._list, self.prefix, caller.owner, int(caller.admin))
+        return [_meta(m) for m in metas]
+
+    def delete(self, caller: Caller, style_id: str) -> bool:
+        return bool(self._call(self._delete, self.prefix, caller.owner, style_id, int(caller.admin)))
+
+    # ------------------------------------------------------------------ internals
+    def _fetch(self, caller: Caller, style_id: str, touch: bool, want_clip: bool) -> tuple[StyleMeta, bytes | None] | None:
+        found = self._call(self._get, self.prefix, caller.owner, style_id, int(caller.admin), int(touch),
+                           int(want_clip), self.ttl)
+        if not found:
+            return None
+        meta, clip = found
+        return _meta(meta), (clip or None)
+
+    def _encode(self, style_id: str, data: bytes | None) -> EncodedStyle | None:
+        """Encode a stored clip with this replica's engine (which caches the code); None if it is unusable."""
+        if data is None:
+            return None
+        try:
+            stored = decode_clip(data)
+        except CodecError as exc:
+            log.warning("stored style %s is unreadable, ignored: %s", style_id, exc)
+            return None
+        skeleton = self.engine.skeleton
+        if stored.joints != tuple(skeleton.names):
+            log.warning("stored style %s is on another rig than model %s, ignored", style_id, self.model)
+            return None
+        clip = Clip(skeleton, torch.from_numpy(stored.rotations), torch.from_numpy(stored.root_positions), stored.fps,
+                    stored.name)
+        style, _ = self.engine.encode_style(clip, stored.name)
+        if style.style_id != style_id:
+            log.warning("stored style %s encodes to %s on this replica (another model version?)", style_id, style.style_id)
+        return style
+
+    def _call(self, script: Callable[..., Any], *args: Any) -> Any:
+        try:
+            return script(args=list(args))
+        except RedisError as exc:
+            raise ServiceError(
+                "style_store_unavailable",
+                f"the style store (Redis at {self.address}) cannot be reached: {type(exc).__name__}: {exc}; registered "
+                f"styles are unavailable until it is back (requests with an inline style still work); retry in a few "
+                f"seconds", headers={"Retry-After": str(RETRY_AFTER_S)}) from exc
+
+
+def _meta_json(meta: dict[str, Any]) -> bytes:
+    return json.dumps(meta, separators=(",", ":")).encode()
+
+
+def _meta(raw: bytes) -> StyleMeta:
+    m = json.loads(raw)
+    return StyleMeta(str(m["style_id"]), str(m["name"]), int(m["frames"]))

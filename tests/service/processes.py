@@ -1,0 +1,150 @@
+"""Redis and HAProxy as subprocesses on free 127.0.0.1 ports, started and stopped by PID with bounded waits.
+
+Both come from Debian packages (``.ci/run`` installs them when missing); tests that need them skip with
+a reason where the command is absent.
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.service.server import free_port
+
+
+def need(command: str) -> str:
+    """The path of ``command``, or skip the test saying how to install it."""
+    path = shutil.which(command)
+    if path is None:
+        pytest.skip(f"{command} is not installed (apt-get install -y redis-server haproxy; .ci/run does it)")
+    return path
+
+
+def _stop(proc: subprocess.Popen | None, timeout_s: float = 10.0) -> None:
+    if proc is None or proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+
+
+def _wait_port(port: int, proc: subprocess.Popen, what: str, log: Path, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"{what} exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+                return
+        except OSError:
+            time.sleep(0.05)
+    _stop(proc)
+    raise RuntimeError(f"{what} did not listen on port {port} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+
+
+class RedisProcess:
+    """``redis-server`` on a free port, with an append-only file in its own folder: a restart keeps the data."""
+
+    def __init__(self) -> None:
+        self.binary = need("redis-server")
+        self.port = free_port()
+        self.dir = Path(tempfile.mkdtemp(prefix="rsmt-redis-"))
+        self.log = self.dir / "redis.log"
+        self.proc: subprocess.Popen | None = None
+
+    @property
+    def url(self) -> str:
+        return f"redis://127.0.0.1:{self.port}/0"
+
+    def start(self, timeout_s: float = 20.0) -> RedisProcess:
+        with self.log.open("a") as log:
+            self.proc = subprocess.Popen(
+                [self.binary, "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.dir),
+                 "--appendonly", "yes", "--appendfsync", "always", "--save", "", "--daemonize", "no"],
+                stdout=log, stderr=subprocess.STDOUT)
+        _wait_port(self.port, self.proc, "redis-server", self.log, timeout_s)
+        return self
+
+    def stop(self) -> None:
+        _stop(self.proc)
+
+    def cleanup(self) -> None:
+        self.stop()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def haproxy_config(port: int, replicas: list[int], check_inter_ms: int = 300) -> str:
+    """The test topology's ``haproxy.cfg`` (deploy/haproxy.cfg is its production twin): HTTP to the replica
+    with the fewest connections, the WebSocket path pinned by source address; both skip a replica whose
+    readiness is not 200, and a connection refused goes to another replica."""
+    servers = "\n".join(f"  server r{i} 127.0.0.1:{p} check inter {check_inter_ms}ms fall 1 rise 2"
+                        for i, p in enumerate(replicas))
+    return f"""global
+  maxconn 512
+
+defaults
+  mode http
+  option redispatch
+  retries 2
+  timeout connect 1s
+  timeout client 60s
+  timeout server 60s
+  timeout tunnel 120s
+
+frontend rsmt
+  bind 127.0.0.1:{port}
+  acl stream path_beg /v1/stream
+  use_backend rsmt_ws if stream
+  default_backend rsmt_http
+
+backend rsmt_http
+  balance leastconn
+  option httpchk GET /v1/health/ready
+  http-check expect status 200
+{servers}
+
+backend rsmt_ws
+  balance source
+  hash-type consistent
+  option httpchk GET /v1/health/ready
+  http-check expect status 200
+{servers}
+"""
+
+
+class HaproxyProcess:
+    """``haproxy`` in the foreground (``-db``) with :func:`haproxy_config` in front of ``replicas``."""
+
+    def __init__(self, replicas: list[int]) -> None:
+        self.binary = need("haproxy")
+        self.port = free_port()
+        self.dir = Path(tempfile.mkdtemp(prefix="rsmt-haproxy-"))
+        self.config = self.dir / "haproxy.cfg"
+        self.config.write_text(haproxy_config(self.port, replicas))
+        self.log = self.dir / "haproxy.log"
+        self.proc: subprocess.Popen | None = None
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self, timeout_s: float = 20.0) -> HaproxyProcess:
+        with self.log.open("a") as log:
+            self.proc = subprocess.Popen([self.binary, "-db", "-f", str(self.config)], stdout=log,
+                                         stderr=subprocess.STDOUT)
+        _wait_port(self.port, self.proc, "haproxy", self.log, timeout_s)
+        return self
+
+    def cleanup(self) -> None:
+        _stop(self.proc)
+        shutil.rmtree(self.dir, ignore_errors=True)

@@ -1,0 +1,135 @@
+"""The style stores (service/style_store): the clip codec, and the Redis store against a real redis-server:
+ownership as in the memory book, the per-key cap, TTL, encoding on another replica's engine, and a Redis
+outage answered with ``style_store_unavailable`` until Redis is back (no restart of the service side)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from model.data.synthetic import synthetic_walk
+from model.inference.bundle import Bundle
+from model.inference.engine import Engine
+from service.errors import ServiceError
+from service.settings import Settings
+from service.style_book import Caller
+from service.style_store import style_store_factory
+from service.style_store.codec import CodecError, StoredClip, decode_clip, encode_clip
+from service.style_store.memory import MemoryStyleStore
+from service.style_store.redis_store import RedisStyleStore, connect, safe_address
+from tests.service.processes import RedisProcess
+
+A, B, ADMIN = Caller("a"), Caller("b"), Caller("admin", admin=True)
+
+
+def test_codec_round_trip_and_refusals():
+    rng = np.random.default_rng(0)
+    clip = StoredClip("sty_x", "proud", 30.0, ("hips", "spine"), "rsmt", rng.normal(size=(5, 2, 4)).astype(np.float32),
+                      rng.normal(size=(5, 3)).astype(np.float32))
+    data = encode_clip(clip)
+    assert data.startswith(b"RSMTSTY1") and len(data) < 400  # header + 5 * (2 * 4 + 3) float32
+    back = decode_clip(data)
+    assert (back.style_id, back.name, back.fps, back.joints, back.model, back.frames) == ("sty_x", "proud", 30.0,
+                                                                                        ("hips", "spine"), "rsmt", 5)
+    assert np.array_equal(back.rotations, clip.rotations) and np.array_equal(back.root_positions, clip.root_positions)
+    for bad in (b"", b"pickle" + data, data[:-4], data[:12]):
+        with pytest.raises(CodecError):
+            decode_clip(bad)
+
+
+def test_settings_and_factory(monkeypatch):
+    assert Settings().style_store == "memory" and Settings().style_store_ttl_s == 0
+    for bad in ("mysql://x", "redis", ""):
+        with pytest.raises(ValueError):
+            Settings(style_store=bad)
+    s = Settings(style_store="redis://user:secret@10.0.0.5:6380/2")
+    assert safe_address(s.style_store) == "10.0.0.5:6380/2"  # never the password
+    assert isinstance(style_store_factory(Settings())("m", None), MemoryStyleStore)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def redis_server():
+    srv = RedisProcess().start()
+    yield srv
+    srv.cleanup()
+
+
+@pytest.fixture(scope="module")
+def engines(bundle_dir):
+    """Two engines of one bundle: two replicas, each with its own code cache."""
+    return Engine(Bundle.load(bundle_dir)), Engine(Bundle.load(bundle_dir))
+
+
+def clip_of(engine: Engine, frames: int = 30, yaw: float = 0.0):
+    return engine.conform(synthetic_walk(frames, start_yaw_deg=yaw))
+
+
+def register(store: RedisStyleStore, owner: str, clip, name: str = "walk") -> tuple[str, bool]:
+    style, _ = store.engine.encode_style(clip, name)
+    return style.style_id, store.add(owner, style, clip)
+
+
+@pytest.fixture
+def stores(redis_server, engines):
+    client = connect(redis_server.url, 1.0)
+    client.flushdb()
+    yield tuple(RedisStyleStore(client, "rsmt", e, per_owner=2, address=safe_address(redis_server.url)) for e in engines)
+    client.close()
+
+
+def test_redis_store_ownership_and_encoding_on_another_replica(stores, engines):
+    one, two = stores
+    sid, had = register(one, "a", clip_of(engines[0]))
+    assert had is False and register(one, "a", clip_of(engines[0]))[1] is True
+    engines[1].styles.delete(sid)  # the second replica never encoded it
+    got = two.get(A, sid)
+    assert got is not None and got.style_id == sid and got.frames == 30
+    mine = engines[0].styles.peek(sid)
+    assert mine is not None and torch.equal(got.context.keys1, mine.context.keys1)  # the same code
+    assert two.get(A, sid) is got  # from this replica's cache now
+    assert two.get(B, sid) is None and two.peek(B, sid) is None and list(two.styles_of(B)) == []
+    assert two.get(ADMIN, sid) is got and [s.style_id for s in two.styles_of(ADMIN)] == [sid]
+    assert two.delete(B, sid) is False and one.peek(A, sid) is not None
+    register(one, "b", clip_of(engines[0]))  # same clip, second owner: one stored copy, two entries
+    assert one.delete(A, sid) is True and one.get(A, sid) is None and one.get(B, sid) is not None
+    assert one.delete(ADMIN, sid) is True and one.peek(B, sid) is None and one.client.keys("*") == []
+
+
+def test_redis_store_per_key_cap_drops_least_recently_used(stores, engines):
+    one, _ = stores
+    ids = [register(one, "a", clip_of(engines[0], yaw=10.0 * i))[0] for i in range(2)]
+    assert one.get(A, ids[0]) is not None  # used: ids[1] is now the least recent
+    ids.append(register(one, "a", clip_of(engines[0], yaw=20.0))[0])
+    assert [s.style_id for s in one.styles_of(A)] == [ids[0], ids[2]] and one.evictions == 1
+    assert one.peek(A, ids[1]) is None and one.client.exists(one.prefix + "clip:" + ids[1]) == 0  # nobody holds it
+
+
+def test_redis_store_ttl(redis_server, engines):
+    client = connect(redis_server.url, 1.0)
+    store = RedisStyleStore(client, "ttl", engines[0], per_owner=4, ttl_s=1)
+    sid, _ = register(store, "a", clip_of(engines[0]))
+    assert store.peek(A, sid) is not None and 0 < client.ttl(store.prefix + "clip:" + sid) <= 1
+    time.sleep(2.1)
+    assert store.peek(A, sid) is None and store.get(A, sid) is None and list(store.styles_of(A)) == []
+    client.close()
+
+
+def test_redis_outage_is_503_and_recovers_without_a_restart(redis_server, engines):
+    client = connect(redis_server.url, 0.5)
+    store = RedisStyleStore(client, "outage", engines[0], per_owner=4, address=safe_address(redis_server.url))
+    sid, _ = register(store, "a", clip_of(engines[0]))
+    redis_server.stop()
+    try:
+        with pytest.raises(ServiceError) as err:
+            store.get(A, sid)
+        assert err.value.code == "style_store_unavailable" and err.value.status == 503
+        assert err.value.headers["Retry-After"] == "1" and safe_address(redis_server.url) in err.value.message
+        with pytest.raises(ServiceError):
+            register(store, "a", clip_of(engines[0], yaw=5.0))
+    finally:
+        redis_server.start()
+    assert store.get(A, sid) is not None  # the same client object: the pool reconnected; the data was kept
+    client.close()
