@@ -1,6 +1,6 @@
 """The ``rsmt client`` commands: talk to a running service with the Python client (``rsmt_client``).
 
-    rsmt client styles add clip.bvh [--name N]
+    rsmt client styles add clip.bvh [--name N] [--start S --frames N]
     rsmt client styles list
     rsmt client transition --context a.bvh --target b.bvh --frames 40 --style ID -o out.bvh [--seed S]
     rsmt client stream --context a.bvh --target b.bvh --frames 40 --style ID [--binary] [-o out.bvh]
@@ -58,6 +58,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add.add_argument("clip", type=Path, help="style clip .bvh")
     add.add_argument("--name", help="display name (default: the file name)")
     add.add_argument("--model", help="model to encode for (default: the server's default)")
+    add.add_argument("--start", type=int, default=0, metavar="S",
+                     help="first frame of the clip to send (the file's own frame numbering, from 0; default 0)")
+    add.add_argument("--frames", type=int, metavar="N",
+                     help="frames to send from --start (the file's own frames; default: to the end). A style clip "
+                          "must hold the model's style_clip_frames (GET /v1/model) at the model's fps")
     _common(add)
     add.set_defaults(func=_styles_add)
     ls = ssub.add_parser("list", help="list the server's cached styles")
@@ -121,8 +126,15 @@ def _guard(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namesp
 
 @_guard
 def _styles_add(args: argparse.Namespace) -> int:
+    from rsmt_client.bvh import BvhFile
+
+    clip: Path | str = args.clip
+    if args.start or args.frames is not None:
+        # Checked here, before any request: an out-of-range cut is this command's error (exit 2), with the
+        # file's frame count in the message.
+        clip = BvhFile.read(args.clip).window(args.start, args.frames).format(precision=None)
     with _client(args) as c:
-        _print(c.register_style(args.clip, name=args.name or args.clip.stem, model=args.model))
+        _print(c.register_style(clip, name=args.name or args.clip.stem, model=args.model))
     return 0
 
 

@@ -7,6 +7,7 @@ Layout::
       weights.safetensors  the weights and normalisation statistics (no pickle anywhere)
       skeleton.json        the rig the model was trained on
       README.md            the model card (optional for loading)
+      styles/              built-in style clips, served as ``builtin:NAME`` (optional; :mod:`model.inference.bundle_styles`)
 
 A bundle loads from its own files alone; loading is strict (missing or unexpected tensors fail).
 """
@@ -22,6 +23,7 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
+from model.inference.bundle_styles import BuiltinStyle, StyleFolderError, load_styles, save_styles
 from model.inference.output_settings import OutputConfig
 from model.inference.settings import InferenceConfig
 from model.motion.skeleton import Skeleton
@@ -63,6 +65,7 @@ class Bundle:
     version: str = "unsaved"
     output: OutputConfig = field(default_factory=OutputConfig)  # the engine's post-processing of frames
     inference: InferenceConfig = field(default_factory=InferenceConfig)  # how the engine runs the network
+    styles: dict[str, BuiltinStyle] = field(default_factory=dict)  # built-in style clips by name (styles/)
 
     @property
     def config(self) -> SamplerConfig:
@@ -127,6 +130,8 @@ class Bundle:
         }
         (path / "config.json").write_text(json.dumps(config, indent=1))
         self.skeleton.save(path / "skeleton.json")
+        if self.styles:
+            save_styles(path, self.styles.values(), self.skeleton, self.config.fps)
         return path
 
     @classmethod
@@ -170,6 +175,10 @@ class Bundle:
         except RuntimeError as exc:
             raise BundleError(f"{path}: weights do not match the config: {exc}") from exc
         bundle.version = config.get("version") or _weights_hash(tensors)
+        try:
+            bundle.styles = load_styles(path, skeleton, bundle.config.fps)
+        except StyleFolderError as exc:
+            raise BundleError(f"{path}: bad built-in styles: {exc}") from exc
         bundle.sampler.eval()
         if bundle.phase_model is not None:
             bundle.phase_model.eval()

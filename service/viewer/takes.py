@@ -1,4 +1,4 @@
-"""Takes for the web viewer (``/viewer``): demo takes made on request, and uploaded takes read as JSON poses.
+"""Takes for the web viewer (``/viewer``): demo takes on the model's own rig, and uploaded takes read as JSON poses.
 
 The viewer draws poses in the browser; what it cannot do well there is read arbitrary BVH (channel
 orders, extra joints, other frame rates) and map it onto the model's rig. So takes go through the
@@ -6,10 +6,15 @@ same reader and conforming as every other Motion payload (:mod:`service.motion`)
 JSON poses on the model's skeleton at its fps, ready for forward kinematics and for sending back as
 ``context``/``target`` of ``POST /v1/transition``.
 
-Demo takes are procedural walks on the synthetic rig (:mod:`model.data.synthetic`), generated at request
-time, so no dataset file ships with the service. Their joint names are Bandai-Namco's, so they conform
-to any model on that rig; a model on another rig answers ``skeleton_mismatch`` and the viewer asks
-for an uploaded take instead.
+Demo takes must be motion of the model's own rig: rotations carried over to another rig by joint name
+keep each joint's world orientation, and where the two rigs' rest poses differ (a bone along +Y at rest
+on one, along +X on the other) the person comes out lying on its side. So:
+
+- a model whose bundle ships built-in styles (``BUNDLE/styles/``, captured clips on its rig) offers those
+  clips as its demo takes, ``walk-NAME``; their styles are the ``builtin:NAME`` ids of ``GET /v1/model``;
+- a model on the synthetic test rig (:mod:`model.data.synthetic`) gets procedural walks made at request
+  time, and procedural style clips;
+- any other model has no demos: the viewer asks for an uploaded take.
 """
 
 from __future__ import annotations
@@ -20,9 +25,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from model.data.synthetic import SYNTHETIC_STYLES, synthetic_walk
+from model.data.synthetic import SYNTHETIC_STYLES, synthetic_skeleton, synthetic_walk
 from model.inference.errors import SkeletonMismatch
 from model.motion.clip import Clip
+from model.motion.skeleton import Skeleton
 from service.errors import ServiceError
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
@@ -54,8 +60,34 @@ DEMOS: dict[str, Demo] = {d.name: d for d in (
 )}
 
 
-def demo_list() -> dict[str, Any]:
-    return {"demos": [{"name": d.name, "kind": d.kind, "description": d.description} for d in DEMOS.values()]}
+# The built-in style whose walk the viewer opens with (the first take listed), when the bundle has it.
+FIRST_BUILTIN = "normal"
+
+
+def _fixed(clip: Clip) -> Callable[[], Clip]:
+    return lambda: clip
+
+
+def _on_synthetic_rig(skeleton: Skeleton) -> bool:
+    rig = synthetic_skeleton()
+    return (skeleton.names == rig.names and skeleton.parents == rig.parents
+            and bool(np.allclose(skeleton.offsets, rig.offsets, atol=1e-3)))
+
+
+def _demos(model: LoadedModel) -> dict[str, Demo]:
+    styles = model.engine.bundle.styles
+    if styles:
+        order = sorted(styles, key=lambda n: (n != FIRST_BUILTIN, n))
+        return {f"walk-{n}": Demo(f"walk-{n}", "take", f"a captured '{n}' walk, {styles[n].clip.duration_s:.0f} s "
+                                                        f"(the clip of builtin:{n})", _fixed(styles[n].clip))
+                for n in order}
+    if _on_synthetic_rig(model.engine.skeleton):
+        return DEMOS
+    return {}
+
+
+def demo_list(model: LoadedModel) -> dict[str, Any]:
+    return {"demos": [{"name": d.name, "kind": d.kind, "description": d.description} for d in _demos(model).values()]}
 
 
 def clip_poses(clip: Clip, name: str) -> dict[str, Any]:
@@ -70,15 +102,16 @@ def clip_poses(clip: Clip, name: str) -> dict[str, Any]:
 
 
 def demo_poses(model: LoadedModel, name: str) -> dict[str, Any]:
-    """A demo take or style clip conformed to ``model``'s rig (blocking: run it on the model's threads)."""
-    demo = DEMOS.get(name)
+    """A demo take or style clip on ``model``'s rig (blocking: run it on the model's threads)."""
+    demos = _demos(model)
+    demo = demos.get(name)
     if demo is None:
-        raise ServiceError("not_found", f"no demo {name!r}; known: {', '.join(DEMOS)} (GET /v1/viewer/demos)")
+        known = ", ".join(demos) or "none for this model (its bundle has no built-in styles): upload a BVH take"
+        raise ServiceError("not_found", f"no demo {name!r}; known: {known} (GET /v1/viewer/demos)")
     try:
         clip = model.engine.conform(demo.make(), f"demo {name!r}")
-    except SkeletonMismatch as exc:
-        raise ServiceError("skeleton_mismatch", f"{exc}. The demos are on the synthetic Bandai-Namco rig; this model's "
-                                                "skeleton differs, so upload a BVH take of its rig instead") from exc
+    except SkeletonMismatch as exc:  # cannot happen for the demos above; kept as the contract's error if it did
+        raise ServiceError("skeleton_mismatch", f"{exc}; upload a BVH take of the model's rig instead") from exc
     return clip_poses(clip, name)
 
 

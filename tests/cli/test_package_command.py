@@ -46,3 +46,63 @@ def test_package_keeps_unset_settings_and_refuses_bad_ones(tmp_path, capsys):
     assert "--smoothing must be in [0, 1)" in capsys.readouterr().err and not (tmp_path / "x").exists()
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "trained")]) == 2
     assert "must not be the --model folder" in capsys.readouterr().err
+
+
+def test_package_stores_builtin_styles_and_add_styles_changes_only_the_styles(tmp_path, capsys):
+    from model.data.synthetic import synthetic_walk
+    from model.motion.bvh_clip import dump_clip
+
+    tiny_bundle(5).save(tmp_path / "trained")
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    (clips / "slow.bvh").write_text(dump_clip(synthetic_walk(40, speed_cm_s=60.0)))
+    (clips / "brisk.bvh").write_text(dump_clip(synthetic_walk(61, fps=60.0, speed_cm_s=160.0)))
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "ship"),
+                 "--styles", str(clips)]) == 0
+    assert json.loads(capsys.readouterr().out)["styles"] == ["brisk", "slow"]
+    ship = Bundle.load(tmp_path / "ship")
+    assert {n: s.frames for n, s in ship.styles.items()} == {"brisk": 31, "slow": 40}
+
+    weights = (tmp_path / "ship" / "weights.safetensors").read_bytes()
+    config = (tmp_path / "ship" / "config.json").read_text()
+    (clips / "slow.bvh").unlink()
+    assert main(["bundle", "add-styles", str(tmp_path / "ship"), "--from", str(clips)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [s["style_id"] for s in report["styles"]] == ["builtin:brisk"]
+    assert (tmp_path / "ship" / "weights.safetensors").read_bytes() == weights
+    assert (tmp_path / "ship" / "config.json").read_text() == config
+    assert sorted(Bundle.load(tmp_path / "ship").styles) == ["brisk"]
+    # A clip too long for the model's style encoder is refused, naming the fix.
+    (clips / "long.bvh").write_text(dump_clip(synthetic_walk(300)))
+    assert main(["bundle", "add-styles", str(tmp_path / "ship"), "--from", str(clips)]) == 2
+    assert "cut the file first" in capsys.readouterr().err
+
+
+def test_the_default_bundles_styles_are_remade_from_the_train_split(tmp_path, capsys):
+    import shutil
+
+    import pytest
+
+    from model.data.location import find_data_dir
+    from model.data.preprocessed import load_motion_cache
+    from model.inference.bundle import DEFAULT_BUNDLE
+
+    data = find_data_dir()
+    if data is None:
+        pytest.skip("motion data not found (set RSMT_DATA)")
+    shipped = Bundle.load(DEFAULT_BUNDLE)
+    assert len(shipped.styles) == 7
+    copy = tmp_path / "default"
+    shutil.copytree(DEFAULT_BUNDLE, copy)
+    assert main(["bundle", "add-styles", str(copy), "--from-data", str(data)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    remade = Bundle.load(copy)
+    assert remade.version == shipped.version and sorted(remade.styles) == sorted(shipped.styles)
+    for name, style in shipped.styles.items():
+        assert torch.allclose(remade.styles[name].clip.rotations, style.clip.rotations, atol=1e-6), name
+        assert 120 <= style.frames <= 240
+    cache = load_motion_cache(data, progress=False, workers=1)
+    train = {cache.takes[i].take_id for i in cache.split.train}
+    for s in report["styles"]:
+        take_id = s["source"].split(" frames ")[0]
+        assert take_id in train and "_walk_" in take_id, s

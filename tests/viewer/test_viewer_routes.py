@@ -67,6 +67,35 @@ def test_rig_roles_and_demos_on_the_models_skeleton(viewer_server) -> None:
             assert model["style_clip_frames"]["min"] <= clip["frames"] <= model["style_clip_frames"]["max"]
     r = httpx.get(viewer_server.url + "/v1/viewer/demos/no-such-demo")
     assert r.status_code == 404 and "walk" in r.json()["error"]["message"]
+    assert httpx.get(viewer_server.url + "/v1/viewer/demos?model=nope").status_code == 404
+
+
+def test_demos_of_a_model_with_builtin_styles_are_its_captured_clips_and_others_have_none(tmp_path) -> None:
+    # In process with the lifespan run: a bundle with built-in styles, and one on a rig that is not the synthetic one.
+    from fastapi.testclient import TestClient
+
+    from model.inference.bundle import Bundle
+    from model.inference.bundle_styles import BuiltinStyle
+    from model.motion.skeleton import Skeleton
+
+    sk = synthetic_skeleton()
+    styled = Bundle.create(sk, seed=0)
+    styled.styles = {"slow": BuiltinStyle("slow", synthetic_walk(45, speed_cm_s=60.0))}
+    styled.meta.name = "styled"
+    styled.save(tmp_path / "styled")
+    other = Skeleton.build(sk.names, sk.parents, [[2 * v for v in o] for o in sk.offsets], profile="bandai-namco")
+    bare = Bundle.create(other, seed=0)
+    bare.meta.name = "bare"
+    bare.save(tmp_path / "bare")
+    with TestClient(create_app(Settings(models=tmp_path, eager=True, warmup_max_batch=1))) as client:
+        demos = client.get("/v1/viewer/demos?model=styled").json()["demos"]
+        assert [(d["name"], d["kind"]) for d in demos] == [("walk-slow", "take")]
+        clip = client.get("/v1/viewer/demos/walk-slow?model=styled").json()
+        assert clip["frames"] == 45
+        assert np.allclose(clip["rotations"], styled.styles["slow"].clip.rotations.numpy(), atol=1e-6)
+        assert client.get("/v1/viewer/demos?model=bare").json()["demos"] == []
+        r = client.get("/v1/viewer/demos/walk?model=bare")
+        assert r.status_code == 404 and "upload a BVH take" in r.json()["error"]["message"]
 
 
 def test_a_demo_take_and_style_drive_the_contract_endpoints_as_the_viewer_does(viewer_server) -> None:
@@ -117,7 +146,8 @@ def test_an_unusable_upload_is_refused_with_the_reason(viewer_server, bvh: str, 
 
 
 def test_with_api_keys_the_page_is_public_and_the_helpers_are_not(viewer_bundle) -> None:
-    # In process, lifespan not run: no model is loaded, which the static page and the demo list never need.
+    # In process, lifespan not run: no model is loaded, which the static page never needs; the demo list (the
+    # model's own takes) answers not_ready once the key is accepted.
     key = "k" * 24
     app = create_app(Settings(models=viewer_bundle, api_keys=[key]))
 
@@ -127,4 +157,4 @@ def test_with_api_keys_the_page_is_public_and_the_helpers_are_not(viewer_bundle)
                 ("/viewer/", {}), ("/viewer/js/transport.js", {}), ("/v1/viewer/demos", {}),
                 ("/v1/viewer/demos", {"X-API-Key": key}))]
 
-    assert asyncio.run(probe()) == [200, 200, 401, 200]
+    assert asyncio.run(probe()) == [200, 200, 401, 503]

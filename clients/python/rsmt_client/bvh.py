@@ -126,6 +126,18 @@ class BvhFile:
     def read(cls, path: str | Path) -> BvhFile:
         return cls.parse(read_text(path), source=str(path))
 
+    def window(self, start: int, frames: int | None = None) -> BvhFile:
+        """Frames ``[start, start + frames)`` (the file's own frames; ``None``: to the end) as a new file.
+
+        Raises ValueError naming the file's frame count when the range does not lie inside it.
+        """
+        stop = self.num_frames if frames is None else start + frames
+        if start < 0 or (frames is not None and frames < 1) or not start < stop <= self.num_frames:
+            want = f"frames {start} to {stop - 1}" if frames is not None else f"frames from {start}"
+            raise ValueError(f"{want} are outside the file's {self.num_frames} frames (0 to {self.num_frames - 1}, "
+                             f"at {self.fps:g} fps)")
+        return BvhFile(self.joints, self.frame_time, self.motion[start:stop].copy())
+
     # ------------------------------------------------------------------ writing
     def format(self, precision: int | None = 6) -> str:
         """BVH text, joints nested depth first (columns follow); motion values with ``precision`` decimals

@@ -1,7 +1,12 @@
 // Live mode: one character streamed over /v1/stream (binary frames) walks to where the ground is clicked.
-// A click while it walks sends `retarget` with a target made from its current pose, turned to face the
-// click and moved there; a click after it arrived starts a new transition from its last poses. The style
-// picker sends `style` on the fly. The HUD shows how late frames arrive against the server's clock.
+// A click while it walks sends `retarget`; a click after it arrived starts a new transition from its last
+// poses. Either way the target is a pose of the take (real motion on the model's rig, standing on its
+// floor) turned to face the click and moved there, and the character arrives on it exactly
+// (`exact_arrival`). Chained clicks used to leave a crumpled figure floating 20-60 cm up: the target was
+// the character's own last pose, a generated pose that arrives several centimetres off (often above) its
+// target, and the next context ended on that miss, so each click inherited and extended the last one.
+// Now every walk ends on the same captured pose, and the next one starts from it. The style picker sends
+// `style` on the fly. The HUD shows how late frames arrive against the server's clock.
 
 import { appendPose, facingYaw, forwardKinematics, motionPayload, placeMotion, sliceMotion } from "./math.js";
 import { $, status } from "./ui.js";
@@ -10,6 +15,7 @@ import { LiveStream } from "./transport.js";
 const HISTORY = 60;        // frames kept: the next start's context and the trail
 const TRAIL = 240;
 const MIN_FRAMES = 15;     // shortest walk to a click, so even a near click gets a visible transition
+const MAX_FRAMES = 60;     // longest: models are trained on transitions up to 60 frames; past that a far click is walked faster
 const COLOR = "#4da3ff", DEST = "#e45f8f";
 
 export class LiveMode {
@@ -57,6 +63,13 @@ export class LiveMode {
     this.updatePose();
   }
 
+  // The target's two frames (the pose and the one before it, for its velocity): the frames of the take where
+  // the first context ends, so every walk arrives in the pose and gait the character started in.
+  targetPose() {
+    const take = this.app.take.motion, f = Math.min(take.frames, Math.max(this.app.model.context_frames, 2));
+    return sliceMotion(take, f - 2, f);
+  }
+
   updatePose() {
     const m = this.history, f = m.frames - 1;
     const root = Array.from(m.roots.subarray(f * 3, f * 3 + 3));
@@ -97,9 +110,9 @@ export class LiveMode {
     const dist = Math.hypot(point[0] - here[0], point[2] - here[2]);
     const yaw = dist > 1 ? Math.atan2(point[0] - here[0], point[2] - here[2]) : facing; // a click on the spot keeps it
     const speed = Math.max(30, Number(this.els.speed.value) || 130), fps = this.app.model.fps;
-    const frames = Math.round(Math.min(this.app.model.max_transition_frames, Math.max(MIN_FRAMES, (dist / speed) * fps)));
-    // The target: the current pose (and the one before it, for velocity) turned to face the click, moved there.
-    const target = motionPayload(placeMotion(sk, sliceMotion(m, m.frames - 2, m.frames), point, yaw));
+    const longest = Math.min(this.app.model.max_transition_frames, MAX_FRAMES);
+    const frames = Math.round(Math.min(longest, Math.max(MIN_FRAMES, (dist / speed) * fps)));
+    const target = motionPayload(placeMotion(sk, this.targetPose(), point, yaw));
     this.dest = { point, yaw };
     if (this.character) {
       this.stream.send({ type: "retarget", character: this.character, target, frames });
@@ -115,7 +128,7 @@ export class LiveMode {
       const styleId = await this.app.styles.resolve(this.els.style);
       const id = `walker-${++this.starts}`;
       this.stream.send({ type: "start", character: id, context: motionPayload(m, m.frames - ctx, m.frames), target, frames,
-                         style_id: styleId, pace: "realtime" });
+                         style_id: styleId, exact_arrival: true, pace: "realtime" });
       this.character = id;
       this.slot = null;
       status(`walking ${(dist / 100).toFixed(1)} m in ${frames} frames…`);

@@ -123,12 +123,14 @@ export class ViewControls {
 }
 
 // ------------------------------------------------------------------ styles
-// The styles registered on the server (GET /v1/styles) plus the demo style clips, which are registered
-// (POST /v1/styles) the first time they are chosen; uploads are registered at once. Option values are
-// "id:<style_id>" or "demo:<name>".
+// The model's built-in styles (GET /v1/model builtin_styles: ids "builtin:NAME", usable at once), the styles
+// registered on the server (GET /v1/styles) and the demo style clips, which are registered (POST /v1/styles)
+// the first time they are chosen; uploads are registered at once. Option values are "id:<style_id>" or
+// "demo:<name>".
 export class StylePicker {
-  constructor(api, demos, selects) {
+  constructor(api, demos, selects, builtins = []) {
     this.api = api;
+    this.builtins = builtins;
     this.demos = demos.filter((d) => d.kind === "style");
     this.selects = selects;
     this.styles = [];
@@ -141,6 +143,7 @@ export class StylePicker {
     for (const sel of this.selects) {
       const keep = sel === select && value ? value : sel.value;
       sel.innerHTML = "";
+      for (const b of this.builtins) sel.add(new Option(`${b.name} (built-in, ${b.frames} frames)`, `id:${b.style_id}`));
       for (const s of this.styles) sel.add(new Option(`${s.name} (${s.frames} frames)`, `id:${s.style_id}`));
       const registered = new Set(this.styles.map((s) => s.name));
       for (const d of this.demos) {
