@@ -22,6 +22,8 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 from tqdm import tqdm
 
+from model.train import distributed
+
 log = logging.getLogger(__name__)
 Tensor = torch.Tensor
 
@@ -115,8 +117,12 @@ def cpu_randn_like(t: Tensor) -> Tensor:
 
 
 def step_generator(seed: int, step: int) -> torch.Generator:
-    """The random stream of one training step: a resumed run draws exactly the batches it would have."""
-    return torch.Generator().manual_seed(seed * 1_000_003 + step)
+    """The random stream of one training step: a resumed run draws exactly the batches it would have.
+
+    Under ``torchrun`` each rank draws its own batches (:func:`model.train.distributed.step_seed`);
+    one process draws exactly what it always has.
+    """
+    return torch.Generator().manual_seed(distributed.step_seed(seed, step))
 
 
 def make_optimizer(params: list[tuple[str, nn.Parameter]], cfg: LoopConfig) -> torch.optim.Optimizer:
@@ -204,6 +210,10 @@ def train_loop(
     """Run (or resume) a stage. ``train_step(step)`` returns its losses after ``loss.backward()``.
 
     The loop owns zeroing, clipping, the learning-rate schedule and the optimiser step.
+
+    Under ``torchrun`` (:mod:`model.train.distributed`) every rank runs this loop on its own batches
+    and the gradients are averaged over the ranks before clipping; rank 0 alone validates, writes
+    checkpoints and shows the progress bar. In one process the distributed calls do nothing.
     """
     torch.manual_seed(cfg.seed)
     first = next(iter(p for _, p in params), None)
@@ -215,10 +225,12 @@ def train_loop(
     if restored is not None:
         start, history, _ = restored
         log.info("%s: resuming at step %d of %d", name, start, cfg.iterations)
+    distributed.broadcast_state(model)  # every rank starts from rank 0's weights (they agree already)
+    main = distributed.is_main()
     began = time.monotonic()
     last_ckpt = began
     result = LoopResult(history=history)
-    bar = tqdm(total=cfg.iterations, initial=start, desc=name, disable=not progress, dynamic_ncols=True)
+    bar = tqdm(total=cfg.iterations, initial=start, desc=name, disable=not progress or not main, dynamic_ncols=True)
     running: dict[str, float] = {}
     step = start
     try:
@@ -228,7 +240,12 @@ def train_loop(
             for g in optimizer.param_groups:
                 g["lr"] = lr
             optimizer.zero_grad(set_to_none=True)
+            distributed.reseed_global(cfg.seed, step)  # several processes: each rank its own noise
             losses = train_step(step)
+            # Several processes: the mean gradient over the ranks, so every rank takes the same step.
+            # (Not DistributedDataParallel: the stages call methods other than forward() and the
+            # sampler keeps a frozen decoder; averaging here serves every stage alike.)
+            distributed.average_gradients(p for _, p in params)
             torch.nn.utils.clip_grad_norm_([p for _, p in params], cfg.grad_clip)
             optimizer.step()
             step += 1
@@ -237,7 +254,7 @@ def train_loop(
             bar.update(1)
             bar.set_postfix({k: f"{v:.4g}" for k, v in list(running.items())[:4]})
             epoch_end = step % cfg.epoch_iterations == 0 or step == cfg.iterations
-            if epoch_end:
+            if epoch_end and main:  # rank 0 validates and keeps the history (the others' losses are not in it)
                 model.eval()
                 with torch.no_grad():
                     figures = validate()
@@ -247,19 +264,24 @@ def train_loop(
                 bar.write(f"{name} step {step}/{cfg.iterations}: "
                           + ", ".join(f"{k} {v:.4g}" for k, v in entry.items() if k.startswith(("val_", "train_"))))
             now = time.monotonic()
-            if epoch_end or now - last_ckpt > cfg.checkpoint_every_s:
+            if main and (epoch_end or now - last_ckpt > cfg.checkpoint_every_s):
                 save_checkpoint(folder, model, optimizer, step, history)
                 last_ckpt = now
-            if cfg.time_limit_s and now - began > cfg.time_limit_s and step < cfg.iterations:
-                save_checkpoint(folder, model, optimizer, step, history)
+            # The ranks stop together, when rank 0 reaches the time limit.
+            if cfg.time_limit_s and distributed.rank0_decides(now - began > cfg.time_limit_s and step < cfg.iterations):
+                if main:
+                    save_checkpoint(folder, model, optimizer, step, history)
                 log.warning("%s: time limit reached at step %d; run again to resume", name, step)
                 break
     except KeyboardInterrupt:
-        save_checkpoint(folder, model, optimizer, step, history)
+        if main:
+            save_checkpoint(folder, model, optimizer, step, history)
         bar.close()
         raise
     bar.close()
     result.seconds = time.monotonic() - began
     result.finished = step >= cfg.iterations
-    (folder / "config.json").write_text(json.dumps(asdict(cfg), indent=1))
+    if main:
+        (folder / "config.json").write_text(json.dumps(asdict(cfg), indent=1))
+    distributed.barrier()  # the others wait until rank 0's files are written
     return result
