@@ -19,7 +19,7 @@ from model.inference.engine import CharacterBatch, Engine
 from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
 
-PAPER_SAMPLER = {"width": 512, "rnn": 1024, "head": 1024, "style_channels": 512, "phases": 10, "latent": 32}
+PAPER_SAMPLER: dict[str, int] = {"width": 512, "rnn": 1024, "head": 1024, "style_channels": 512, "phases": 10, "latent": 32}
 PAPER_MANIFOLD = {"experts": 8, "hidden": 512, "gate_hidden": 128, "encoder_hidden": 512, "phases": 10, "latent": 32}
 
 
@@ -128,7 +128,8 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
 def paper_size_engine(reference: Bundle) -> Engine:
     """The paper's network sizes on the reference bundle's skeleton, random weights."""
     j = reference.skeleton.num_joints
-    sampler = SamplerConfig(joints=j, root=reference.skeleton.roles.root, **PAPER_SAMPLER)
+    sampler = SamplerConfig(joints=j, root=reference.skeleton.roles.root,
+                            target_velocity_flag=reference.config.target_velocity_flag, **PAPER_SAMPLER)
     manifold = ManifoldConfig(joints=j, root=reference.skeleton.roles.root, **PAPER_MANIFOLD)
     return Engine(Bundle.create(reference.skeleton, sampler, manifold))
 

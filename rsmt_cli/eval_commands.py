@@ -49,6 +49,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--exact-arrival", action="store_true",
                    help="run bundles with the engine's exact-arrival option (the last frames bend onto the target)")
     add_output_arguments(p, "each bundle")
+    p.add_argument("--stream-retarget", action="store_true",
+                   help="also stream each bundle's locomotion cases and retarget them at frame 20 of 40 to the target "
+                        "moved 1 m sideways (model/evaluation/stream_retarget.py)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     p.add_argument("--json", action="store_true", help="print the JSON report instead of the Markdown tables")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -82,10 +85,33 @@ def eval_command(args: argparse.Namespace) -> int:
     command = _command(args)
     run.report["command"] = command
     text = markdown(run.report, command)
+    if args.stream_retarget:
+        text += "\n" + _stream_retarget(run, methods, args.target_frames)
     if args.out:
         write_outputs(run, args.out, text)
     print(json.dumps(run.report, indent=1) if args.json else text)
     return 0
+
+
+def _stream_retarget(run, methods, target_frames: int) -> str:
+    """Each bundle's stream-retarget figures (added to the report) as a Markdown table."""
+    from model.evaluation.methods import BundleMethod
+    from model.evaluation.stream_retarget import RetargetSettings, retarget_report
+
+    if run.loco is None:
+        return "No locomotion cases: no stream-retarget figures.\n"
+    lines = ["### Stream retargeted at frame 20 of 40 to the target moved 1 m sideways (locomotion)", "",
+             "| method | arrival cm (mean / median / p90) | sent from the start | max root speed cm/s (mean / worst) |",
+             "|---|---|---|---|"]
+    for method, (name, entry) in zip(methods, run.report["methods"].items(), strict=True):
+        if not isinstance(method, BundleMethod):
+            continue
+        r = retarget_report(method, run.loco, RetargetSettings(target_frames=target_frames))
+        entry["stream_retarget"] = r
+        a, s = r["retargeted"], r["from_start"]
+        lines.append(f"| {name} | {a['arrival_cm']} / {a['arrival_cm_median']} / {a['arrival_cm_p90']} | "
+                     f"{s['arrival_cm']} | {a['max_root_speed_cm_s']} / {a['max_root_speed_cm_s_worst']} |")
+    return "\n".join(lines) + "\n"
 
 
 def _command(args: argparse.Namespace) -> str:
@@ -104,6 +130,8 @@ def _command(args: argparse.Namespace) -> str:
     parts += ["--seed", str(args.seed)]
     if args.exact_arrival:
         parts.append("--exact-arrival")
+    if args.stream_retarget:
+        parts.append("--stream-retarget")
     if args.smoothing is not None:
         parts += ["--smoothing", f"{args.smoothing:g}"]
     if args.root_smoothing is not None:

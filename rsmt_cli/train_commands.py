@@ -41,7 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--preset", default="default",
                        help="a preset in model/train/recipes/ by name (base.json with the preset's changes): default, "
                             "paper, smoke, the shipped recipe's stages two-hour-* and cross-style-*, ... (default: default)")
-        p.add_argument("--run", type=Path, help="run folder for checkpoints and stage weights (default: ~/.cache/rsmt/runs/NAME)")
+        # --run-dir: the same option under torchrun, whose own parser rejects --run as an ambiguous --run-path.
+        p.add_argument("--run", "--run-dir", dest="run", type=Path,
+                       help="run folder for checkpoints and stage weights (default: ~/.cache/rsmt/runs/NAME); "
+                            "write --run-dir under torchrun")
         p.add_argument("--time-limit", type=float, default=0.0, metavar="S",
                        help="stop each stage after S seconds with a checkpoint; run again to resume")
         p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
@@ -50,6 +53,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                             "sampler steps after a minute or two of compiling (needs a C++ compiler on the CPU)")
         add_device_argument(p)
         p.add_argument("--quiet", action="store_true", help="no progress bars")
+        if stage == "sampler":
+            p.add_argument("--from-bundle", type=Path, metavar="BUNDLE",
+                           help="start from a packaged bundle (e.g. model/default_bundle) instead of a run folder's "
+                                "earlier stages: its weights become the run's phase, manifold and a sampler checkpoint "
+                                "at --at-step (ignored when the run folder has a sampler checkpoint: it resumes)")
+            p.add_argument("--at-step", type=int, metavar="N",
+                           help="with --from-bundle: the step the bundle's sampler stands for (the preset's schedule "
+                                "goes on from there)")
         p.set_defaults(func=_run, stage=stage)
     _register_recipe(sub)
     from rsmt_cli import classifier_commands, judge_commands
@@ -113,9 +124,22 @@ def load_config(args: argparse.Namespace) -> TrainConfig:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from model.train.pipeline import STAGES, run
+    """One stage or all; under ``torchrun`` every process runs this, in one process group
+    (:mod:`model.train.distributed`), and rank 0 writes the files and the summary."""
+    from model.train import distributed
 
     device = resolve_cli_device(args.device)  # first, so a missing GPU fails before any data is read
+    device = distributed.start(device)  # under torchrun: join the group (cuda: this local rank's GPU)
+    try:
+        return _train(args, device)
+    finally:
+        distributed.stop()
+
+
+def _train(args: argparse.Namespace, device: torch.device) -> int:
+    from model.train import distributed
+    from model.train.pipeline import STAGES, run
+
     cfg = load_config(args)
     if args.threads:
         cfg.threads = args.threads
@@ -127,9 +151,23 @@ def _run(args: argparse.Namespace) -> int:
     stages = STAGES if args.stage == "all" else (args.stage,)
     if "sampler" in stages and args.out is None:
         raise ValueError("training the sampler writes a bundle: pass --out BUNDLE")
+    if getattr(args, "from_bundle", None) is not None:
+        from model.train.from_bundle import seed_run
+
+        if args.at_step is None:
+            raise ValueError("--from-bundle needs --at-step N: the step of the preset's schedule the bundle stands for")
+        if distributed.is_main() and seed_run(args.from_bundle, cfg, run_dir, args.at_step):
+            print(f"seeded {run_dir} from {args.from_bundle} at step {args.at_step}")
+        distributed.barrier()  # the run folder is seeded before any rank reads it
     command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv else None
     bundle = run(cfg, Path(data), run_dir, stages, args.out, progress=not args.quiet, command=command, device=device,
                  compile=args.compile)
+    if distributed.world_size() > 1:  # one line per process, on stderr: every rank trained to the end
+        print(f"process {distributed.rank()} of {distributed.world_size()}: "
+              f"{'stopped (time limit)' if 'sampler' in stages and bundle is None else 'trained'} {', '.join(stages)}",
+              file=sys.stderr, flush=True)
+    if not distributed.is_main():
+        return 3 if "sampler" in stages and bundle is None else 0
     if "sampler" in stages and bundle is None:
         print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
         return 3
@@ -140,6 +178,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_recipe(args: argparse.Namespace) -> int:
+    from model.train import distributed
     from model.train.recipe_chains import load_recipe, recipe_names, run_recipe
 
     if args.list:
@@ -149,6 +188,8 @@ def _run_recipe(args: argparse.Namespace) -> int:
     if args.name is None or args.out is None:
         raise ValueError("name a recipe and its bundle: rsmt train recipe NAME --out BUNDLE (--list shows the recipes)")
     recipe = load_recipe(args.name)
+    if distributed.launched():
+        raise ValueError("rsmt train recipe runs in one process; under torchrun, run its stages with rsmt train all|sampler")
     device = resolve_cli_device(args.device)
     data = require_data_dir(args.data)
     run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / f"recipe-{recipe.name}"

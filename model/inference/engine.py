@@ -63,7 +63,7 @@ class Character:
     # Memory of the output steps (smoothing, foot lock) while out of a batch: named rows [1, ...].
     _post: dict[str, Tensor] | None = field(default=None, repr=False)
     # Inputs of the recurrent warm-up, run batched when the character joins a batch.
-    _init: tuple[PoseState, PoseState, int, Tensor] | None = field(default=None, repr=False)
+    _init: tuple[PoseState, PoseState, int, Tensor, bool] | None = field(default=None, repr=False)
 
     @property
     def remaining(self) -> int:
@@ -224,13 +224,13 @@ class Engine:
         frame = CanonicalFrame.at_frame(cpos.unsqueeze(0), self.skeleton, c.context - 1)
         cstate = state_from_positions(frame.positions_to(cpos.unsqueeze(0)),
                                       quat_to_sixd(frame.rotations_to(crot.unsqueeze(0))), self.skeleton.roles.root)
-        tstate = self._target_state(target, frame)
+        tstate, known = self._target_state(target, frame)
         noise = torch.zeros(1, 2 * c.width)
         if not deterministic:
             gen = torch.Generator().manual_seed(int(seed) if seed is not None else int(time.time_ns() % (2**62)))
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
         ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames)
-        ch._init, ch._frame = (cstate, tstate, frames, noise), frame
+        ch._init, ch._frame = (cstate, tstate, frames, noise, known), frame
         crot = quat_normalize(context.rotations)
         ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
         if self.foot_lock is not None:
@@ -251,19 +251,24 @@ class Engine:
         tgt = PoseState.cat([i[1] for i in inits])  # type: ignore[index]
         frames = torch.tensor([i[2] for i in inits])  # type: ignore[index]
         noise = torch.cat([i[3] for i in inits])  # type: ignore[index]
+        known = torch.tensor([i[4] for i in inits])  # type: ignore[index]
         style = StyleContext.stack([c.style.context for c in characters])
         for c in characters:
             c._init = None
-        return self.sampler.begin(ctx, tgt, frames, noise, style)
+        return self.sampler.begin(ctx, tgt, frames, noise, style, velocity_known=known)
 
-    def _target_state(self, target: Clip, frame: CanonicalFrame) -> PoseState:
+    def _target_state(self, target: Clip, frame: CanonicalFrame) -> tuple[PoseState, bool]:
+        """The target's state in the transition's frame, and whether its velocity is known (a frame before it
+        was given). Without one, models trained with the velocity flag are told so; older ones get a
+        zero velocity (arrive at rest)."""
         tail = target.window(max(0, target.num_frames - 2), target.num_frames)
         pos, rot = self._global(tail)
         pos = frame.positions_to(pos.unsqueeze(0))
         rot6 = quat_to_sixd(frame.rotations_to(rot.unsqueeze(0)))
-        if tail.num_frames == 1:  # no frame before the target: it is reached at rest
+        known = tail.num_frames > 1
+        if not known:
             pos, rot6 = torch.cat([pos, pos], dim=1), torch.cat([rot6, rot6], dim=1)
-        return state_from_positions(pos, rot6, self.skeleton.roles.root).index((slice(None), 1))
+        return state_from_positions(pos, rot6, self.skeleton.roles.root).index((slice(None), 1)), known
 
     def retarget(self, ch: Character, batch: CharacterBatch | None = None, target: Clip | None = None,
                  frames: int | None = None) -> None:
@@ -277,11 +282,11 @@ class Engine:
             target = self.conform(target, "target")
             if ch.arrival is not None:
                 ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
-            tstate = self._target_state(target, ch._frame)
+            tstate, known = self._target_state(target, ch._frame)
             with torch.inference_mode():
-                emb = self.sampler.target_encoder(tstate.vector())
-            updates = {"target_vec": tstate.vector(), "target_pos": tstate.positions(), "target_rot": tstate.rot,
-                       "target_emb": emb}
+                vec = self.sampler.target_input(tstate, torch.tensor([known]))
+                emb = self.sampler.target_encoder(vec)
+            updates = {"target_vec": vec, "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
         else:
             updates = {}
         if frames is not None:

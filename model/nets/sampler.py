@@ -41,6 +41,9 @@ class SamplerConfig:
         noise_std: scale of the per-transition target noise (RSMT: 0.5).
         noise_full_tta / noise_zero_tta: noise weight is 1 at or above the first, 0 below the second.
         fps: model frame rate.
+        target_velocity_flag: the target encoder reads one more input, 1 when the target's velocity
+            is known (a frame before the target was given) and 0 when it is not (its velocity is then
+            zeroed): a game usually has the target frame alone. Off in models trained before it.
     """
 
     joints: int = 22
@@ -59,6 +62,7 @@ class SamplerConfig:
     noise_zero_tta: int = 5
     fps: float = 30.0
     root: int = 0
+    target_velocity_flag: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -250,7 +254,7 @@ class TransitionSampler(nn.Module):
         self.style_encoder = StyleEncoder(style_input_dim(c.joints), c.style_channels)
         self.state_encoder = _mlp(d, w, w)
         self.offset_encoder = _mlp(c.joints * 9, w, w)
-        self.target_encoder = _mlp(d, w, w)
+        self.target_encoder = _mlp(d + int(c.target_velocity_flag), w, w)
         self.state_in = nn.Linear(w, w)
         self.film1 = FiLM(c.style_channels, w)
         self.attn1 = StyleAttention(c.style_channels, w)
@@ -290,6 +294,24 @@ class TransitionSampler(nn.Module):
         return self.pe[tta.clamp(0, self.pe.shape[0] - 1)]
 
     # ------------------------------------------------------------------ transition
+    def target_input(self, target: PoseState, velocity_known: Tensor | None = None) -> Tensor:
+        """The target encoder's input ``[B, D(+1)]`` for targets ``[B, J, *]``.
+
+        ``velocity_known [B]`` (bool; None: all known) says which targets came with the frame before
+        them. With ``target_velocity_flag`` an unknown velocity is zeroed and flagged 0; without it
+        (older models) the vector is passed as it is.
+        """
+        vec = target.vector()
+        if not self.config.target_velocity_flag:
+            return vec
+        if velocity_known is None:
+            known = vec.new_ones(vec.shape[0], 1)
+        else:
+            known = velocity_known.to(vec.dtype).view(-1, 1)
+        j = self.config.joints
+        vel = vec[:, 3 * j : 6 * j] * known
+        return torch.cat([vec[:, : 3 * j], vel, vec[:, 6 * j :], known], dim=-1)
+
     def begin(
         self,
         context: PoseState,
@@ -298,6 +320,7 @@ class TransitionSampler(nn.Module):
         noise: Tensor,
         style: StyleContext,
         phase: tuple[Tensor, Tensor, Tensor] | None = None,
+        velocity_known: Tensor | None = None,
     ) -> SamplerState:
         """Warm the recurrent core on the context and return the state before the first new frame.
 
@@ -309,6 +332,7 @@ class TransitionSampler(nn.Module):
             style: the batch's style contexts.
             phase: ``(phase [B, M, 2], amplitude [B, M], frequency [B, M])`` of the last context
                 frame; estimated from the context (as in a live game) when None.
+            velocity_known: ``[B]`` whether each target's velocity is known (:meth:`target_input`).
         """
         c = self.config
         b, k = context.rel.shape[0], context.rel.shape[1]
@@ -317,7 +341,7 @@ class TransitionSampler(nn.Module):
             current, _, freq = self.phase_estimator(ctx_vec[:, -c.context :])
         else:
             current, _, freq = phase
-        target_vec = target.vector()
+        target_vec = self.target_input(target, velocity_known)
         state = SamplerState(
             h=ctx_vec.new_zeros(b, c.rnn), c=ctx_vec.new_zeros(b, c.rnn), pose=context.index((slice(None), k - 1)),
             phase=current, target_vec=target_vec, target_pos=target.positions(), target_rot=target.rot,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import sys
 import time
 import typing
@@ -26,6 +27,7 @@ from model.nets.manifold import ManifoldConfig, MotionManifold
 from model.nets.phase import PeriodicAutoencoder, PhaseConfig
 from model.nets.sampler import SamplerConfig, TransitionSampler
 from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig
+from model.train import distributed
 from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
 from model.train.loop import resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
@@ -33,6 +35,7 @@ from model.train.motion_tensors import MotionTensors, mean_skeleton
 from model.train.phase_stage import PhaseStageConfig, label_tensors, phase_summary, train_phase
 from model.train.sampler_config import SamplerStageConfig
 from model.train.sampler_stage import train_sampler
+from model.train.velocity_flag import widen_checkpoint
 
 log = logging.getLogger(__name__)
 STAGES = ("phase", "manifold", "sampler")
@@ -165,14 +168,14 @@ def style_critics(cfg: TrainConfig, data: PreparedData, run_dir: Path,
     return critics, seconds
 
 
-def _save_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
+def save_stage_weights(module: torch.nn.Module, folder: Path, config: dict) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     # CPU tensors whatever the device trained on, so the weights load anywhere.
     save_file({k: v.detach().cpu().contiguous() for k, v in module.state_dict().items()}, str(folder / "weights.safetensors"))
     (folder / "config.json").write_text(json.dumps(config, indent=1))
 
 
-def _load_weights(module: torch.nn.Module, folder: Path, stage: str) -> None:
+def load_stage_weights(module: torch.nn.Module, folder: Path, stage: str) -> None:
     path = folder / "weights.safetensors"
     if not path.is_file():
         raise FileNotFoundError(f"stage {stage!r} has no weights in {folder}: train it first (rsmt train {stage})")
@@ -198,9 +201,13 @@ def _labels(pae: PeriodicAutoencoder, tensors: MotionTensors, path: Path, progre
             return
     label_tensors(pae, tensors, progress, device=device)
     assert tensors.phase is not None and tensors.amplitude is not None and tensors.frequency is not None
+    if not distributed.is_main():  # under torchrun every rank labels its copy; rank 0 writes the file
+        return
     path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")  # then renamed: another rank may be reading the file
     save_file({"phase": tensors.phase.cpu(), "amplitude": tensors.amplitude.cpu(), "frequency": tensors.frequency.cpu(),
-               "key": torch.tensor(list(key.encode()), dtype=torch.uint8)}, str(path))
+               "key": torch.tensor(list(key.encode()), dtype=torch.uint8)}, str(tmp))
+    os.replace(tmp, path)
 
 
 def _phase_model(cfg: TrainConfig, data: PreparedData, run_dir: Path, train: bool, timings: dict[str, float],
@@ -213,10 +220,11 @@ def _phase_model(cfg: TrainConfig, data: PreparedData, run_dir: Path, train: boo
         pae, result = train_phase(data.train, data.val, cfg.phase, cfg.phase_stage, run_dir / "phase", progress, dev)
         if not result.finished:
             return None
-        _save_weights(pae, run_dir / "phase", cfg.phase.to_dict())
+        if distributed.is_main():
+            save_stage_weights(pae, run_dir / "phase", cfg.phase.to_dict())
         timings["phase_s"] = round(time.monotonic() - t0, 1)
     else:
-        _load_weights(pae, run_dir / "phase", "phase")
+        load_stage_weights(pae, run_dir / "phase", "phase")
         pae.to(dev)
     return pae.eval()
 
@@ -232,10 +240,11 @@ def _manifold(cfg: TrainConfig, data: PreparedData, run_dir: Path, stages: tuple
                                           progress, dev)
         if not result.finished:
             return None
-        _save_weights(manifold.decoder, run_dir / "manifold", cfg.manifold.to_dict())
+        if distributed.is_main():
+            save_stage_weights(manifold.decoder, run_dir / "manifold", cfg.manifold.to_dict())
         timings["manifold_s"] = round(time.monotonic() - t0, 1)
     elif "sampler" in stages:
-        _load_weights(manifold.decoder, run_dir / "manifold", "manifold")
+        load_stage_weights(manifold.decoder, run_dir / "manifold", "manifold")
         manifold.to(dev)
     return manifold
 
@@ -246,12 +255,16 @@ def _sampler(cfg: TrainConfig, data: PreparedData, run_dir: Path, manifold: Moti
     None when its training stopped before the end."""
     critics: list[StyleClassifier] = []
     if cfg.sampler_stage.w_style > 0:
-        critics, seconds = style_critics(cfg, data, run_dir, progress)
+        with distributed.main_first():  # under torchrun rank 0 trains them; the others load them
+            critics, seconds = style_critics(cfg, data, run_dir, progress and distributed.is_main())
         if seconds is not None:  # trained now, not reloaded from the run folder
             timings["critic_s"] = round(seconds, 1)
     t0 = time.monotonic()
     torch.manual_seed(cfg.sampler_stage.loop.seed)  # the initial weights, in any process
     sampler = TransitionSampler(cfg.sampler, manifold.decoder)
+    with distributed.main_first():  # a checkpoint of an earlier stage without the target-velocity flag grows it
+        if distributed.is_main() and widen_checkpoint(run_dir / "sampler", sampler):
+            log.info("sampler checkpoint in %s grown to read the target-velocity flag", run_dir / "sampler")
     sampler, result = train_sampler(data.train, data.val, sampler, cfg.sampler_stage, run_dir / "sampler", progress, dev,
                                     critics, compile=compile)
     if not result.finished:
@@ -281,21 +294,29 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     timings_path = run_dir / "timings.json"
     timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
     began = time.monotonic()
-    data = prepare_data(cfg, data_dir, progress)
+    with distributed.main_first():  # under torchrun rank 0 builds the data cache; the others read it
+        data = prepare_data(cfg, data_dir, progress and distributed.is_main())
     # Data are read and augmented on the CPU, then held where the networks train.
     data.train, data.val = data.train.to(dev), data.val.to(dev)
     timings["data_s"] = round(time.monotonic() - began, 1)
-    (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
-    data.train.skeleton.save(run_dir / "skeleton.json")
+    if distributed.world_size() > 1:  # under torchrun: how many processes trained (absent for one)
+        timings["processes"] = distributed.world_size()
+    else:
+        timings.pop("processes", None)
+    main = distributed.is_main()  # under torchrun only rank 0 writes files; in one process, this one
+    if main:
+        (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
+        data.train.skeleton.save(run_dir / "skeleton.json")
 
     pae = _phase_model(cfg, data, run_dir, "phase" in stages, timings, progress, dev)
     if pae is None:
         return None
     t0 = time.monotonic()
     for part, tensors in (("train", data.train), ("val", data.val)):
-        _labels(pae, tensors, run_dir / "phase" / f"labels_{part}.safetensors", progress, dev)
+        _labels(pae, tensors, run_dir / "phase" / f"labels_{part}.safetensors", progress and main, dev)
     timings["labels_s"] = round(time.monotonic() - t0, 1)
-    (run_dir / "phase_summary.json").write_text(json.dumps(phase_summary(data.train), indent=1))
+    if main:
+        (run_dir / "phase_summary.json").write_text(json.dumps(phase_summary(data.train), indent=1))
 
     manifold = _manifold(cfg, data, run_dir, stages, timings, progress, dev)
     if manifold is None:
@@ -317,8 +338,10 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
         sampler.cpu()
         pae.cpu()
         bundle = Bundle(data.train.skeleton, sampler, cfg.manifold, cfg.phase, pae, meta)
-        if out is not None:
+        if out is not None and main:
             bundle.save(out)
             (out / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
-    timings_path.write_text(json.dumps(timings, indent=1))
+    if main:
+        timings_path.write_text(json.dumps(timings, indent=1))
+    distributed.barrier()  # the others return when the bundle is written
     return bundle

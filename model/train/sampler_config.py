@@ -49,6 +49,14 @@ class SamplerStageConfig:
     control_batch: int = 0
     control_dt: float = 2.0
     control_shift: float = 2.0
+    # With control_turn above 0 (degrees) the changed-control windows come in three groups: the third
+    # gets its target turned by an angle in [-control_turn, control_turn] about its own vertical axis.
+    control_turn: float = 0.0
+    # Moved targets also move up to this far (cm) across the window's travel (the evaluation's 1 m sideways).
+    control_side: float = 0.0
+    # The fraction of training windows whose target comes without its velocity (the sampler's
+    # target_velocity_flag tells it so): a game usually sends the target frame alone.
+    target_velocity_drop: float = 0.0
     # Each critic's input selection (model.nets.style_classifier.INPUTS, velocity-based); the style loss is
     # their mean, so generated motion has to satisfy critics that read it differently, not one net's blind spots.
     critic_inputs: tuple[str, ...] = ("dynamics",)
@@ -71,8 +79,10 @@ class SamplerStageConfig:
             raise ValueError("cross_batch and control_batch must be 0 or more")
         if self.w_cross_style is not None and self.w_cross_style < 0:
             raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
-        if self.control_dt < 1.0 or self.control_shift < 0.0:
-            raise ValueError("control_dt must be at least 1 and control_shift at least 0")
+        if self.control_dt < 1.0 or self.control_shift < 0.0 or self.control_turn < 0.0 or self.control_side < 0.0:
+            raise ValueError("control_dt must be at least 1, and control_shift, control_turn and control_side at least 0")
+        if not 0.0 <= self.target_velocity_drop <= 1.0:
+            raise ValueError(f"target_velocity_drop must be in [0, 1], got {self.target_velocity_drop}")
 
 
 def cross_style_weights(weights: dict[str, float], stage: SamplerStageConfig) -> dict[str, float]:

@@ -103,11 +103,12 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
                       length: int, cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool,
                       critics: Sequence[StyleClassifier] = (), critic_labels: Tensor | None = None,
                       ground_truth: bool = True, ground: Tensor | None = None, duration: int | None = None,
-                      target_shift: Tensor | None = None) -> dict[str, Tensor]:
+                      target_shift: Tensor | None = None, target_turn: Tensor | None = None) -> dict[str, Tensor]:
     """Generate ``length`` frames for every window of ``batch`` and score them.
 
     Changed controls (no ground truth): ``duration`` generates that many frames towards the window's
-    target instead, and ``target_shift [B, 2]`` moves the target's root (x, z) in the canonical frame.
+    target instead, ``target_shift [B, 2]`` moves the target's root (x, z) in the canonical frame and
+    ``target_turn [B]`` turns the target pose about its own vertical axis (radians).
 
     With ``ground_truth`` False (style clips of another style than the content's) only what needs
     no ground-truth in-between is scored: reaching the target, and the critics' style loss (their
@@ -115,9 +116,9 @@ def transition_losses(model: TransitionSampler, tensors: MotionTensors, batch: W
     class per window (-1: a style they do not know; all critics share one style list). ``ground``
     (the foot joints' ground levels, cm) adds the ``foot_height`` loss, which needs no ground truth.
     """
-    if (duration is not None or target_shift is not None) and ground_truth:
+    if (duration is not None or target_shift is not None or target_turn is not None) and ground_truth:
         raise ValueError("changed controls have no ground-truth in-between frames")
-    r = rollout(model, tensors, batch, style_feats, length, cfg, gen, training, duration, target_shift)
+    r = rollout(model, tensors, batch, style_feats, length, cfg, gen, training, duration, target_shift, target_turn)
     return score_rollout(r, tensors, cfg, critics=critics, critic_labels=critic_labels,
                          ground_truth=ground_truth, ground=ground)
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 
 from model.motion.kinematics import forward_kinematics, global_to_local_rotations
-from model.motion.rotations import sixd_to_quat
+from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_quat, yaw_quat
 from model.nets.pose_state import PoseState
 from model.nets.sampler import TransitionSampler
 from model.train.batches import WindowBatch
@@ -26,6 +26,17 @@ def fk_from_states(rot6: Tensor, root_pos: Tensor, tensors: MotionTensors) -> Te
     sk = tensors.skeleton
     local = global_to_local_rotations(sixd_to_quat(rot6), sk.parents)
     return forward_kinematics(local, root_pos, sk.offsets_tensor().to(rot6.device), sk.parents)[0]
+
+
+def turn_target(target: PoseState, angle: Tensor) -> PoseState:
+    """Targets ``[B, J, *]`` turned by ``angle [B]`` radians about their own root's vertical axis (the
+    evaluation's "turned" control): the pose turns in place, its root stays where it was."""
+    q = yaw_quat(angle).view(-1, 1, 4).expand(-1, target.rel.shape[1], 4)
+    turn = q.to(target.rel.dtype)
+    rel = quat_rotate(turn, target.rel)  # offsets from the root's ground point: turning them turns about it
+    vel = quat_rotate(turn, target.vel)
+    rot = quat_to_sixd(quat_mul(turn, sixd_to_quat(target.rot)))
+    return PoseState(rel, vel, rot, target.root_xz)
 
 
 @dataclass
@@ -48,9 +59,14 @@ class Rollout:
 
 def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch, style_feats: Tensor, length: int,
             cfg: SamplerStageConfig, gen: torch.Generator | None, training: bool, duration: int | None = None,
-            target_shift: Tensor | None = None) -> Rollout:
+            target_shift: Tensor | None = None, target_turn: Tensor | None = None) -> Rollout:
     """Generate ``length`` frames (``duration`` if given) for every window of ``batch`` towards its target,
-    moved by ``target_shift [B, 2]`` (root x, z in the canonical frame) if given."""
+    moved by ``target_shift [B, 2]`` (root x, z in the canonical frame) and turned by ``target_turn [B]``
+    radians about its own vertical axis if given.
+
+    With ``cfg.target_velocity_drop`` above 0, that fraction of training windows (and every
+    validation window: what a game sends by default) get their target without its velocity.
+    """
     c = model.config
     k = c.context
     s = batch.states
@@ -73,10 +89,17 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
     else:
         start_phase = None
         noise = torch.zeros(b, 2 * c.width, device=dev)
+    known = None
+    if cfg.target_velocity_drop > 0:
+        # Drawn after every earlier draw of the step, so runs without the drop draw what they did.
+        known = (torch.rand(b, generator=gen) >= cfg.target_velocity_drop).to(dev) if training and gen is not None \
+            else torch.zeros(b, dtype=torch.bool, device=dev)
     target = s.index((slice(None), k + length - 1)).contiguous()
     if target_shift is not None:
         target = PoseState(target.rel, target.vel, target.rot, target.root_xz + target_shift)
-    state = model.begin(ctx, target, torch.full((b,), steps, device=dev), noise, style, start_phase)
+    if target_turn is not None:
+        target = turn_target(target, target_turn)
+    state = model.begin(ctx, target, torch.full((b,), steps, device=dev), noise, style, start_phase, known)
     poses, auxes = [], []
     for _ in range(steps):
         state, aux = model.step(state, style)

@@ -226,24 +226,40 @@ class SamplerSteps:
         return weighted_sum(cl, self.weights) * (self.stage.control_batch / self.stage.batch)
 
     def control_losses(self, length: int, gen: torch.Generator) -> dict[str, Tensor]:
-        """Windows of ``length`` frames with a scaled duration (first half) or a moved target (second half)."""
+        """Windows of ``length`` frames with a scaled duration, a moved target or (with ``control_turn``) a
+        turned target, in equal groups."""
         stage, train, k = self.stage, self.train, self.context
         n = stage.control_batch
         cs, co, cclips = self.pairs.sample(n, gen)
         scale = math.exp((2 * float(torch.rand(1, generator=gen)) - 1) * math.log(stage.control_dt))
         duration = max(stage.min_transition, min(self.max_transition, round(length * scale)))
         x = (2 * torch.rand(n, 1, generator=gen) - 1) * stage.control_shift
+        side = (2 * torch.rand(n, 1, generator=gen) - 1) * stage.control_side if stage.control_side > 0 else None
+        turn = (2 * torch.rand(n, generator=gen) - 1) * math.radians(stage.control_turn) if stage.control_turn > 0 else None
+        groups = 2 if turn is None else 3
+        bounds = [n * g // groups for g in range(groups + 1)]
         out: dict[str, list[Tensor]] = {}
-        for rows, moved in ((slice(0, n // 2), False), (slice(n // 2, n), True)):
+        for g, kind in enumerate(("duration", "moved", "turned")[:groups]):
+            rows = slice(bounds[g], bounds[g + 1])
             if rows.stop <= rows.start:
                 continue
             cb = self.windows(cs[rows], co[rows], length)
-            if moved:
-                # The window's own root travel over the gap, scaled: the evaluation's "location" control.
+            kw: dict = {}
+            if kind == "moved":
+                # The window's own root travel over the gap, scaled: the evaluation's "location" control;
+                # and, with control_side, an offset across that travel.
                 travel = cb.states.root_xz[:, k + length - 1] - cb.states.root_xz[:, k - 1]
-                kw: dict = {"target_shift": travel * x[rows].to(travel.device)}
+                shift = travel * x[rows].to(travel.device)
+                if side is not None:
+                    across = torch.stack([-travel[:, 1], travel[:, 0]], -1)
+                    across = across / across.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+                    shift = shift + across * side[rows].to(travel.device)
+                kw["target_shift"] = shift
+            elif kind == "turned":
+                assert turn is not None
+                kw["target_turn"] = turn[rows].to(self.device)
             else:
-                kw = {"duration": duration}
+                kw["duration"] = duration
             losses = transition_losses(self.model, train, cb, self.features_of(cclips[rows], train), length, stage, gen,
                                        True, self.critics, self.labels_of(train.style[co[rows]]), ground_truth=False,
                                        ground=self.ground, **kw)

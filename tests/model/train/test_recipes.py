@@ -41,7 +41,7 @@ def test_every_recipe_loads_and_names_presets_that_exist():
         ("A", "all", "two-hour-1-frames"), ("B", "sampler", "two-hour-2-critics"),
         ("C", "sampler", "two-hour-3-accuracy"), ("D", "sampler", "two-hour-4-accuracy"),
         ("E1", "sampler", "cross-style-1-critics"), ("E2", "sampler", "cross-style-2-arrival"),
-        ("E3", "sampler", "cross-style-3-accuracy")]
+        ("E3", "sampler", "cross-style-3-accuracy"), ("F", "sampler", "control-1-one-frame")]
     assert shipped.package == PackageSettings(name="rsmt-default", float16=True, smoothing=0.3, foot_lock=True,
                                               int8_lstm=True)
 
