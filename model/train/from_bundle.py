@@ -16,6 +16,7 @@ from model.inference.bundle import Bundle
 from model.nets.sampler import TransitionSampler
 from model.train.loop import make_optimizer, save_checkpoint
 from model.train.pipeline import TrainConfig, fit_to_skeleton, save_stage_weights
+from model.train.sampler_stage import trained_parameters
 from model.train.velocity_flag import widen_state
 
 
@@ -52,7 +53,6 @@ def seed_run(bundle_dir: Path, cfg: TrainConfig, run_dir: Path, step: int) -> bo
     sampler = sampler_from_bundle(bundle, cfg)
     save_stage_weights(bundle.phase_model.float(), run_dir / "phase", cfg.phase.to_dict())
     save_stage_weights(sampler.decoder, run_dir / "manifold", cfg.manifold.to_dict())
-    params = [(n, p) for n, p in sampler.named_parameters() if not n.startswith("decoder.")]
-    save_checkpoint(run_dir / "sampler", sampler, make_optimizer(params, cfg.sampler_stage.loop), step, [],
+    save_checkpoint(run_dir / "sampler", sampler, make_optimizer(trained_parameters(sampler), cfg.sampler_stage.loop), step, [],
                     {"seeded_from": str(bundle_dir), "bundle_version": bundle.version})
     return True

@@ -281,6 +281,11 @@ class SamplerSteps:
         return {k: sums[k] for k in SHOWN_VALIDATION if k in sums}
 
 
+def trained_parameters(model: TransitionSampler) -> list[tuple[str, torch.nn.Parameter]]:
+    """The parameters the sampler stage trains, in the optimiser's input order: all but the frozen decoder's."""
+    return [(n, p) for n, p in model.named_parameters() if not n.startswith("decoder.")]
+
+
 def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSampler, stage: SamplerStageConfig,
                   folder: Path, progress: bool = True, device: torch.device | str = "auto",
                   critics: Sequence[StyleClassifier] = (), compile: bool = False) -> tuple[TransitionSampler, LoopResult]:
@@ -302,7 +307,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     model.style_std.copy_(std)
     for p in model.decoder.parameters():
         p.requires_grad_(False)
-    params = [(n, p) for n, p in model.named_parameters() if not n.startswith("decoder.")]
+    params = trained_parameters(model)
     steps = SamplerSteps(model, train, val, stage, frozen_critics(critics, stage, dev), dev)
     with compiled_steps(model, compile):
         result = train_loop("sampler", folder, model, params, stage.loop, steps.train_step, steps.validate, progress)

@@ -17,6 +17,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from model.nets.sampler import TransitionSampler
+from model.train.loop import LoopConfig, make_optimizer
+from model.train.sampler_stage import trained_parameters
 
 FLAG_KEY = "target_encoder.0.weight"  # the target encoder's first layer: the flag is its last input column
 
@@ -42,7 +44,7 @@ def widen_state(state: dict[str, Tensor], sampler: TransitionSampler, prefix: st
 def widen_checkpoint(folder: Path, sampler: TransitionSampler) -> bool:
     """Grow the sampler checkpoint in ``folder`` (:func:`model.train.loop.save_checkpoint`) for ``sampler`` when it
     was written without the flag; True when it did. The optimiser moments of the grown weight get zero
-    columns (its parameter index follows :func:`model.train.loop.make_optimizer`'s order)."""
+    columns (its parameter index is its place in the optimiser the stage builds)."""
     path, meta_path = folder / "checkpoint.safetensors", folder / "checkpoint.json"
     if not path.is_file() or not meta_path.is_file():
         return False
@@ -50,9 +52,9 @@ def widen_checkpoint(folder: Path, sampler: TransitionSampler) -> bool:
     grown = widen_state(tensors, sampler, "model.")
     if grown is tensors:
         return False
-    trained = [(n, p) for n, p in sampler.named_parameters() if not n.startswith("decoder.")]
-    order = [n for n, p in trained if p.dim() >= 2] + [n for n, p in trained if p.dim() < 2]
-    pid = order.index(FLAG_KEY)
+    optimizer = make_optimizer(trained_parameters(sampler), LoopConfig())  # its state ids number its parameters in order
+    weight = dict(sampler.named_parameters())[FLAG_KEY]
+    pid = next(i for i, p in enumerate(p for g in optimizer.param_groups for p in g["params"]) if p is weight)
     width = grown["model." + FLAG_KEY].shape[1]
     for name in ("exp_avg", "exp_avg_sq"):
         key = f"opt.{pid}.{name}"

@@ -21,12 +21,14 @@ from model.train.pipeline import TrainConfig, fit_to_skeleton
 from model.train.presets import preset_dict
 from model.train.sampler_config import SamplerStageConfig
 from model.train.sampler_rollout import turn_target
+from model.train.sampler_stage import trained_parameters
 from rsmt_cli.main import main
 from tests.model.tiny_bundles import MANIFOLD, SAMPLER, tiny_bundle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 J = SAMPLER.joints
+FLAGGED = SamplerConfig(**{**SAMPLER.to_dict(), "target_velocity_flag": True})
 
 
 def random_targets(b: int, seed: int) -> PoseState:
@@ -37,7 +39,7 @@ def random_targets(b: int, seed: int) -> PoseState:
 
 
 def test_the_flag_zeroes_an_unknown_velocity_and_older_samplers_ignore_it():
-    flagged = TransitionSampler(SamplerConfig(**{**SAMPLER.to_dict(), "target_velocity_flag": True}),
+    flagged = TransitionSampler(FLAGGED,
                                 tiny_bundle(0).sampler.decoder)
     t = random_targets(3, 0)
     vec = flagged.target_input(t, torch.tensor([True, False, True]))
@@ -129,7 +131,7 @@ def test_the_engine_tells_a_flagged_model_whether_the_target_came_with_its_veloc
     from model.data.synthetic import synthetic_walk
     from model.inference.engine import Engine
 
-    flagged = Bundle.create(tiny_bundle(0).skeleton, SamplerConfig(**{**SAMPLER.to_dict(), "target_velocity_flag": True}),
+    flagged = Bundle.create(tiny_bundle(0).skeleton, FLAGGED,
                             MANIFOLD, seed=1)
     engine = Engine(flagged)
     walk = synthetic_walk(frames=80)
@@ -154,15 +156,15 @@ def test_a_checkpoint_without_the_flag_grows_its_column_and_moments_and_resumes(
     from model.train.velocity_flag import FLAG_KEY, widen_checkpoint
 
     old = tiny_bundle(0).sampler
-    params = [(n, p) for n, p in old.named_parameters() if not n.startswith("decoder.")]
+    params = trained_parameters(old)
     opt = make_optimizer(params, LoopConfig())
     sum(p.sum() for _, p in params).backward()  # one step, so the moments exist
     opt.step()
     save_checkpoint(tmp_path, old, opt, 7, [{"step": 7}])
-    flagged = TransitionSampler(SamplerConfig(**{**SAMPLER.to_dict(), "target_velocity_flag": True}), old.decoder)
+    flagged = TransitionSampler(FLAGGED, old.decoder)
     assert widen_checkpoint(tmp_path, flagged)
     assert not widen_checkpoint(tmp_path, flagged)  # grown once
-    new_params = [(n, p) for n, p in flagged.named_parameters() if not n.startswith("decoder.")]
+    new_params = trained_parameters(flagged)
     new_opt = make_optimizer(new_params, LoopConfig())
     restored = load_checkpoint(tmp_path, flagged, new_opt)
     assert restored is not None and restored[0] == 7
