@@ -3,40 +3,50 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
-from rsmt_cli import (
-    average_commands,
-    bench_commands,
-    client_commands,
-    data_commands,
-    eval_commands,
-    finetune_commands,
-    loadtest_commands,
-    package_commands,
-    rig_commands,
-    serve_commands,
-    train_commands,
+# The command groups in the order of ``rsmt --help``: each module exposes ``register(subparsers)`` and adds the
+# commands listed beside it. ``rsmt COMMAND ...`` imports only COMMAND's module (``rsmt client ...`` starts without
+# the data, training or load-test modules' imports); ``rsmt``, ``rsmt --help`` and an unknown command import all.
+GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("data_commands", ("data",)),
+    ("train_commands", ("train",)),
+    ("bench_commands", ("bench",)),
+    ("serve_commands", ("serve",)),
+    ("eval_commands", ("eval",)),
+    ("finetune_commands", ("finetune-style",)),
+    ("average_commands", ("average",)),
+    ("package_commands", ("package", "bundle")),
+    ("client_commands", ("client",)),
+    ("loadtest_commands", ("loadtest",)),
+    ("rig_commands", ("rig",)),
 )
 
-# Each command group module exposes ``register(subparsers)``; later groups are appended here.
-GROUPS = [data_commands, train_commands, bench_commands, serve_commands, eval_commands, finetune_commands, average_commands,
-          package_commands, client_commands, loadtest_commands, rig_commands]
+
+def group_modules(argv: Sequence[str] | None = None) -> list[ModuleType]:
+    """The group modules a command line needs: its command's, or all of them (``argv`` None: all)."""
+    command = next((a for a in argv if not a.startswith("-")), None) if argv is not None else None
+    names = [module for module, commands in GROUPS if command in commands] or [module for module, _ in GROUPS]
+    return [importlib.import_module(f"rsmt_cli.{name}") for name in names]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of ``rsmt``; given ``argv``, only with the command group that line needs."""
     parser = argparse.ArgumentParser(prog="rsmt", description="Real-time stylized motion transitions.")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for group in GROUPS:
+    for group in group_modules(argv):
         group.register(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s %(message)s")

@@ -3,12 +3,13 @@
 Training writes float32 weights and the default output settings; the shipped default model is
 float16 with its output steps and int8 LSTM cell switched on in ``config.json``. This command
 does those steps, so a training recipe ends in a command rather than hand edits. ``--styles DIR``
-stores built-in style clips in the copy (``styles/``, served as ``builtin:NAME``).
+encodes one clip per style with the copy's own weights and stores the codes (``styles/``, served as
+``builtin:NAME``; no motion is stored, :mod:`model.inference.style_packing`).
 
 ``rsmt bundle add-styles BUNDLE --from DIR | --from-data DATA`` writes (replaces) only a bundle's
 ``styles/`` folder, in place: its weights and config stay as they are. ``--from-data`` picks one
 train-split walking clip per style of a dataset (:mod:`model.data.style_picks`); this is how the
-default bundle's built-in styles are made::
+default bundle's built-in styles are made (and remade after its weights change)::
 
     rsmt bundle add-styles model/default_bundle --from-data "$RSMT_DATA"
 """
@@ -19,6 +20,7 @@ import argparse
 import dataclasses
 import json
 import shutil
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -36,16 +38,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--name", help="model name in the new bundle's config (default: the bundle's own)")
     p.add_argument("--float16", action="store_true", help="store the weights as float16 (half the file)")
     p.add_argument("--styles", type=Path, metavar="DIR",
-                   help="built-in style clips to store in the copy: one BVH per style (the file stem is the name) "
-                        "or one folder per style (its first BVH); served as style ids builtin:NAME")
+                   help="built-in styles to encode into the copy: one BVH per style (the file stem is the name) "
+                        "or one folder per style (its first BVH); the copy stores their codes, served as style ids "
+                        "builtin:NAME")
     add_output_arguments(p, "the bundle")
     p.set_defaults(func=_run)
 
     b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles in place (weights untouched)")
     bsub = b.add_subparsers(dest="bundle_command", required=True, metavar="ACTION")
     a = bsub.add_parser("add-styles", help="write the bundle's styles/ folder (built-in styles, builtin:NAME)",
-                        description="Replace BUNDLE/styles/ with the given clips; config.json and the weights are "
-                                    "not touched, so the model's version and every style id stay the same.")
+                        description="Encode the given clips with the bundle's weights and replace BUNDLE/styles/ with "
+                                    "their codes (no motion is stored); config.json and the weights are not touched, "
+                                    "so the model's version and every style id stay the same. Run it again after the "
+                                    "weights change: codes of other weights do not load.")
     a.add_argument("bundle", type=Path, metavar="BUNDLE")
     src = a.add_mutually_exclusive_group(required=True)
     src.add_argument("--from", dest="source", type=Path, metavar="DIR",
@@ -58,19 +63,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from model.inference.bundle import Bundle
+    from model.inference.bundle_styles import save_styles
+    from model.inference.style_packing import write_builtin_styles
 
     if args.out.resolve() == args.model.resolve():
         raise ValueError("--out must not be the --model folder")
     overrides = output_overrides(args)  # checked before anything is read or written
-    bundle = Bundle.load(args.model)
-    if args.styles is not None:
-        bundle.styles = _read_styles(args.styles, bundle)
+    bundle = Bundle.load(args.model, styles=args.styles is None)
+    clips = _read_styles(args.styles, bundle) if args.styles is not None else None
+    # Codes belong to the weights that made them: they are written after the copy's weights (float16 or not).
+    kept, bundle.styles = bundle.styles, {}
     bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
                                                  overrides["foot_lock"])
     bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
+    if (args.out / "styles").is_dir():  # never leave a copy with the codes of some earlier weights
+        shutil.rmtree(args.out / "styles")
     bundle.save(args.out, weights_dtype="float16" if args.float16 else "float32")
+    if clips is not None:
+        bundle.styles = {s.name: s for s in write_builtin_styles(args.out, clips)[1]}
+    elif kept and all(s.version == bundle.version for s in kept.values()):
+        save_styles(args.out, kept.values(), bundle.skeleton, bundle.config.fps, bundle.version)
+        bundle.styles = kept
+    elif kept:
+        print(f"rsmt package: the built-in styles of {args.model} were encoded by its weights (version "
+              f"{next(iter(kept.values())).version}), not by the copy's (version {bundle.version}); they are not "
+              f"copied: re-encode them with `rsmt bundle add-styles {args.out} --from DIR` (or --from-data DATA), "
+              "or package with --styles DIR", file=sys.stderr)
     train_config = args.model / "train_config.json"
     if train_config.is_file():
         shutil.copyfile(train_config, args.out / "train_config.json")
@@ -80,7 +100,8 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_styles(folder: Path, bundle: Any) -> dict[str, Any]:
+def _read_styles(folder: Path, bundle: Any) -> list[Any]:
+    """The clips of ``folder`` (one per style) on the bundle's rig, checked against its style clip lengths."""
     from model.inference.bundle_styles import styles_from_folder
 
     styles = styles_from_folder(folder, bundle.skeleton, bundle.config.fps)
@@ -89,27 +110,25 @@ def _read_styles(folder: Path, bundle: Any) -> dict[str, Any]:
         if not lo <= s.frames <= hi:
             raise ValueError(f"style {s.name!r} ({s.source}) has {s.frames} frames at {bundle.config.fps:g} fps; a style "
                              f"clip of this model needs {lo} to {hi}: cut the file first")
-    return {s.name: s for s in styles}
+    return styles
 
 
 def _add_styles(args: argparse.Namespace) -> int:
     from model.data.style_picks import pick_style_clips
-    from model.inference.bundle import Bundle, BundleError
-    from model.inference.bundle_styles import save_styles
+    from model.inference.bundle import Bundle
+    from model.inference.style_packing import write_builtin_styles
 
-    bundle = Bundle.load(args.bundle)  # checks the folder is a bundle, and gives its rig and fps
+    # Checks the folder is a bundle and gives its rig and fps; its styles/ folder is not read (it may be of an
+    # older format, or of other weights: that is what this command repairs).
+    bundle = Bundle.load(args.bundle, styles=False)
     if args.source is not None:
-        styles = list(_read_styles(args.source, bundle).values())
+        clips = _read_styles(args.source, bundle)
     else:
         lo, hi = bundle.config.style_frames_min, bundle.config.style_frames_max
         if not lo <= args.frames <= hi:
             raise ValueError(f"--frames must be between {lo} and {hi} (the model's style clip lengths)")
-        styles = pick_style_clips(args.from_data, bundle.skeleton, bundle.config.fps, frames=args.frames)
-    folder = save_styles(args.bundle, styles, bundle.skeleton, bundle.config.fps)
-    try:
-        Bundle.load(args.bundle)
-    except BundleError as exc:  # what was written must load
-        raise ValueError(str(exc)) from exc
+        clips = pick_style_clips(args.from_data, bundle.skeleton, bundle.config.fps, frames=args.frames)
+    folder, styles = write_builtin_styles(args.bundle, clips)
     print(json.dumps({"bundle": str(args.bundle), "styles_folder": str(folder), "version": bundle.version,
                       "styles": [{"style_id": f"builtin:{s.name}", "frames": s.frames, "source": s.source}
                                  for s in styles]}, indent=1))

@@ -1,27 +1,27 @@
-"""Built-in styles: the style clips a bundle ships (``BUNDLE/styles/``), served to every API key as
-``builtin:NAME`` wherever a ``style_id`` is accepted, and listed in the model's description.
+"""Built-in styles: the style codes a bundle ships (``BUNDLE/styles/``, encoded when it was packaged), served
+to every API key as ``builtin:NAME`` wherever a ``style_id`` is accepted, listed in the model's description
+and in ``GET /v1/styles`` (``builtin: true``).
 
-They are encoded on first use (once per model, under a lock; a few milliseconds each) and kept
-for the life of the process: no key owns them, nothing evicts them and ``DELETE /v1/styles`` does
-not see them. The id a response reports is the built-in id, not a content hash.
+Nothing is encoded at serve time: the stored code is the style. No key owns a built-in style, none counts
+against a key's styles, nothing evicts them, and ``DELETE /v1/styles`` refuses them. The id a response
+reports is the built-in id, not a content hash.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import weakref
 from typing import TYPE_CHECKING, Any
 
-from model.inference.errors import EngineError
-from service.errors import ServiceError, from_engine
+from model.inference.engine import EncodedStyle
+from service.errors import ServiceError
 
 if TYPE_CHECKING:
-    from model.inference.engine import EncodedStyle, Engine
+    from model.inference.engine import Engine
 
 PREFIX = "builtin:"
 
-_encoded: weakref.WeakKeyDictionary[Engine, dict[str, EncodedStyle]] = weakref.WeakKeyDictionary()
+_served: weakref.WeakKeyDictionary[Engine, dict[str, EncodedStyle]] = weakref.WeakKeyDictionary()
 _lock = threading.Lock()
 
 
@@ -36,21 +36,16 @@ def builtin_list(engine: Engine) -> list[dict[str, Any]]:
 
 
 def builtin_style(engine: Engine, model_name: str, style_id: str) -> EncodedStyle:
-    """The encoded built-in style ``builtin:NAME``; ``unknown_style`` naming the ones there are otherwise."""
+    """The built-in style ``builtin:NAME`` (its stored code); ``unknown_style`` naming the ones there are otherwise."""
     name = style_id[len(PREFIX):]
     style = engine.bundle.styles.get(name)
     if style is None:
         known = ", ".join(PREFIX + n for n in sorted(engine.bundle.styles)) or "none"
         raise ServiceError("unknown_style", f"model {model_name!r} has no built-in style {style_id!r}; its built-in "
-                                            f"styles: {known} (GET /v1/model builtin_styles)")
-    with _lock:
-        done = _encoded.setdefault(engine, {})
-        encoded = done.get(name)
+                                            f"styles: {known} (GET /v1/styles, GET /v1/model builtin_styles)")
+    with _lock:  # one EncodedStyle per style and engine, so every request shares the same object
+        served = _served.setdefault(engine, {})
+        encoded = served.get(name)
         if encoded is None:
-            try:
-                raw, _ = engine.encode_style(style.clip, name)
-            except EngineError as exc:
-                raise from_engine(exc) from exc
-            # A copy under the built-in id: the engine's own cache keeps its content-hash entry.
-            encoded = done[name] = dataclasses.replace(raw, style_id=PREFIX + name, name=name)
+            encoded = served[name] = EncodedStyle(PREFIX + name, name, style.frames, style.context, style.nbytes)
     return encoded

@@ -81,7 +81,7 @@ Motion = Annotated[BvhMotion | PoseMotion, Field(description="BVH text or JSON p
 
 
 class _StyleChoice(BaseModel):
-    style_id: StyleId | None = Field(None, description="an id from POST /v1/styles")
+    style_id: StyleId | None = Field(None, description="an id from POST /v1/styles, or builtin:NAME (GET /v1/styles)")
     style: Motion | None = Field(None, description="a style clip, encoded (and cached) on the fly")
 
     @model_validator(mode="after")
@@ -132,7 +132,7 @@ class ModelInfo(BaseModel):
     training_data: str
     license: str
     builtin_styles: list[BuiltinStyleInfo] = Field(
-        default_factory=list, description="style clips shipped with the model: usable by every key as style_id")
+        default_factory=list, description="style codes shipped with the model: usable by every key as style_id")
 
 
 class ModelList(BaseModel):
@@ -153,15 +153,21 @@ class StyleCreate(BaseModel):
 
 
 class StyleInfo(BaseModel):
-    style_id: str = Field(description="content hash of clip + skeleton + model version; any replica recomputes it")
+    style_id: str = Field(description="content hash of clip + skeleton + model version (any replica recomputes it); "
+                                      "builtin:NAME for a built-in style")
     name: str
-    frames: int = Field(description="frames of the clip at the model's fps")
-    cached: bool = Field(description="true when this clip was already registered (nothing was encoded)")
+    frames: int = Field(description="frames of the clip at the model's fps (of a built-in style: of the clip its code "
+                                    "was encoded from)")
+    cached: bool = Field(description="true when this clip was already registered (nothing was encoded); always true "
+                                     "for a built-in style")
     model: str
+    builtin: bool = Field(False, description="true for a style shipped with the model (builtin:NAME): every key sees "
+                                             "it, it counts against no key's styles and cannot be deleted")
 
 
 class StyleList(BaseModel):
-    styles: list[StyleInfo]
+    styles: list[StyleInfo] = Field(description="the model's built-in styles (by name), then your registered ones "
+                                                "(least recently used first), model by model")
 
 
 # ---------------------------------------------------------------------- transitions
@@ -233,7 +239,8 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     status: {"model": ErrorEnvelope, "description": text}
     for status, text in (
         (400, "invalid JSON"), (401, "missing or wrong API key"), (404, "unknown model or style"),
-        (413, "payload too large"), (422, "invalid request or motion"), (429, "rate limited"),
+        (405, "method not allowed (a built-in style cannot be deleted)"), (413, "payload too large"),
+        (422, "invalid request or motion"), (429, "rate limited"),
         (503, "not ready or shutting down"),
     )
 }

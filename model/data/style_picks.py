@@ -1,4 +1,4 @@
-"""Built-in style clips picked from a motion dataset: one walking clip per style, from the train split only.
+"""Style clips for built-in styles picked from a motion dataset: one walking clip per style, from the train split only.
 
 The rule is fixed, so the same data gives the same clips on every machine: for each style, the train
 takes of the content ``walk`` in ``take_id`` order; the first one long enough gives its middle
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from model.data.preprocessed import load_motion_cache
-from model.inference.bundle_styles import BuiltinStyle, StyleFolderError, clip_on_rig
+from model.inference.bundle_styles import StyleClip, StyleFolderError, clip_on_rig
 from model.motion.skeleton import Skeleton
 
 DEFAULT_FRAMES = 180  # 6 s at 30 fps: inside the default model's 16-240 style frames, several gait cycles
@@ -19,11 +19,11 @@ DEFAULT_CONTENT = "walk"
 
 
 def pick_style_clips(data: Path, skeleton: Skeleton, fps: float, frames: int = DEFAULT_FRAMES,
-                     content: str = DEFAULT_CONTENT, workers: int = 1) -> list[BuiltinStyle]:
+                     content: str = DEFAULT_CONTENT, workers: int = 1) -> list[StyleClip]:
     """One clip of ``frames`` frames per style of the data, on ``skeleton`` at ``fps`` (see the module doc)."""
     cache = load_motion_cache(data, fps=fps, workers=workers, progress=False)
     train = sorted(cache.split.train, key=lambda i: cache.takes[i].take_id)
-    picks: list[BuiltinStyle] = []
+    picks: list[StyleClip] = []
     for style in cache.styles:
         candidates = [i for i in train if cache.takes[i].style == style and cache.takes[i].content == content]
         long_enough = [i for i in candidates if cache.num_frames(i) >= frames]
@@ -34,6 +34,6 @@ def pick_style_clips(data: Path, skeleton: Skeleton, fps: float, frames: int = D
         start = (cache.num_frames(i) - frames) // 2
         take = cache.takes[i]
         clip = clip_on_rig(cache.clip(i).window(start, start + frames), skeleton, fps, take.take_id)
-        picks.append(BuiltinStyle(style, clip, f"{take.take_id} frames {start}-{start + frames} at {fps:g} fps "
+        picks.append(StyleClip(style, clip, f"{take.take_id} frames {start}-{start + frames} at {fps:g} fps "
                                                "(train split)"))
     return picks

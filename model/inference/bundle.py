@@ -7,7 +7,7 @@ Layout::
       weights.safetensors  the weights and normalisation statistics (no pickle anywhere)
       skeleton.json        the rig the model was trained on
       README.md            the model card (optional for loading)
-      styles/              built-in style clips, served as ``builtin:NAME`` (optional; :mod:`model.inference.bundle_styles`)
+      styles/              built-in style codes, served as ``builtin:NAME`` (optional; :mod:`model.inference.bundle_styles`)
 
 A bundle loads from its own files alone; loading is strict (missing or unexpected tensors fail).
 """
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from model.nets.phase import PeriodicAutoencoder, PhaseConfig
 from model.nets.sampler import SamplerConfig, TransitionSampler
 
 FORMAT = "rsmt-bundle/1"
+log = logging.getLogger(__name__)
 DEFAULT_BUNDLE = Path(__file__).resolve().parent.parent / "default_bundle"
 
 
@@ -65,7 +67,7 @@ class Bundle:
     version: str = "unsaved"
     output: OutputConfig = field(default_factory=OutputConfig)  # the engine's post-processing of frames
     inference: InferenceConfig = field(default_factory=InferenceConfig)  # how the engine runs the network
-    styles: dict[str, BuiltinStyle] = field(default_factory=dict)  # built-in style clips by name (styles/)
+    styles: dict[str, BuiltinStyle] = field(default_factory=dict)  # built-in style codes by name (styles/)
 
     @property
     def config(self) -> SamplerConfig:
@@ -130,13 +132,21 @@ class Bundle:
         }
         (path / "config.json").write_text(json.dumps(config, indent=1))
         self.skeleton.save(path / "skeleton.json")
-        if self.styles:
-            save_styles(path, self.styles.values(), self.skeleton, self.config.fps)
+        stale = sorted(n for n, s in self.styles.items() if s.version != self.version)
+        if self.styles and not stale:
+            save_styles(path, self.styles.values(), self.skeleton, self.config.fps, self.version)
+        elif stale:  # codes belong to the weights that made them (fine-tuned, averaged or float16 weights: others)
+            log.warning("%s: built-in styles %s were encoded by model version %s, not by these weights (%s); they are "
+                        "not saved: re-encode them with `rsmt bundle add-styles %s --from DIR` (or --from-data DATA)",
+                        path, ", ".join(stale), self.styles[stale[0]].version, self.version, path)
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> Bundle:
-        """Load strictly; any missing file, tensor or field is a :class:`BundleError`."""
+    def load(cls, path: str | Path, styles: bool = True) -> Bundle:
+        """Load strictly; any missing file, tensor or field is a :class:`BundleError`.
+
+        ``styles=False`` leaves the ``styles/`` folder unread (``bundle.styles`` empty): for the commands
+        that rewrite it, which must work on a folder that no longer loads (old format, other weights)."""
         path = Path(path)
         for name in ("config.json", "weights.safetensors", "skeleton.json"):
             if not (path / name).is_file():
@@ -176,7 +186,7 @@ class Bundle:
             raise BundleError(f"{path}: weights do not match the config: {exc}") from exc
         bundle.version = config.get("version") or _weights_hash(tensors)
         try:
-            bundle.styles = load_styles(path, skeleton, bundle.config.fps)
+            bundle.styles = load_styles(path, skeleton, bundle.config.fps, bundle.version) if styles else {}
         except StyleFolderError as exc:
             raise BundleError(f"{path}: bad built-in styles: {exc}") from exc
         bundle.sampler.eval()

@@ -1,15 +1,20 @@
-"""Built-in style clips of a bundle: a ``styles/`` folder beside the weights, served as ``builtin:NAME``.
+"""Built-in styles of a bundle: a ``styles/`` folder beside the weights, served as ``builtin:NAME``.
 
 Layout::
 
     BUNDLE/styles/
-      styles.json          format, fps, the rig's joint names, and per style: name, frames, source
-      clips.safetensors    per style ``NAME/rotations`` [T, J, 4] (local x, y, z, w) and
-                           ``NAME/root_positions`` [T, 3], float32 (no pickle)
+      styles.json          format, the model version the codes belong to, fps, the rig's joint names,
+                           and per style: name, frames (of the clip it was encoded from), source
+      codes.safetensors    per style ``NAME/FIELD`` for every field of the sampler's style context
+                           (:class:`model.nets.sampler.StyleContext`: FiLM gains and biases, attention
+                           keys and values, mask), float32 (the mask bool), batch of one; no pickle
 
-The folder is independent of the weights: it can be written, replaced or removed without touching
-``config.json`` or ``weights.safetensors`` (style ids of built-in styles are names, not hashes).
-Clips are stored on the bundle's own rig and at its fps, so they need no conversion when served.
+The folder holds encoded style codes only, no motion: they are made at packaging time
+(:mod:`model.inference.style_packing`) by the bundle's own engine, and served as they are. Codes
+belong to the weights that made them: the folder names that model version, and a bundle whose
+weights are another version does not load (re-encode with ``rsmt bundle add-styles``). Style ids
+of built-in styles are names, not hashes, so the folder can be replaced without touching
+``config.json`` or ``weights.safetensors``.
 """
 
 from __future__ import annotations
@@ -19,29 +24,36 @@ import math
 import re
 import shutil
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
+from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from model.motion.bvh_clip import load_clip
 from model.motion.clip import Clip
 from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, plain_joint_name
+from model.nets.sampler import StyleContext
 
 STYLES_DIR = "styles"
-STYLES_FORMAT = "rsmt-styles/1"
+STYLES_FORMAT = "rsmt-styles/2"
+CLIPS_FORMAT = "rsmt-styles/1"  # the older folder of motion clips, encoded on first use; no longer read
+CODES_FILE = "codes.safetensors"
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+CONTEXT_FIELDS = tuple(f.name for f in fields(StyleContext))
+REENCODE = ("re-encode them from their clips with `rsmt bundle add-styles BUNDLE --from DIR` (one BVH per style) "
+            "or `--from-data DATA` (the default model's walking clips)")
 
 
 class StyleFolderError(ValueError):
-    """A style folder (in a bundle, or of BVH clips to add) that cannot be read or written."""
+    """A style folder (in a bundle, or of BVH clips to encode) that cannot be read or written."""
 
 
 @dataclass(frozen=True)
-class BuiltinStyle:
-    """One built-in style: its name (the id is ``builtin:NAME``), its clip and where the clip came from."""
+class StyleClip:
+    """A style clip to encode into a built-in style (packaging time only: bundles store codes, not clips)."""
 
     name: str
     clip: Clip
@@ -52,6 +64,22 @@ class BuiltinStyle:
         return self.clip.num_frames
 
 
+@dataclass(frozen=True, eq=False)
+class BuiltinStyle:
+    """One built-in style (id ``builtin:NAME``): its encoded context, the model version that encoded it,
+    the length of the clip it came from and where that clip came from."""
+
+    name: str
+    frames: int
+    context: StyleContext
+    version: str
+    source: str = ""
+
+    @property
+    def nbytes(self) -> int:
+        return sum(getattr(self.context, f).numel() * getattr(self.context, f).element_size() for f in CONTEXT_FIELDS)
+
+
 def check_name(name: str) -> str:
     if not NAME_PATTERN.match(name):
         raise StyleFolderError(f"style name {name!r}: use 1-64 letters, digits, '_', '-' or '.', starting with a "
@@ -59,62 +87,87 @@ def check_name(name: str) -> str:
     return name
 
 
-def save_styles(bundle: str | Path, styles: Iterable[BuiltinStyle], skeleton: Skeleton, fps: float) -> Path:
-    """Write ``BUNDLE/styles/`` (replacing any older one); every clip must be on ``skeleton`` at ``fps``."""
+def save_styles(bundle: str | Path, styles: Iterable[BuiltinStyle], skeleton: Skeleton, fps: float,
+                version: str) -> Path:
+    """Write ``BUNDLE/styles/`` (replacing any older one); every style must be encoded by model ``version``."""
     folder = Path(bundle) / STYLES_DIR
     tensors: dict[str, torch.Tensor] = {}
     entries = []
     for s in sorted(styles, key=lambda s: s.name):
         check_name(s.name)
-        if f"{s.name}/rotations" in tensors:
+        if f"{s.name}/mask" in tensors:
             raise StyleFolderError(f"two built-in styles are named {s.name!r}")
-        if s.clip.skeleton.names != skeleton.names or s.clip.skeleton.parents != skeleton.parents:
-            raise StyleFolderError(f"style {s.name!r} is not on the bundle's rig")
-        if abs(s.clip.fps - fps) > 1e-6:
-            raise StyleFolderError(f"style {s.name!r} is at {s.clip.fps:g} fps, the bundle at {fps:g}")
-        tensors[f"{s.name}/rotations"] = s.clip.rotations.detach().to(torch.float32).contiguous()
-        tensors[f"{s.name}/root_positions"] = s.clip.root_positions.detach().to(torch.float32).contiguous()
+        if s.version != version:
+            raise StyleFolderError(f"style {s.name!r} was encoded by model version {s.version}, not by this bundle's "
+                                   f"weights (version {version}): {REENCODE.replace('BUNDLE', str(bundle))}")
+        for f in CONTEXT_FIELDS:
+            t = getattr(s.context, f).detach().cpu()
+            tensors[f"{s.name}/{f}"] = (t if f == "mask" else t.to(torch.float32)).contiguous()
         entries.append({"name": s.name, "frames": s.frames, "source": s.source})
     if folder.exists():
         shutil.rmtree(folder)
     if not entries:
         return folder
     folder.mkdir(parents=True)
-    save_file(tensors, str(folder / "clips.safetensors"), metadata={"format": STYLES_FORMAT})
-    index = {"format": STYLES_FORMAT, "fps": fps, "joints": list(skeleton.names), "styles": entries}
+    save_file(tensors, str(folder / CODES_FILE), metadata={"format": STYLES_FORMAT, "version": version})
+    index = {"format": STYLES_FORMAT, "version": version, "fps": fps, "joints": list(skeleton.names),
+             "styles": entries}
     (folder / "styles.json").write_text(json.dumps(index, indent=1) + "\n")
     return folder
 
 
-def load_styles(bundle: str | Path, skeleton: Skeleton, fps: float) -> dict[str, BuiltinStyle]:
-    """The built-in styles of a bundle by name; empty when it has no ``styles/`` folder."""
-    folder = Path(bundle) / STYLES_DIR
-    if not (folder / "styles.json").is_file():
-        return {}
+def _check_index(folder: Path, skeleton: Skeleton, fps: float, version: str) -> None:
+    """``styles.json`` and the codes file are of this format, these weights, this rig and this fps."""
     try:
         index = json.loads((folder / "styles.json").read_text())
     except json.JSONDecodeError as exc:
         raise StyleFolderError(f"{folder}/styles.json is not valid JSON: {exc}") from exc
+    fix = REENCODE.replace("BUNDLE", str(folder.parent))
+    if index.get("format") == CLIPS_FORMAT:
+        raise StyleFolderError(f"{folder} holds style clips (format {CLIPS_FORMAT}); bundles now carry encoded style "
+                               f"codes ({STYLES_FORMAT}): {fix}")
     if index.get("format") != STYLES_FORMAT:
         raise StyleFolderError(f"{folder}: unsupported styles format {index.get('format')!r} (expected {STYLES_FORMAT})")
+    if index.get("version") != version:
+        raise StyleFolderError(f"{folder}: the style codes were encoded by model version {index.get('version')}, but "
+                               f"this bundle's weights are version {version} (codes of other weights mean nothing to "
+                               f"these): {fix}")
     if index.get("joints") != list(skeleton.names):
-        raise StyleFolderError(f"{folder}: the style clips are on another rig than the bundle's skeleton.json")
+        raise StyleFolderError(f"{folder}: the style codes were encoded on another rig than the bundle's skeleton.json")
     if abs(float(index.get("fps", 0)) - fps) > 1e-6:
-        raise StyleFolderError(f"{folder}: the style clips are at {index.get('fps')} fps, the model at {fps:g}")
-    if not (folder / "clips.safetensors").is_file():
-        raise StyleFolderError(f"{folder}: clips.safetensors is missing")
-    tensors = load_file(str(folder / "clips.safetensors"))
+        raise StyleFolderError(f"{folder}: the style codes are at {index.get('fps')} fps, the model at {fps:g}")
+    path = folder / CODES_FILE
+    if not path.is_file():
+        raise StyleFolderError(f"{folder}: {CODES_FILE} is missing")
+    with safe_open(str(path), framework="pt") as f:
+        stored = (f.metadata() or {}).get("version")
+    if stored != version:
+        raise StyleFolderError(f"{path}: the codes were encoded by model version {stored}, but this bundle's weights "
+                               f"are version {version}: {fix}")
+
+
+def load_styles(bundle: str | Path, skeleton: Skeleton, fps: float, version: str) -> dict[str, BuiltinStyle]:
+    """The built-in styles of a bundle whose weights are model ``version``, by name; empty when it has no
+    ``styles/`` folder. Codes of another version, or a folder of the older clip format, are errors."""
+    folder = Path(bundle) / STYLES_DIR
+    if not (folder / "styles.json").is_file():
+        return {}
+    _check_index(folder, skeleton, fps, version)
+    index = json.loads((folder / "styles.json").read_text())
+    path = folder / CODES_FILE
+    tensors = load_file(str(path))
     out: dict[str, BuiltinStyle] = {}
     for entry in index.get("styles", []):
         name = check_name(str(entry.get("name", "")))
-        rot, root = tensors.get(f"{name}/rotations"), tensors.get(f"{name}/root_positions")
-        if rot is None or root is None:
-            raise StyleFolderError(f"{folder}: the clip of style {name!r} is missing from clips.safetensors")
-        try:
-            clip = Clip(skeleton, rot.float(), root.float(), fps, f"builtin:{name}")
-        except ValueError as exc:
-            raise StyleFolderError(f"{folder}: style {name!r}: {exc}") from exc
-        out[name] = BuiltinStyle(name, clip, str(entry.get("source", "")))
+        missing = [f for f in CONTEXT_FIELDS if f"{name}/{f}" not in tensors]
+        if missing:
+            raise StyleFolderError(f"{folder}: the code of style {name!r} is missing from {CODES_FILE} "
+                                   f"({', '.join(missing)})")
+        parts = {f: tensors[f"{name}/{f}"] for f in CONTEXT_FIELDS}
+        if any(t.shape[0] != 1 for t in parts.values()):
+            raise StyleFolderError(f"{folder}: the code of style {name!r} is not a batch of one")
+        context = StyleContext(**{f: t if f == "mask" else t.float() for f, t in parts.items()})
+        out[name] = BuiltinStyle(name, int(entry.get("frames", 0)), context, version, str(entry.get("source", "")))
     return out
 
 
@@ -152,23 +205,23 @@ def read_style_bvh(path: Path, skeleton: Skeleton, fps: float, start: int = 0, f
     return clip.window(start, stop)
 
 
-def styles_from_folder(folder: Path, skeleton: Skeleton, fps: float) -> list[BuiltinStyle]:
+def styles_from_folder(folder: Path, skeleton: Skeleton, fps: float) -> list[StyleClip]:
     """One style per BVH file of ``folder`` (named by its stem), or per sub-folder (named by it; its first
     BVH file, in name order, is the clip)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise StyleFolderError(f"--styles {folder}: not a folder")
-    found: list[BuiltinStyle] = []
+    found: list[StyleClip] = []
     for entry in sorted(folder.iterdir()):
         if entry.name.startswith("."):
             continue
         if entry.is_dir():
             clips = sorted(p for p in entry.iterdir() if p.suffix.lower() == ".bvh")
             if clips:
-                found.append(BuiltinStyle(check_name(entry.name), read_style_bvh(clips[0], skeleton, fps),
+                found.append(StyleClip(check_name(entry.name), read_style_bvh(clips[0], skeleton, fps),
                                           f"{entry.name}/{clips[0].name}"))
         elif entry.suffix.lower() == ".bvh":
-            found.append(BuiltinStyle(check_name(entry.stem), read_style_bvh(entry, skeleton, fps), entry.name))
+            found.append(StyleClip(check_name(entry.stem), read_style_bvh(entry, skeleton, fps), entry.name))
     if not found:
         raise StyleFolderError(f"--styles {folder}: no BVH files (one per style) and no folders of them")
     return found

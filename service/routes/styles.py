@@ -1,18 +1,20 @@
 """Style clips: register (encode once, cache by content hash), list, get, delete; each API key sees only the
-styles it registered (:mod:`service.style_book`), an admin key everyone's."""
+styles it registered (:mod:`service.style_book`), an admin key everyone's. Every key also sees the models'
+built-in styles (``builtin:NAME``, :mod:`service.builtin_styles`): listed and fetched here, never deleted."""
 
 from __future__ import annotations
 
 import asyncio
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 
+from service.builtin_styles import builtin_list, is_builtin
 from service.deps import RegistryDep
 from service.engine_jobs import register_style, style_info
 from service.errors import ServiceError
 from service.http.auth import CallerDep, require_access
-from service.registry import Registry
+from service.registry import LoadedModel, Registry
 from service.schemas import (
     ERROR_RESPONSES,
     ModelName,
@@ -28,6 +30,10 @@ router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(r
                    responses={k: ERROR_RESPONSES[k] for k in (401, 429, 503)})
 
 
+def _builtins(model: LoadedModel) -> list[dict[str, Any]]:
+    return [{**s, "cached": True, "model": model.name, "builtin": True} for s in builtin_list(model.engine)]
+
+
 @router.post("", status_code=201, response_model=StyleInfo,
              responses={k: ERROR_RESPONSES[k] for k in (400, 404, 413, 422)},
              summary="register a style clip under your API key; the same clip always gets the same id "
@@ -39,32 +45,50 @@ async def create_style(body: StyleCreate, request: Request, registry: RegistryDe
 
 def _find(registry: Registry, caller: Caller, style_id: str) -> dict:
     for model in sorted(registry, key=lambda m: m.name):
+        if is_builtin(style_id):
+            found = [s for s in _builtins(model) if s["style_id"] == style_id]
+            if found:
+                return found[0]
+            continue
         style = model.book.peek(caller, style_id)
         if style is not None:
             return style_info(model, style, True)
+    if is_builtin(style_id):
+        raise ServiceError("unknown_style", f"no model has the built-in style {style_id!r} (GET /v1/styles lists them)")
     raise ServiceError("unknown_style", f"no style {style_id!r} under this API key: register the clip with "
                                         "POST /v1/styles")
 
 
-@router.get("", response_model=StyleList, summary="your registered styles (of one model, or of all); an admin key's: "
-                                                   "everyone's")
+@router.get("", response_model=StyleList,
+            summary="the models' built-in styles (builtin: true) and your registered styles (of one model, or of all); "
+                    "an admin key's: everyone's")
 async def list_styles(registry: RegistryDep, caller: CallerDep,
                       model: Annotated[ModelName | None, Query()] = None) -> dict:
     models = [registry.get(model)] if model is not None else sorted(registry, key=lambda m: m.name)
     # Off the event loop: with RSMT_STYLE_STORE=redis each store call is a round trip (or a timeout).
-    listed = await asyncio.to_thread(lambda: [(m, s) for m in models for s in m.book.styles_of(caller)])
-    return {"styles": [style_info(m, style, True) for m, style in listed]}
+    listed = await asyncio.to_thread(lambda: [(m, m.book.styles_of(caller)) for m in models])
+    return {"styles": [info for m, styles in listed
+                       for info in [*_builtins(m), *(style_info(m, s, True) for s in styles)]]}
 
 
 @router.get("/{style_id}", response_model=StyleInfo, responses={404: ERROR_RESPONSES[404]},
-            summary="one of your registered styles")
+            summary="one of your registered styles, or a built-in one")
 async def get_style(style_id: StyleId, registry: RegistryDep, caller: CallerDep) -> dict:
     return await asyncio.to_thread(_find, registry, caller, style_id)
 
 
-@router.delete("/{style_id}", status_code=204, response_class=Response, responses={404: ERROR_RESPONSES[404]},
-               summary="forget one of your styles (characters already using it keep it; an admin key's: everyone's)")
+@router.delete("/{style_id}", status_code=204, response_class=Response,
+               responses={k: ERROR_RESPONSES[k] for k in (404, 405)},
+               summary="forget one of your styles (characters already using it keep it; an admin key's: everyone's); "
+                       "built-in styles cannot be deleted (405)")
 async def delete_style(style_id: StyleId, registry: RegistryDep, caller: CallerDep) -> Response:
+    if is_builtin(style_id):
+        owners = sorted(m.name for m in registry if any(s["style_id"] == style_id for s in builtin_list(m.engine)))
+        if owners:
+            raise ServiceError("method_not_allowed", f"{style_id} is a built-in style of model {owners[0]!r} (shipped in "
+                                                     "its bundle): it cannot be deleted; DELETE /v1/styles/ID forgets "
+                                                     "styles you registered")
+        raise ServiceError("unknown_style", f"no model has the built-in style {style_id!r} (GET /v1/styles lists them)")
     deleted = await asyncio.to_thread(lambda: [m.name for m in registry if m.book.delete(caller, style_id)])
     if not deleted:
         raise ServiceError("unknown_style", f"no style {style_id!r} under this API key")

@@ -78,6 +78,36 @@ def test_package_stores_builtin_styles_and_add_styles_changes_only_the_styles(tm
     assert "cut the file first" in capsys.readouterr().err
 
 
+def test_package_keeps_codes_only_for_the_same_weights(tmp_path, capsys):
+    from safetensors.torch import load_file
+
+    from model.data.synthetic import synthetic_walk
+    from model.motion.bvh_clip import dump_clip
+
+    tiny_bundle(6).save(tmp_path / "trained")
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    (clips / "slow.bvh").write_text(dump_clip(synthetic_walk(40, speed_cm_s=60.0)))
+    assert main(["bundle", "add-styles", str(tmp_path / "trained"), "--from", str(clips)]) == 0
+    capsys.readouterr()
+    # Same weights: the codes are copied as they are.
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "same")]) == 0
+    assert json.loads(capsys.readouterr().out)["styles"] == ["slow"]
+    copied, source = (load_file(str(tmp_path / d / "styles" / "codes.safetensors")) for d in ("same", "trained"))
+    assert copied.keys() == source.keys() and all(torch.equal(copied[k], source[k]) for k in source)
+    # float16 weights are other weights (another version): the codes are not copied, and the command says so.
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "half"), "--float16"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["styles"] == [] and "rsmt bundle add-styles" in out.err
+    assert not (tmp_path / "half" / "styles").exists() and Bundle.load(tmp_path / "half").styles == {}
+    # With --styles the clips are encoded by the copy's own (float16) weights.
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "half"), "--float16",
+                 "--styles", str(clips)]) == 0
+    half = Bundle.load(tmp_path / "half")
+    assert sorted(half.styles) == ["slow"] and half.styles["slow"].version == half.version != Bundle.load(
+        tmp_path / "trained").version
+
+
 def test_the_default_bundles_styles_are_remade_from_the_train_split(tmp_path, capsys):
     import shutil
 
@@ -98,9 +128,11 @@ def test_the_default_bundles_styles_are_remade_from_the_train_split(tmp_path, ca
     report = json.loads(capsys.readouterr().out)
     remade = Bundle.load(copy)
     assert remade.version == shipped.version and sorted(remade.styles) == sorted(shipped.styles)
-    for name, style in shipped.styles.items():
-        assert torch.allclose(remade.styles[name].clip.rotations, style.clip.rotations, atol=1e-6), name
-        assert 120 <= style.frames <= 240
+    for name, style in shipped.styles.items():  # the shipped codes are those of the train-split clips
+        for f in ("gamma1", "beta1", "keys1", "values1", "gamma2", "beta2", "keys2", "values2"):
+            assert torch.allclose(getattr(remade.styles[name].context, f), getattr(style.context, f), atol=1e-5), name
+        assert torch.equal(remade.styles[name].context.mask, style.context.mask)
+        assert 120 <= style.frames <= 240 and remade.styles[name].source == style.source
     cache = load_motion_cache(data, progress=False, workers=1)
     train = {cache.takes[i].take_id for i in cache.split.train}
     for s in report["styles"]:

@@ -11,6 +11,8 @@ import torch
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
+from model.inference.bundle_styles import StyleClip
+from model.inference.style_packing import write_builtin_styles
 from model.motion.bvh_clip import dump_clip
 from tests.clients.helpers import API_KEY, build_core_test, build_harness
 from tests.service.server import Server
@@ -26,7 +28,9 @@ def serve_command(bundle: Path) -> list[str]:
 
 @pytest.fixture(scope="session")
 def client_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return Bundle.create(synthetic_skeleton(), seed=0).save(tmp_path_factory.mktemp("client-bundle") / "rsmt")
+    path = Bundle.create(synthetic_skeleton(), seed=0).save(tmp_path_factory.mktemp("client-bundle") / "rsmt")
+    write_builtin_styles(path, [StyleClip("walk", synthetic_walk(40), "walk.bvh")])  # served as builtin:walk
+    return path
 
 
 @pytest.fixture(scope="session")

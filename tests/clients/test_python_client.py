@@ -358,6 +358,13 @@ def test_cli_commands(server, motions, tmp_path, capsys):
     assert rsmt_main(["client", "styles", "list", "--json", *common]) == 0
     listed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert added["style_id"] in {s["style_id"] for s in listed}
+    assert {"style_id": "builtin:walk", "name": "walk", "frames": 40, "cached": True, "model": "rsmt",
+            "builtin": True} in listed
+    assert rsmt_main(["client", "styles", "list", *common]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].split() == ["style_id", "frames", "model", "kind", "name"]
+    assert table[1].split() == ["builtin:walk", "40", "rsmt", "built-in", "walk"]
+    assert [line.split()[3] for line in table[2:]] == ["registered"] * (len(table) - 2)
 
     motion = ["--context", str(motions["context"]), "--target", str(motions["target"]), "--frames", "20",
               "--style", added["style_id"], "--seed", "5", "--deterministic"]

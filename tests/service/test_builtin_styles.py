@@ -1,5 +1,6 @@
-"""Built-in styles (``builtin:NAME``): shipped in the bundle, listed in GET /v1/model, usable by every API key
-wherever a style id is accepted (POST /v1/transition, stream ``start`` and ``style``), never owned or deleted."""
+"""Built-in styles (``builtin:NAME``): codes shipped in the bundle, listed in GET /v1/model and GET /v1/styles for
+every key, usable by every API key wherever a style id is accepted (POST /v1/transition, stream ``start`` and
+``style``) without registering anything, never owned, counted, evicted or deleted."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import pytest
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
-from model.inference.bundle_styles import BuiltinStyle
+from model.inference.bundle_styles import StyleClip
+from model.inference.style_packing import write_builtin_styles
 from tests.service.conftest import transition_body
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
@@ -20,11 +22,11 @@ KEY_A, KEY_B = "a" * 24, "b" * 24
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory):
-    bundle = Bundle.create(synthetic_skeleton(), seed=0)
-    bundle.styles = {n: BuiltinStyle(n, synthetic_walk(f, speed_cm_s=v), f"{n}.bvh")
-                     for n, f, v in (("slow", 60, 60.0), ("brisk", 90, 160.0))}
-    path: Path = bundle.save(tmp_path_factory.mktemp("builtin") / "rsmt")
-    srv = Server(path, env={"RSMT_API_KEYS": f"{KEY_A},{KEY_B}"}).start()
+    path: Path = Bundle.create(synthetic_skeleton(), seed=0).save(tmp_path_factory.mktemp("builtin") / "rsmt")
+    write_builtin_styles(path, [StyleClip(n, synthetic_walk(f, speed_cm_s=v), f"{n}.bvh")
+                                for n, f, v in (("slow", 60, 60.0), ("brisk", 90, 160.0))])
+    # One registered style per key: the built-in ones must not count against it.
+    srv = Server(path, env={"RSMT_API_KEYS": f"{KEY_A},{KEY_B}", "RSMT_STYLE_CACHE_ENTRIES_PER_KEY": "1"}).start()
     yield srv
     srv.stop()
 
@@ -52,10 +54,43 @@ def test_the_model_lists_its_builtin_styles_and_every_key_uses_them(server) -> N
     b = httpx.post(server.url + "/v1/transition", json=transition_body(20, style_id=reg["style_id"]),
                    headers=headers(KEY_A), timeout=60).json()
     assert a["frames"] == b["frames"]
-    # Not a registered style: not listed, not deletable.
+
+    # Listed for every key, first and marked, beside (not instead of) the key's own registered style.
+    builtins = [{"style_id": "builtin:brisk", "name": "brisk", "frames": 90, "cached": True, "model": "rsmt",
+                 "builtin": True},
+                {"style_id": "builtin:slow", "name": "slow", "frames": 60, "cached": True, "model": "rsmt",
+                 "builtin": True}]
+    assert httpx.get(server.url + "/v1/styles", headers=headers(KEY_B)).json()["styles"] == builtins
+    listed = httpx.get(server.url + "/v1/styles", headers=headers(KEY_A)).json()["styles"]
+    assert listed[:2] == builtins and [(s["style_id"], s["builtin"]) for s in listed[2:]] == [(reg["style_id"], False)]
+    assert httpx.get(server.url + "/v1/styles/builtin:slow", headers=headers(KEY_B)).json() == builtins[1]
+
+
+def test_builtin_styles_count_against_no_keys_cap(server) -> None:
+    # The cap is one registered style per key: a second registration evicts the first, never a built-in one.
+    ids = []
+    for speed in (90.0, 120.0):
+        clip = synthetic_walk(40, speed_cm_s=speed)
+        r = httpx.post(server.url + "/v1/styles", headers=headers(KEY_B),
+                       json={"name": f"w{speed:g}", "motion": {"root_positions": clip.root_positions.tolist(),
+                                                               "rotations": clip.rotations.tolist()}})
+        assert r.status_code == 201, r.text
+        ids.append(r.json()["style_id"])
     listed = httpx.get(server.url + "/v1/styles", headers=headers(KEY_B)).json()["styles"]
-    assert all(not s["style_id"].startswith("builtin:") for s in listed)
-    assert httpx.delete(server.url + "/v1/styles/builtin:slow", headers=headers(KEY_B)).status_code == 404
+    assert [s["style_id"] for s in listed] == ["builtin:brisk", "builtin:slow", ids[1]]
+    r = httpx.post(server.url + "/v1/transition", json=transition_body(10, style_id="builtin:brisk"),
+                   headers=headers(KEY_B), timeout=60)
+    assert r.status_code == 200, r.text
+
+
+def test_a_builtin_style_cannot_be_deleted(server) -> None:
+    r = httpx.delete(server.url + "/v1/styles/builtin:slow", headers=headers(KEY_B))
+    assert r.status_code == 405
+    err = r.json()["error"]
+    assert err["code"] == "method_not_allowed" and "built-in style of model 'rsmt'" in err["message"]
+    assert httpx.get(server.url + "/v1/styles/builtin:slow", headers=headers(KEY_B)).status_code == 200
+    r = httpx.delete(server.url + "/v1/styles/builtin:proud", headers=headers(KEY_B))
+    assert r.status_code == 404 and r.json()["error"]["code"] == "unknown_style"
 
 
 def test_an_unknown_builtin_names_the_ones_there_are(server) -> None:
@@ -81,3 +116,24 @@ def test_a_stream_starts_and_switches_with_builtin_ids(server) -> None:
         assert len(out["frames"]) == 30 and out["end"]["reason"] == "arrived"
         started = [m for m in out["messages"] if m["type"] == "started"]
         assert started and started[0].get("style_id", "builtin:brisk") == "builtin:brisk"
+
+
+@pytest.mark.slow
+def test_a_fresh_server_on_the_default_model_lists_and_uses_its_seven_styles() -> None:
+    from model.inference.bundle import DEFAULT_BUNDLE
+
+    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WARMUP_MAX_BATCH": "1"}).start(300)
+    try:
+        listed = httpx.get(srv.url + "/v1/styles").json()["styles"]
+        assert [s["style_id"] for s in listed] == [f"builtin:{n}" for n in (
+            "active", "elderly", "exhausted", "feminine", "masculine", "normal", "youthful")]
+        assert all(s["builtin"] and s["frames"] == 180 and s["model"] == "rsmt-default" for s in listed)
+        joints = httpx.get(srv.url + "/v1/model").json()["skeleton"]["joints"]
+        rest = {"root_positions": [[0.0, 90.0, 0.0]] * 10, "rotations": [[[0.0, 0.0, 0.0, 1.0]] * len(joints)] * 10}
+        target = {"root_positions": [[0.0, 90.0, 150.0]], "rotations": [[[0.0, 0.0, 0.0, 1.0]] * len(joints)]}
+        r = httpx.post(srv.url + "/v1/transition", json={"context": rest, "target": target, "frames": 30,
+                                                         "style_id": "builtin:elderly", "seed": 7}, timeout=120)
+        assert r.status_code == 200, r.text
+        assert r.json()["style_id"] == "builtin:elderly" and len(r.json()["frames"]) == 30
+    finally:
+        srv.stop()

@@ -1,0 +1,56 @@
+"""Packaging built-in styles: encode style clips with a bundle's own engine and store the codes in ``BUNDLE/styles/``.
+
+This is the only place built-in styles are encoded (``rsmt package --styles``, ``rsmt bundle
+add-styles``); the service serves the stored codes as they are. The engine is built from the bundle
+as saved on disk (float16 weights widened on load, exactly as the server loads them), so the codes
+are the ones the server would compute from the same clips (with its default single intra-op thread: more
+threads change the last bits of a float sum). Encoding runs the float32 style encoder
+whatever the bundle's inference settings: ``int8_lstm`` and the traced step change only the per-frame
+step, never the style context.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import torch
+
+from model.inference.bundle import Bundle, BundleError
+from model.inference.bundle_styles import BuiltinStyle, StyleClip, StyleFolderError, check_name, save_styles
+from model.inference.engine import Engine
+from model.inference.errors import EngineError
+
+ENCODE_THREADS = 1
+
+
+def encode_styles(engine: Engine, clips: Iterable[StyleClip]) -> list[BuiltinStyle]:
+    """Each clip encoded by ``engine`` into a built-in style of the engine's model version."""
+    out: list[BuiltinStyle] = []
+    for item in clips:
+        check_name(item.name)
+        try:
+            encoded, _ = engine.encode_style(item.clip, item.name)
+        except EngineError as exc:
+            raise StyleFolderError(f"style {item.name!r} ({item.source or 'clip'}): {exc}") from exc
+        out.append(BuiltinStyle(item.name, encoded.frames, encoded.context, engine.version, item.source))
+    return out
+
+
+def write_builtin_styles(bundle: str | Path, clips: Iterable[StyleClip]) -> tuple[Path, list[BuiltinStyle]]:
+    """Replace ``BUNDLE/styles/`` with the codes of ``clips`` (weights and config untouched); returns the
+    folder and the styles. The bundle is read without its old styles folder, which may be of another
+    format or other weights; what is written is loaded back before returning."""
+    bundle = Path(bundle)
+    loaded = Bundle.load(bundle, styles=False)
+    threads = torch.get_num_threads()
+    try:  # one intra-op thread, as `rsmt serve` runs by default (RSMT_THREADS=1): the same float rounding
+        styles = encode_styles(Engine(loaded, threads=ENCODE_THREADS), clips)
+    finally:
+        torch.set_num_threads(threads)
+    folder = save_styles(bundle, styles, loaded.skeleton, loaded.config.fps, loaded.version)
+    try:
+        Bundle.load(bundle)
+    except BundleError as exc:  # what was written must load
+        raise StyleFolderError(str(exc)) from exc
+    return folder, styles
