@@ -2,9 +2,10 @@
 
 Torch-free (numpy only) so that ``rsmt rig export`` runs from a bare install. The model's joints keep their
 own local frames (the Bandai-Namco rig's bones point along local +-X, so all-identity rotations are not a
-standing pose); :func:`t_pose` finds local rotations that stand the rig up in a T-pose, facing +Z with its
-left on +X (the model's axes, which are also glTF's). Engines then play the model's local rotations on the
-imported bones unchanged (after their axis conversion), since the bones keep the model's frames.
+standing pose); :func:`model.motion.standing_pose.t_pose` finds local rotations that stand the rig up in a
+T-pose, facing +Z with its left on +X (the model's axes, which are also glTF's). Engines then play the
+model's local rotations on the imported bones unchanged (after their axis conversion), since the bones
+keep the model's frames.
 """
 
 from __future__ import annotations
@@ -13,91 +14,22 @@ import base64
 import json
 import math
 import struct
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from model.motion.bvh import BvhDocument, BvhJoint
+from model.motion.standing_pose import FORWARD, UP, Pose, Rig, arms_lowered, t_pose
 
-UP = np.array([0.0, 1.0, 0.0])
-LEFT = np.array([1.0, 0.0, 0.0])
-FORWARD = np.array([0.0, 0.0, 1.0])
-FOOT_PITCH_DEG = 30.0     # ankle-to-toe bone, below horizontal
-TOE_HEIGHT = 2.0          # toe joint above the ground, model units
 ARMS_DOWN_DEG = 40.0      # the sample motion lowers the arms by this much
 MOTION_FRAMES = 31
-
-
-@dataclass(frozen=True)
-class Rig:
-    """A skeleton as ``skeleton.json`` stores it (``GET /v1/model`` ``skeleton``)."""
-
-    names: tuple[str, ...]
-    parents: tuple[int, ...]
-    offsets: np.ndarray            # [J, 3], model units, in the parent's frame
-    end_sites: dict[int, tuple[float, float, float]]
-    roles: dict[str, Any]
-    units: str
-
-    @classmethod
-    def from_json(cls, data: dict[str, Any]) -> Rig:
-        joints = data["joints"]
-        ends = {int(e["joint"]): tuple(float(v) for v in e["offset"]) for e in data.get("end_sites", [])}
-        return cls(tuple(j["name"] for j in joints), tuple(int(j["parent"]) for j in joints),
-                   np.array([j["offset"] for j in joints], dtype=np.float64), ends,  # type: ignore[arg-type]
-                   dict(data["roles"]), str(data.get("units", "cm")))
-
-    @classmethod
-    def load(cls, path: Path) -> Rig:
-        return cls.from_json(json.loads(path.read_text()))
-
-    def children(self, j: int) -> list[int]:
-        return [k for k, p in enumerate(self.parents) if p == j]
-
-    def descendants(self, j: int) -> list[int]:
-        out = [j]
-        for k in range(j + 1, len(self.parents)):
-            if self.parents[k] in out:
-                out.append(k)
-        return out
 
 
 # ---------------------------------------------------------------------- rotations (3x3 matrices, x,y,z,w quaternions)
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
-
-
-def axis_angle(axis: np.ndarray, deg: float) -> np.ndarray:
-    """Right-handed rotation matrix of ``deg`` degrees about ``axis``."""
-    x, y, z = _unit(np.asarray(axis, dtype=np.float64))
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    k = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
-    return np.eye(3) * c + s * k + (1 - c) * np.outer([x, y, z], [x, y, z])
-
-
-def between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Shortest-arc rotation taking direction u onto v (for opposite directions: about world forward, else left)."""
-    u, v = _unit(u), _unit(v)
-    axis = np.cross(u, v)
-    if np.linalg.norm(axis) < 1e-9:
-        if float(u @ v) > 0:
-            return np.eye(3)
-        axis = FORWARD if abs(float(u @ FORWARD)) < 0.9 else LEFT
-        return axis_angle(axis - (axis @ u) * u, 180.0)
-    return axis_angle(axis, math.degrees(math.atan2(np.linalg.norm(axis), float(u @ v))))
-
-
-def frame_from(primary_local: np.ndarray, primary_world: np.ndarray, second_local: np.ndarray,
-               second_world: np.ndarray) -> np.ndarray:
-    """The rotation taking local primary onto world primary exactly and local second as close as possible to world second."""
-    def basis(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        e0 = _unit(a)
-        e1 = _unit(b - (b @ e0) * e0)
-        return np.stack([e0, e1, np.cross(e0, e1)], axis=1)
-    return basis(primary_world, second_world) @ basis(primary_local, second_local).T
 
 
 def matrix_to_quat(m: np.ndarray) -> tuple[float, float, float, float]:
@@ -129,106 +61,11 @@ def matrix_to_euler_zxy(m: np.ndarray) -> tuple[float, float, float]:
     return (math.degrees(z), math.degrees(x), math.degrees(y))
 
 
-# ---------------------------------------------------------------------- the T-pose
-
-@dataclass(frozen=True)
-class Pose:
-    """Local rotation matrices [J, 3, 3] and the root position (model units and axes)."""
-
-    local: np.ndarray
-    root: np.ndarray
-
-    def world(self, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
-        """World rotations [J, 3, 3] and positions [J, 3] by forward kinematics."""
-        rot = np.zeros_like(self.local)
-        pos = np.zeros((len(rig.names), 3))
-        for j, p in enumerate(rig.parents):
-            if p < 0:
-                rot[j], pos[j] = self.local[j], self.root
-            else:
-                rot[j] = rot[p] @ self.local[j]
-                pos[j] = pos[p] + rot[p] @ rig.offsets[j]
-        return rot, pos
-
-
-def _bone_targets(rig: Rig) -> dict[int, np.ndarray]:
-    """Per joint with a bone to aim, the world direction of the bone towards its primary child."""
-    r, names = rig.roles, rig.names
-    chain = [r["head"]]
-    while rig.parents[chain[-1]] >= 0:
-        chain.append(rig.parents[chain[-1]])
-    spine = list(reversed(chain))
-    targets: dict[int, np.ndarray] = dict.fromkeys(spine, UP)
-    for side, sign in (("left", 1.0), ("right", -1.0)):
-        clavicle = rig.parents[r[f"{side}_shoulder"]]
-        for j in rig.descendants(clavicle):
-            targets[j] = sign * LEFT
-        ankle, _toe = r[f"{side}_foot"][:2]
-        for j in rig.descendants(r[f"{side}_hip"]):
-            targets[j] = -UP
-        for j in rig.descendants(ankle):
-            targets[j] = _unit(FORWARD - math.tan(math.radians(FOOT_PITCH_DEG)) * UP)
-    missing = [names[j] for j in range(len(names)) if j not in targets]
-    if missing:
-        raise ValueError(f"no T-pose direction for joint(s) {', '.join(missing)}: not on the spine, an arm or a leg")
-    return targets
-
-
-def _primary_child(rig: Rig, j: int, spine_next: dict[int, int]) -> int | None:
-    kids = [k for k in rig.children(j) if np.linalg.norm(rig.offsets[k]) > 1e-6]
-    if j in spine_next:
-        return spine_next[j]
-    return kids[0] if len(kids) == 1 else None
-
-
-def t_pose(rig: Rig) -> Pose:
-    """Arms out along +-X, legs down, spine up, feet forward and 30 degrees down, facing +Z, toes 2 units above y=0.
-
-    Each bone is aimed with the shortest rotation from where its parent leaves it (so twists follow the
-    parent); a joint with a left and a right child (hips, chest) also turns them to +X and -X.
-    """
-    r = rig.roles
-    targets = _bone_targets(rig)
-    chain = [r["head"]]
-    while rig.parents[chain[-1]] >= 0:
-        chain.append(rig.parents[chain[-1]])
-    spine_next = {chain[i + 1]: chain[i] for i in range(len(chain) - 1)}
-    left = set(rig.descendants(rig.parents[r["left_shoulder"]])) | set(rig.descendants(r["left_hip"]))
-    right = set(rig.descendants(rig.parents[r["right_shoulder"]])) | set(rig.descendants(r["right_hip"]))
-    world = np.zeros((len(rig.names), 3, 3))
-    for j, p in enumerate(rig.parents):
-        parent = np.eye(3) if p < 0 else world[p]
-        child = _primary_child(rig, j, spine_next)
-        if child is None:                       # a leaf (or a zero-length bone): keep the parent's frame
-            world[j] = parent
-            continue
-        kids = rig.children(j)
-        lk = [k for k in kids if k in left and k not in spine_next.values()]
-        rk = [k for k in kids if k in right and k not in spine_next.values()]
-        if lk and rk:
-            lateral = rig.offsets[lk[0]] - rig.offsets[rk[0]]
-            world[j] = frame_from(rig.offsets[child], targets[j], lateral, LEFT)
-        else:
-            aim = parent @ rig.offsets[child]
-            world[j] = between(aim, targets[j]) @ parent
-    local = np.stack([world[j] if p < 0 else world[p].T @ world[j] for j, p in enumerate(rig.parents)])
-    _, pos = Pose(local, np.zeros(3)).world(rig)
-    return Pose(local, np.array([0.0, TOE_HEIGHT - pos[:, 1].min(), 0.0]))
-
+# ---------------------------------------------------------------------- the sample motion
 
 def sample_motion(rig: Rig, rest: Pose, frames: int = MOTION_FRAMES) -> list[Pose]:
     """From the T-pose, both arms lower by ARMS_DOWN_DEG (about the forward axis) over ``frames`` frames."""
-    world, _ = rest.world(rig)
-    out = []
-    for f in range(frames):
-        deg = ARMS_DOWN_DEG * f / max(frames - 1, 1)
-        local = rest.local.copy()
-        for side, sign in (("left", -1.0), ("right", 1.0)):
-            j = rig.roles[f"{side}_shoulder"]
-            p = rig.parents[j]
-            local[j] = world[p].T @ axis_angle(FORWARD, sign * deg) @ world[j]
-        out.append(Pose(local, rest.root.copy()))
-    return out
+    return [arms_lowered(rig, rest, ARMS_DOWN_DEG * f / max(frames - 1, 1)) for f in range(frames)]
 
 
 # ---------------------------------------------------------------------- BVH

@@ -2,7 +2,8 @@
 
 Everything the page shows comes from the contract's endpoints (``GET /v1/model``, ``/v1/styles``,
 ``POST /v1/transition``, ``/v1/stream``) plus the helpers here that only the viewer needs: the rig's
-joint roles, demo takes made on request and uploaded takes read onto the model's rig. They sit
+joint roles, demo takes made on request (by the model itself, from a standing pose on its own
+skeleton, where it has built-in styles) and uploaded takes read onto the model's rig. They sit
 behind the same API key and rate limit as every other ``/v1`` route.
 """
 
@@ -39,8 +40,8 @@ async def demos(registry: RegistryDep, model: Annotated[ModelName | None, Query(
 
 
 @router.get("/demos/{name}", response_model=ClipPoses, responses={k: ERROR_RESPONSES[k] for k in (404, 422)},
-            summary="a demo take as JSON poses on the model's rig (a built-in style's captured clip, or a "
-                    "procedural walk on the synthetic test rig)")
+            summary="a demo take as JSON poses on the model's rig (a walk the model generates from a standing "
+                    "pose in a built-in style, or a procedural walk on the synthetic test rig)")
 async def demo(name: Annotated[str, PathParam(max_length=64)], request: Request, registry: RegistryDep,
                model: Annotated[ModelName | None, Query()] = None) -> Response:
     m = registry.get(model)

@@ -1,11 +1,11 @@
 // Live mode: one character streamed over /v1/stream (binary frames) walks to where the ground is clicked.
 // A click while it walks sends `retarget`; a click after it arrived starts a new transition from its last
-// poses. Either way the target is a pose of the take (real motion on the model's rig, standing on its
+// poses. Either way the target is a pose of the take (motion on the model's rig, standing on its
 // floor) turned to face the click and moved there, and the character arrives on it exactly
 // (`exact_arrival`). Chained clicks used to leave a crumpled figure floating 20-60 cm up: the target was
 // the character's own last pose, a generated pose that arrives several centimetres off (often above) its
 // target, and the next context ended on that miss, so each click inherited and extended the last one.
-// Now every walk ends on the same captured pose, and the next one starts from it. The style picker sends
+// Now every walk ends on the same pose of the take, and the next one starts from it. The style picker sends
 // `style` on the fly. The HUD shows how late frames arrive against the server's clock.
 
 import { appendPose, facingYaw, forwardKinematics, motionPayload, placeMotion, sliceMotion } from "./math.js";
@@ -57,14 +57,15 @@ export class LiveMode {
   deactivate() { this.els.hud.hidden = true; }
 
   resetHistory() {
-    // The first context: the opening frames of the current take (a walk), so the character starts moving.
+    // The first context: the opening frames of the current take (a person standing, for the takes a model
+    // generates from a standing pose; a walk on the synthetic test rig).
     const take = this.app.take.motion, n = Math.min(take.frames, Math.max(this.app.model.context_frames, 2));
     this.history = sliceMotion(take, 0, n);
     this.updatePose();
   }
 
   // The target's two frames (the pose and the one before it, for its velocity): the frames of the take where
-  // the first context ends, so every walk arrives in the pose and gait the character started in.
+  // the first context ends, so every walk arrives in the pose (standing, or in the gait) the character started in.
   targetPose() {
     const take = this.app.take.motion, f = Math.min(take.frames, Math.max(this.app.model.context_frames, 2));
     return sliceMotion(take, f - 2, f);

@@ -76,7 +76,7 @@ export class TransitionMode {
   get targetKind() { return document.querySelector('input[name="target-kind"]:checked').value; }
 
   async loadDemo(name) {
-    status(`loading demo take ${name}…`);
+    status(`loading demo take ${name}… (the model generates a style's takes on their first load: a few seconds)`);
     this.setTake(await this.app.api.demo(name));
     status(`demo take ${name}: ${this.take.motion.frames} frames`, "ok");
   }
