@@ -12,6 +12,7 @@ from service.errors import install_error_handlers
 from service.http.auth import ApiKeyMiddleware
 from service.http.body_limit import BodyLimitMiddleware
 from service.http.logs import ensure_service_logging
+from service.http.queue_gate import QueueGateMiddleware
 from service.http.ratelimit import RateLimiter
 from service.http.request_metrics import MetricsMiddleware
 from service.lifecycle import lifespan
@@ -45,6 +46,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Added last = outermost: metrics see every request, including 413s.
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RawSendMiddleware)
+    # After the key check, before the body: a request for model work that a full queue would refuse.
+    app.add_middleware(QueueGateMiddleware)
     # Outside the body cap: a request without a valid key is answered before any of its body is read.
     app.add_middleware(ApiKeyMiddleware, keys=settings.all_keys, open_docs=settings.open_docs_and_metrics)
     app.add_middleware(MetricsMiddleware, metrics=app.state.service.metrics)

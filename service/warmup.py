@@ -5,7 +5,10 @@ Shapes warmed (per model):
 * style encoding at the shortest and longest accepted style clip (the encoder's convolutions);
 * ``prepare`` (context warm-up of the recurrent core, batch 1), seeded and deterministic;
 * ``generate`` of a short transition (the ``POST /v1/transition`` path, batch 1), JSON and BVH output;
-* the scheduler's batched ``step`` at 1, 2, 4, ... up to ``warmup_max_batch`` characters, on the step thread.
+* the scheduler's batched ``step`` at 1, 2, 4, ... up to ``warmup_max_batch`` characters, on the step thread;
+* a stream ``start`` (style encoding and ``prepare``) on every stream-setup thread (``LoadedModel.setup``, the
+  streams' own lane), so that the first ``start`` neither creates its thread nor pays that thread's first
+  torch calls; every work thread is started the same way.
 
 CPU PyTorch in eager mode compiles nothing per shape; what the first calls pay is one-off
 allocation and kernel selection (tens of ms). Measured first-versus-second step at batch sizes
@@ -15,7 +18,9 @@ never seen before are equal within noise, so powers of two cover the shapes in b
 from __future__ import annotations
 
 import asyncio
+import threading
 import time
+from concurrent.futures import Executor
 from typing import Any
 
 import torch
@@ -88,11 +93,39 @@ def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict
         n = min(2 * n, max_batch)
 
 
+def _warm_start(model: LoadedModel, arrived: threading.Barrier) -> tuple[float, str]:
+    """What a stream ``start`` runs on its setup thread (an inline style, ``prepare``), once every thread of the
+    lane holds one of these jobs (so that each thread of the pool is created and warmed); returns ms and the
+    style id to forget."""
+    arrived.wait(timeout=60)
+    engine = model.engine
+    c = engine.config
+    started = time.perf_counter()
+    style, _ = engine.encode_style(rest_clip(engine, c.style_frames_min), "warm-up")
+    engine.prepare(rest_clip(engine, c.context), rest_clip(engine, 2), min(10, model.max_transition), style, seed=3)
+    return (time.perf_counter() - started) * 1e3, style.style_id
+
+
+async def _on_every_thread(pool: Executor, threads: int, model: LoadedModel) -> float:
+    """Run :func:`_warm_start` on each of the ``threads`` threads of ``pool`` at once; the slowest one's ms."""
+    loop = asyncio.get_running_loop()
+    arrived = threading.Barrier(threads)
+    done = await asyncio.gather(*(loop.run_in_executor(pool, _warm_start, model, arrived) for _ in range(threads)))
+    for _, style_id in done:
+        model.engine.styles.delete(style_id)
+    model.engine.styles.stats = CacheStats()
+    return round(max(ms for ms, _ in done), 3)
+
+
 async def warm_up(model: LoadedModel, max_batch: int) -> dict[str, Any]:
     """Warm one model on its own threads; returns the timings (also kept on ``model.warmup``)."""
     loop = asyncio.get_running_loop()
     started = time.perf_counter()
+    threads = model.queue.threads  # RSMT_REQUEST_THREADS: the work threads, and as many stream-setup threads
     timings, template = await loop.run_in_executor(model.work, _warm_requests, model)
+    timings["stream_start_ms"] = await _on_every_thread(model.setup, threads, model)
+    if threads > 1:
+        timings["work_threads_ms"] = await _on_every_thread(model.work, threads, model)
     timings.update(await loop.run_in_executor(model.step, _warm_steps, model, template, max_batch))
     timings["total_ms"] = round((time.perf_counter() - started) * 1e3, 1)
     model.warmup = timings

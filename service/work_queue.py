@@ -2,7 +2,8 @@
 
 At most ``threads`` jobs run at once; at most ``limit`` more wait. A job that finds the queue full is
 refused at once with 503 ``overloaded`` and a ``Retry-After`` estimated from the recent job times, so a
-burst costs the server nothing beyond what it can serve. A waiting job whose HTTP client has gone (its
+burst costs the server nothing beyond what it can serve; :mod:`service.http.queue_gate` asks
+:meth:`WorkQueue.refusal` before the request's body is even read. A waiting job whose HTTP client has gone (its
 connection closed before the job started) is dropped, not run. At shutdown :meth:`WorkQueue.close`
 answers every waiting job 503 ``shutting_down`` at once and refuses new ones, so that only the jobs
 already running (at most ``threads``) are left for the graceful shutdown to wait for.
@@ -72,7 +73,7 @@ class WorkQueue:
         if self.closed:
             self._count(SHUT_DOWN)
             raise shutting_down_error()
-        if self.running < self.threads and not self._waiting:
+        if self._has_free_thread():
             self.running += 1
         else:
             await self._wait_for_slot(gone)
@@ -94,6 +95,35 @@ class WorkQueue:
                 raise shutting_down_error(started=True) from None
             raise
 
+    def _has_free_thread(self) -> bool:
+        return self.running < self.threads and not self._waiting
+
+    def refusal(self) -> ServiceError | None:
+        """The error a job arriving now would get at once (``shutting_down`` or ``overloaded``), counted as
+        refused; None when it would run or wait. For a check before the request's body is read
+        (:mod:`service.http.queue_gate`); :meth:`run` checks again, as the queue may fill meanwhile."""
+        if self.closed:
+            self._count(SHUT_DOWN)
+            return shutting_down_error()
+        if self._has_free_thread() or len(self._waiting) < self.limit:
+            return None
+        return self.reject()
+
+    def reject(self) -> ServiceError:
+        """Count a job refused for want of room and return its ``overloaded`` error (with Retry-After)."""
+        self._count(REJECTED)
+        return self._overloaded()
+
+    def would_refuse(self) -> bool:
+        """Whether :meth:`refusal` would refuse now (counts nothing)."""
+        return self.closed or (not self._has_free_thread() and len(self._waiting) >= self.limit)
+
+    def _overloaded(self) -> ServiceError:
+        wait = self.retry_after_s()
+        return ServiceError("overloaded", f"model {self.name!r} already has {self.limit} requests waiting "
+                                          f"(RSMT_QUEUE_LIMIT) and {self.running} running; retry in about "
+                                          f"{wait} s, or on another replica", headers={"Retry-After": str(wait)})
+
     def _finished(self, future: asyncio.Future[Any], started: float) -> None:
         if not future.cancelled():
             future.exception()  # retrieved here too, for a caller cancelled meanwhile
@@ -103,10 +133,7 @@ class WorkQueue:
     async def _wait_for_slot(self, gone: Callable[[], Awaitable[None]] | None) -> None:
         if len(self._waiting) >= self.limit:
             self._count(REJECTED)
-            wait = self.retry_after_s()
-            raise ServiceError("overloaded", f"model {self.name!r} already has {self.limit} requests waiting "
-                                             f"(RSMT_QUEUE_LIMIT) and {self.running} running; retry in about "
-                                             f"{wait} s, or on another replica", headers={"Retry-After": str(wait)})
+            raise self._overloaded()
         ticket: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._waiting.append(ticket)
         self._gauge()

@@ -8,6 +8,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.metrics import Metrics
 
+#: Scope key for the route template of a request answered before routing (:mod:`service.http.queue_gate`).
+ROUTE_TEMPLATE = "rsmt.route_template"
+
 
 class MetricsMiddleware:
     """Times every HTTP request, labelled by route template (``/v1/styles/{style_id}``), not raw path."""
@@ -31,5 +34,5 @@ class MetricsMiddleware:
         try:
             await self.app(scope, receive, send_status)
         finally:
-            route = getattr(scope.get("route"), "path", None) or "unmatched"
+            route = getattr(scope.get("route"), "path", None) or scope.get(ROUTE_TEMPLATE) or "unmatched"
             self.metrics.request_seconds.labels(scope["method"], route, str(status[0])).observe(time.perf_counter() - start)
