@@ -83,19 +83,24 @@ class RedisProcess:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
-def haproxy_config(port: int, replicas: list[int], check_inter_ms: int = 300) -> str:
+def haproxy_config(port: int, replicas: list[int], check_inter_ms: int = 300, stats_port: int | None = None) -> str:
     """The test topology's ``haproxy.cfg`` (deploy/haproxy.cfg is its production twin): HTTP to the replica
     with the fewest connections, the WebSocket path pinned by source address; both skip a replica whose
-    readiness is not 200, and a connection refused goes to another replica."""
+    readiness is not 200, and a request whose replica refused the connection, closed it without answering
+    (a keep-alive connection of a replica that is stopping) or answered 503 (draining, overloaded) is sent
+    again to another replica. ``stats_port``: HAProxy's statistics page (``/stats;csv``) there."""
     servers = "\n".join(f"  server r{i} 127.0.0.1:{p} check inter {check_inter_ms}ms fall 1 rise 2"
                         for i, p in enumerate(replicas))
+    stats = (f"\nfrontend stats\n  bind 127.0.0.1:{stats_port}\n  stats enable\n  stats uri /stats\n"
+             if stats_port is not None else "")
     return f"""global
   maxconn 512
 
 defaults
   mode http
-  option redispatch
+  option redispatch 1
   retries 2
+  retry-on conn-failure empty-response 503
   timeout connect 1s
   timeout client 60s
   timeout server 60s
@@ -119,7 +124,7 @@ backend rsmt_ws
   option httpchk GET /v1/health/ready
   http-check expect status 200
 {servers}
-"""
+{stats}"""
 
 
 class HaproxyProcess:
@@ -127,16 +132,20 @@ class HaproxyProcess:
 
     def __init__(self, replicas: list[int]) -> None:
         self.binary = need("haproxy")
-        self.port = free_port()
+        self.port, self.stats_port = free_port(), free_port()
         self.dir = Path(tempfile.mkdtemp(prefix="rsmt-haproxy-"))
         self.config = self.dir / "haproxy.cfg"
-        self.config.write_text(haproxy_config(self.port, replicas))
+        self.config.write_text(haproxy_config(self.port, replicas, stats_port=self.stats_port))
         self.log = self.dir / "haproxy.log"
         self.proc: subprocess.Popen | None = None
 
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def stats_url(self) -> str:
+        return f"http://127.0.0.1:{self.stats_port}/stats"
 
     def start(self, timeout_s: float = 20.0) -> HaproxyProcess:
         with self.log.open("a") as log:

@@ -40,7 +40,8 @@ class RetryPolicy:
     clients do not return in step. A ``Retry-After`` is always honoured (plus a little jitter,
     never less) unless it is above ``max_retry_after_s``: then the error is raised at once, since
     waiting that long is the caller's decision. Refused connections (nothing was sent) are
-    retried the same way, so a client may start before its server is up.
+    retried the same way, so a client may start before its server is up, and so are connections
+    dropped before an answer (``retry_connect_errors`` covers both).
     """
 
     attempts: int = 5

@@ -1,6 +1,7 @@
 """HTTP clients of the contract over httpx: :class:`Client` (sync) and :class:`AsyncClient`.
 
-Both retry 429 (honouring ``Retry-After``) and 503 with backoff (:class:`RetryPolicy`), raise
+Both retry 429 (honouring ``Retry-After``), 503 and a connection refused or dropped before the answer (not
+for a DELETE) with backoff (:class:`RetryPolicy`), raise
 :class:`RsmtError` with the server's machine code otherwise, and return numpy arrays
 (:class:`Poses`) for transitions. What is sent and how answers read lives in
 :mod:`rsmt_client.http_protocol`; these classes only move requests and wait.
@@ -8,10 +9,9 @@ Both retry 429 (honouring ``Retry-After``) and 503 with backoff (:class:`RetryPo
 
 from __future__ import annotations
 
-import asyncio
 import time
 from collections.abc import Callable
-from typing import Any, Self, TypeVar
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 import httpx
 
@@ -19,7 +19,9 @@ from rsmt_client import http_protocol as ops
 from rsmt_client._retry import RetryHook, RetryPolicy
 from rsmt_client.errors import RsmtError
 from rsmt_client.http_protocol import DEFAULT_URL, ClientState, Operation, Request
-from rsmt_client.motion import Poses
+
+if TYPE_CHECKING:
+    from rsmt_client.motion import Poses
 
 __all__ = ["DEFAULT_URL", "AsyncClient", "Client"]
 T = TypeVar("T")
@@ -83,6 +85,8 @@ class Client(_Settings):
                 resp = self._http.request(method, path, **kw)
             except (httpx.ConnectError, httpx.ConnectTimeout) as exc:
                 wait = ops.wait_after_refusal(retrying, self.url, exc)
+            except ops.DROPPED as exc:
+                wait = ops.wait_after_drop(retrying, method, self.url, exc)
             else:
                 answered = ops.wait_after_response(retrying, resp)
                 if answered is None:
@@ -182,11 +186,15 @@ class AsyncClient(_Settings):
                 resp = await self._http.request(method, path, **kw)
             except (httpx.ConnectError, httpx.ConnectTimeout) as exc:
                 wait = ops.wait_after_refusal(retrying, self.url, exc)
+            except ops.DROPPED as exc:
+                wait = ops.wait_after_drop(retrying, method, self.url, exc)
             else:
                 answered = ops.wait_after_response(retrying, resp)
                 if answered is None:
                     return resp
                 wait = answered
+            import asyncio  # only the async client needs it: not loaded with Client
+
             await asyncio.sleep(wait)
 
     async def _run(self, op: Operation[T]) -> T:

@@ -17,16 +17,25 @@ from collections import OrderedDict
 from collections.abc import Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import httpx
 
 from rsmt_client._retry import RetryHook, Retrying, RetryPolicy, parse_retry_after
 from rsmt_client.errors import RsmtError
-from rsmt_client.motion import Poses, motion_payload
+
+if TYPE_CHECKING:  # numpy loads with the first motion payload, not with the client (`rsmt client styles list`)
+    from rsmt_client.motion import Poses
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 T = TypeVar("T")
+
+
+def motion_payload(motion: Any) -> dict[str, Any]:
+    """:func:`rsmt_client.motion.motion_payload`, imported on first use (it needs numpy)."""
+    from rsmt_client.motion import motion_payload as payload
+
+    return payload(motion)
 
 
 @dataclass(frozen=True)
@@ -105,6 +114,21 @@ def wait_after_refusal(retrying: Retrying, url: str, exc: BaseException) -> floa
     return retrying.wait_or_raise(None, None, RsmtError("connection", f"cannot reach {url}: {exc}"), cause=exc)
 
 
+# The connection went away after the request was sent and before any answer (its replica died, or closed a
+# keep-alive connection as it stopped). Every request of the contract but DELETE may be sent again: a
+# transition has no side effect and a style's id is its content's hash; a DELETE replayed after it took
+# effect would answer 404, so it is not. Timeouts are not here: a slow server would only get the work twice.
+DROPPED = (httpx.RemoteProtocolError, httpx.ReadError, httpx.WriteError)
+
+
+def wait_after_drop(retrying: Retrying, method: str, url: str, exc: BaseException) -> float:
+    """The wait after a dropped connection (or ``RsmtError("connection")``, raised; at once for a DELETE)."""
+    error = RsmtError("connection", f"{url} closed the connection without answering: {exc}")
+    if method.upper() == "DELETE":
+        raise error from exc
+    return retrying.wait_or_raise(None, None, error, cause=exc)
+
+
 # ---------------------------------------------------------------------- operations
 
 def live() -> Operation[bool]:
@@ -170,6 +194,8 @@ def transition(state: ClientState, context: Any, target: Any, frames: int, style
     if state.model_info is None and model_name is None:
         yield from model(state)
     joints = state.joints() if model_name is None else None
+    from rsmt_client.motion import Poses
+
     return Poses.from_frames(data["frames"], float(data["fps"]), joints=joints, style_id=data.get("style_id"),
                              model=data.get("model"), timing_ms=dict(data.get("timing_ms") or {}))
 
