@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[2]
 UNITY = REPO / "clients" / "unity"
 UNREAL = REPO / "clients" / "unreal" / "RsmtLink"
 CORE_SOURCES = ["RsmtJson.cpp", "RsmtMath.cpp", "RsmtConvert.cpp", "RsmtProtocol.cpp", "RsmtReassembler.cpp",
-                "RsmtJitterBuffer.cpp"]
+                "RsmtJitterBuffer.cpp", "RsmtFailover.cpp"]
 API_KEY = "client-tests-key-0123456789abcdef"
 
 # Hello, then frames: the acceptance seed and length.
@@ -82,13 +82,13 @@ def gxx() -> str:
     return path
 
 
-def build_core_test(out_dir: Path) -> Path:
-    """RsmtCore (no Unreal) and its test program, with the warnings Unreal's compilers would raise as errors."""
-    exe = out_dir / "rsmt_core_test"
+def build_core_test(out_dir: Path, program: str = "rsmt_core_test") -> Path:
+    """RsmtCore (no Unreal) and a test program of ``Tests/``, with the warnings Unreal's compilers would raise as errors."""
+    exe = out_dir / program
     core = UNREAL / "Source" / "RsmtCore"
     run([gxx(), "-std=c++17", "-O1", "-Wall", "-Wextra", "-Wshadow", "-Wconversion", "-Wno-sign-conversion", "-pedantic",
          "-Werror", "-fno-exceptions", "-fno-rtti", f"-I{core / 'Public'}",
-         *[str(core / "Private" / s) for s in CORE_SOURCES], str(UNREAL / "Tests" / "rsmt_core_test.cpp"), "-o", str(exe)],
+         *[str(core / "Private" / s) for s in CORE_SOURCES], str(UNREAL / "Tests" / f"{program}.cpp"), "-o", str(exe)],
         timeout=600)
     return exe
 

@@ -5,10 +5,15 @@
 //   mono RsmtHarness.exe run --url http://127.0.0.1:8000 [--api-key K] --context a.bvh --target b.bvh --style s.bvh
 //        --frames 40 [--seed 7] [--deterministic] [--encoding binary|json] [--retarget c.bvh --retarget-after 5
 //        --retarget-frames 12] [--delay 0.1] --out result.json
+//   mono RsmtHarness.exe failover --url URL [--api-key K] --context a.bvh --target b.bvh [--target2 c.bvh] --style s.bvh
+//        --frames 60 [--characters 2] [--encoding binary|json] --kill-after 10 [--failover] [--attempts 40] --out result.json
 //
 // `run` registers the style over HTTP, connects, reads hello, streams one transition (pace asap) and records
 // every frame converted to Unity axes; with --retarget it streams a second one in real time, retargets it
 // mid-way, and plays it through the jitter buffer, recording what was shown.
+// `failover` registers the style through the stream client, streams several characters in real time with
+// exact_arrival, prints {"kill": true} once the first has sent --kill-after frames (the test then kills the server
+// and starts another on the same port) and records every frame (Unity axes), started/end, errors and losses.
 using System;
 using System.Collections.Generic;
 using System.Diagnostics;
@@ -76,6 +81,90 @@ static class RsmtHarness
     {
         var p = new RsmtPose(1) { Root = new RsmtVec3(x, 0, 0) };
         return new RsmtFrame { Seq = seq, T = (seq + 1) / 30.0, Pose = p };
+    }
+
+    // Failover without I/O (RsmtFailover): what is resent after a lost connection and how resumed frames are numbered.
+    static RsmtMessage FrameMsg(string cid, int seq, int remaining, double x)
+    {
+        var p = new RsmtPose(1) { Root = new RsmtVec3(x, 0, 0) };
+        return new RsmtMessage { Kind = RsmtMessageKind.Frame, Character = cid, Frame = new RsmtFrame { Character = cid, Seq = seq, Remaining = remaining, Pose = p } };
+    }
+
+    static RsmtMessage Msg(RsmtMessageKind kind, string cid, string code = null)
+    {
+        return new RsmtMessage { Kind = kind, Character = cid, Code = code };
+    }
+
+    static double[] ContextXs(string start)
+    {
+        return Json.Parse(start).Get("context").Get("root_positions").Array.Select(r => r.Array[0].Number).ToArray();
+    }
+
+    static void FailoverSelfTest()
+    {
+        var ctx = new List<RsmtPose>();
+        for (int i = 0; i < 6; i++) ctx.Add(new RsmtPose(1) { Root = new RsmtVec3(i, 0, 0) });
+        Func<string, int, RsmtStartOptions> opts = (cid, n) => new RsmtStartOptions
+        {
+            Character = cid, ContextJson = RsmtMessages.PoseMotion(ctx), TargetJson = "{\"bvh\":\"T\"}", Frames = n, StyleId = "sty_a",
+            Model = "m2", ExactArrival = true,
+        };
+        var f = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };
+        f.SentStart(opts("hero", 10), "start-text");
+        var st = Msg(RsmtMessageKind.Started, "hero");
+        f.Received(st);
+        Check(!st.Resumed && f.Live, "failover: first started is not a resume");
+        for (int seq = 0; seq < 6; seq++) f.Received(FrameMsg("hero", seq, 9 - seq, 100 + seq));
+        var resume = f.ResumeMessages();
+        Check(resume.Count == 1 && f.Resumes == 1, "failover: one resume");
+        var r = Json.Parse(resume[0]);
+        Check(r.GetInt("frames", 0) == 4 && r.Get("target").GetString("bvh", "") == "T" && r.GetString("style_id", "") == "sty_a"
+              && r.GetString("model", "") == "m2" && r.GetBool("exact_arrival", false) && r.GetString("character", "") == "hero", "failover: same start, frames to go");
+        Check(ContextXs(resume[0]).SequenceEqual(new double[] { 102, 103, 104, 105 }), "failover: context is the last poses received");
+        st = Msg(RsmtMessageKind.Started, "hero");
+        f.Received(st);
+        Check(st.Resumed, "failover: resumed started");
+        RsmtMessage last = null;
+        for (int seq = 0; seq < 4; seq++) f.Received(last = FrameMsg("hero", seq, 3 - seq, 0));
+        Check(last.Frame.Seq == 9 && Near(last.Frame.T, 10 / 30.0), "failover: resumed frames numbered on");
+        var end = Msg(RsmtMessageKind.End, "hero");
+        end.Frames = 4;
+        f.Received(end);
+        Check(end.Frames == 10 && !f.Live && f.ResumeMessages().Count == 0, "failover: end counts every frame");
+
+        var g = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // fewer frames than the context
+        g.SentStart(opts("hero", 10), "s");
+        g.Received(FrameMsg("hero", 0, 9, 50));
+        Check(ContextXs(g.ResumeMessages()[0]).SequenceEqual(new double[] { 3, 4, 5, 50 }), "failover: original context before the received poses");
+        var h = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // a BVH context: the first received pose held
+        var bvh = opts("hero", 10);
+        bvh.ContextJson = RsmtMessages.BvhMotion("HIERARCHY");
+        h.SentStart(bvh, "s");
+        h.Received(FrameMsg("hero", 0, 9, 50));
+        Check(ContextXs(h.ResumeMessages()[0]).SequenceEqual(new double[] { 50, 50, 50, 50 }), "failover: unreadable context holds the first pose");
+
+        var k = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // retarget, style and cancel carried over
+        k.SentStart(opts("a", 10), "sa");
+        k.SentStart(opts("b", 10), "sb");
+        k.SentCancel("b");
+        for (int seq = 0; seq < 5; seq++) k.Received(FrameMsg("a", seq, 9 - seq, seq));
+        k.SentRetarget("a", "{\"bvh\":\"T2\"}", 20);
+        k.SentStyle("a", "sty_b", "style-text");
+        var kr = k.ResumeMessages();
+        var krj = Json.Parse(kr[0]);
+        Check(kr.Count == 1 && krj.GetInt("frames", 0) == 20 && krj.Get("target").GetString("bvh", "") == "T2"
+              && krj.GetString("style_id", "") == "sty_b", "failover: retarget and style carried, cancelled dropped");
+
+        var u = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // unknown_style: register again and resend
+        u.RememberStyle("sty_a", "BVH", "walk");
+        u.SentStart(opts("hero", 10), "start-text");
+        var act = u.Received(Msg(RsmtMessageKind.Error, "hero", "unknown_style"));
+        Check(!act.Deliver && act.RegisterStyleId == "sty_a" && act.Resend == "start-text" && u.Reregistrations == 1, "failover: unknown_style re-registers");
+        var w = new RsmtFailover();  // a style it never held: the error goes to the caller, nothing to resume
+        w.SentStart(opts("hero", 10), "start-text");
+        Check(w.Received(Msg(RsmtMessageKind.Error, "hero", "unknown_style")).Deliver && !w.Live, "failover: unknown clip is an error");
+        Check(!RsmtFailover.Resumable(1008) && !RsmtFailover.Resumable(1009) && RsmtFailover.Resumable(1006) && RsmtFailover.Resumable(1001),
+              "failover: close codes");
     }
 
     static int SelfTest()
@@ -213,6 +302,8 @@ static class RsmtHarness
                                              new Dictionary<string, string> { { "Head", "mixamorig:Head" } }, true, find, missing);
         Check(bound[0] == "Hips" && bound[1] == "Spine" && bound[2] == "mixamorig:Head" && bound[3] == null && bound[4] == "Arm", "binding");
         Check(missing.Count == 1 && missing[0] == "UpperArm_L", "binding reports missing joints");
+
+        FailoverSelfTest();
 
         Console.WriteLine("{\"selftest\": {\"checks\": " + checks + ", \"failures\": " + failures + "}}");
         return failures == 0 ? 0 : 1;
@@ -383,13 +474,97 @@ static class RsmtHarness
         return 0;
     }
 
+    static int RunFailover(string[] argv)
+    {
+        var a = Args(argv);
+        string url = Get(a, "url"), apiKey = Get(a, "api-key", "");
+        string context = File.ReadAllText(Get(a, "context"));
+        var targets = new[] { File.ReadAllText(Get(a, "target")), File.ReadAllText(Get(a, "target2", Get(a, "target"))) };
+        string styleBvh = File.ReadAllText(Get(a, "style"));
+        int frames = int.Parse(Get(a, "frames"), CultureInfo.InvariantCulture);
+        int count = int.Parse(Get(a, "characters", "2"), CultureInfo.InvariantCulture);
+        int killAfter = int.Parse(Get(a, "kill-after", "10"), CultureInfo.InvariantCulture);
+        var clock = Stopwatch.StartNew();
+        var recorded = new Dictionary<string, List<RsmtFrame>>();
+        var ends = new Dictionary<string, RsmtMessage>();
+        var resumed = new Dictionary<string, int>();  // frames recorded before the resumed start
+        var errors = new List<string>();
+        var lost = new List<int>();
+        bool killed = false;
+        var output = new StringBuilder("{");
+        using (var client = new RsmtStreamClient(new ClientWebSocketTransport()))
+        {
+            client.Failover = a.ContainsKey("failover");
+            client.ReconnectAttempts = int.Parse(Get(a, "attempts", "40"), CultureInfo.InvariantCulture);
+            client.MaxBackoffSeconds = 1;
+            client.ConnectAsync(url, apiKey, Get(a, "encoding", "binary") == "binary").Wait();
+            Pump(client, clock, () => client.Hello != null, 30);
+            var style = client.RegisterStyleAsync(styleBvh, "harness-failover").Result;
+            output.Append("\"style_id\":").Append(Json.Quote(style.StyleId));
+            client.ErrorReceived += m => errors.Add(m.Character + " " + m.Code + ": " + m.Text);
+            client.ConnectionLost += (status, reason) => lost.Add(status);
+            client.MessageReceived += m =>
+            {
+                if (m.Kind == RsmtMessageKind.Frame && m.Frame.Character != null && recorded.ContainsKey(m.Frame.Character))
+                {
+                    recorded[m.Frame.Character].Add(m.Frame);
+                    if (!killed && recorded["f0"].Count >= killAfter)
+                    {
+                        killed = true;
+                        Console.WriteLine("{\"kill\": true}");
+                        Console.Out.Flush();
+                    }
+                }
+                else if (m.Kind == RsmtMessageKind.End && m.Character != null) ends[m.Character] = m;
+                else if (m.Kind == RsmtMessageKind.Started && m.Resumed) resumed[m.Character] = recorded[m.Character].Count;
+            };
+            for (int i = 0; i < count; i++)
+            {
+                string cid = "f" + i;
+                recorded[cid] = new List<RsmtFrame>();
+                resumed[cid] = -1;
+                client.Start(new RsmtStartOptions
+                {
+                    Character = cid, ContextJson = RsmtMessages.BvhMotion(context), TargetJson = RsmtMessages.BvhMotion(targets[i % 2]),
+                    Frames = frames, StyleId = style.StyleId, Seed = i, Pace = "realtime", ExactArrival = true,
+                });
+            }
+            double deadline = clock.Elapsed.TotalSeconds + double.Parse(Get(a, "timeout", "120"), CultureInfo.InvariantCulture);
+            while (ends.Count < count && errors.Count == 0 && client.CloseInfo == null && clock.Elapsed.TotalSeconds < deadline)
+            {
+                if (client.Dispatch(clock.Elapsed.TotalSeconds) == 0) Thread.Sleep(2);
+            }
+            output.Append(",\"resumes\":").Append(client.FailoverState.Resumes)
+                  .Append(",\"reregistrations\":").Append(client.FailoverState.Reregistrations);
+            output.Append(",\"lost\":[").Append(string.Join(",", lost)).Append(']');
+            output.Append(",\"closed\":").Append(client.CloseInfo == null ? "null" : client.CloseInfo.CloseStatus.ToString(CultureInfo.InvariantCulture));
+            output.Append(",\"timed_out\":").Append(ends.Count < count && errors.Count == 0 && client.CloseInfo == null ? "true" : "false");
+            output.Append(",\"errors\":[").Append(string.Join(",", errors.Select(e => Json.Quote(e)))).Append(']');
+            output.Append(",\"characters\":{");
+            int k = 0;
+            foreach (var cid in recorded.Keys)
+            {
+                RsmtMessage end;
+                ends.TryGetValue(cid, out end);
+                output.Append(k++ > 0 ? "," : "").Append(Json.Quote(cid)).Append(":{\"resumed_at\":").Append(resumed[cid]);
+                output.Append(",\"end\":").Append(end == null ? "null" : "{\"reason\":" + Json.Quote(end.Reason) + ",\"frames\":" + end.Frames + "}");
+                output.Append(",\"frames\":[").Append(string.Join(",", recorded[cid].Select(PoseJson))).Append("]}");
+            }
+            output.Append('}');
+        }
+        output.Append('}');
+        File.WriteAllText(Get(a, "out"), output.ToString());
+        Console.WriteLine("{\"ok\": true, \"seconds\": " + R(clock.Elapsed.TotalSeconds) + "}");
+        return 0;
+    }
+
     static int Main(string[] args)
     {
         Thread.CurrentThread.CurrentCulture = CultureInfo.InvariantCulture;
         if (args.Length >= 1 && args[0] == "selftest") return SelfTest();
-        if (args.Length >= 1 && args[0] == "run")
+        if (args.Length >= 1 && (args[0] == "run" || args[0] == "failover"))
         {
-            try { return Run(args); }
+            try { return args[0] == "run" ? Run(args) : RunFailover(args); }
             catch (Exception e)
             {
                 Console.Error.WriteLine("harness: " + e);

@@ -195,6 +195,7 @@ namespace Rsmt.Link
         public string Reason;       // end
         public string Code;         // error
         public string Text;         // error message
+        public bool Resumed;        // started: a character resumed on a new connection (RsmtStreamClient.Failover)
         public JsonValue Json;      // the whole text message (null for binary frames)
     }
 
@@ -380,6 +381,7 @@ namespace Rsmt.Link
         public bool Deterministic;
         public bool ExactArrival;         // bend the last frames so the arrival frame equals the target pose
         public string Pace = "realtime";  // or "asap"
+        public string Model;              // a model of GET /v1/models; null: the default
         public string RequestId;
     }
 
@@ -432,6 +434,7 @@ namespace Rsmt.Link
             sb.Append(",\"deterministic\":").Append(o.Deterministic ? "true" : "false");
             if (o.ExactArrival) sb.Append(",\"exact_arrival\":true");
             sb.Append(",\"pace\":").Append(Json.Quote(o.Pace));
+            if (!string.IsNullOrEmpty(o.Model)) sb.Append(",\"model\":").Append(Json.Quote(o.Model));
             if (!string.IsNullOrEmpty(o.RequestId)) sb.Append(",\"request_id\":").Append(Json.Quote(o.RequestId));
             return sb.Append('}').ToString();
         }

@@ -25,7 +25,8 @@ namespace Rsmt.Link
 
     public interface IRsmtTransport : IDisposable
     {
-        /// <summary>Open the connection; headers go on the handshake (browsers cannot send them: use ?token=).</summary>
+        /// <summary>Open the connection; headers go on the handshake (browsers cannot send them: use ?token=).
+        /// Called again after the connection closed when RsmtStreamClient.Failover reconnects.</summary>
         Task ConnectAsync(Uri uri, IDictionary<string, string> headers, CancellationToken cancel);
         /// <summary>Queue one text message; sends happen in order.</summary>
         Task SendAsync(string text);
@@ -56,6 +57,8 @@ namespace Rsmt.Link
 
         public async Task ConnectAsync(Uri uri, IDictionary<string, string> headers, CancellationToken cancel)
         {
+            if (receiveTask != null) await receiveTask.ConfigureAwait(false);  // a reconnection: the old loop has ended
+            if (socket != null) socket.Dispose();
             socket = new ClientWebSocket();
             if (headers != null)
             {

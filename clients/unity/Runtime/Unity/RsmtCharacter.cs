@@ -12,6 +12,8 @@ namespace Rsmt.Link.Unity
         public string serverUrl = "http://127.0.0.1:8000";
         public string apiKey = "";
         public bool binaryFrames = true;
+        [Tooltip("When the connection is lost (a replica died or drained), connect again and resume the transition from the frames received last")]
+        public bool failover = false;
 
         [Header("Character")]
         public string characterId = "hero";
@@ -43,7 +45,7 @@ namespace Rsmt.Link.Unity
         async void Start()
         {
             if (runInBackground) Application.runInBackground = true;
-            client = new RsmtStreamClient(new ClientWebSocketTransport(), bufferDelay);
+            client = new RsmtStreamClient(new ClientWebSocketTransport(), bufferDelay) { Failover = failover };
             client.HelloReceived += OnHello;
             client.ErrorReceived += m => Debug.LogWarning("RSMT " + m.Code + ": " + m.Text, this);
             client.Closed += (code, reason) => Debug.LogWarning("RSMT stream closed " + code + " " + reason, this);
@@ -53,6 +55,7 @@ namespace Rsmt.Link.Unity
                 {
                     using (var http = new RsmtHttpClient(serverUrl, apiKey))
                         styleId = (await http.RegisterStyleAsync(styleClip.text, styleClip.name)).StyleId;
+                    client.RememberStyle(styleId, styleClip.text, styleClip.name);  // registered again after a failover if needed
                 }
                 await client.ConnectAsync(serverUrl, apiKey, binaryFrames);
             }

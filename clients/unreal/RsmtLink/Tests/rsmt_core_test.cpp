@@ -1,6 +1,7 @@
 // Tests of RsmtCore without Unreal (built with g++ by tests/clients/test_unreal_core.py).
 //
-//   rsmt_core_test selftest                 unit checks: JSON, conversion, binary frames, reassembly, jitter buffer
+//   rsmt_core_test selftest                 unit checks: JSON, conversion, binary frames, reassembly, jitter buffer,
+//                                           failover (rsmt::Failover on hand-made traffic)
 //   rsmt_core_test replay FILE.rec [CHUNK]  replay a recorded session: every message cut into CHUNK-byte pieces
 //                                           (OnRawMessage style), reassembled, classified, decoded; prints one JSON
 //                                           line per frame with the pose converted to Unreal axes
@@ -19,6 +20,7 @@
 #include <vector>
 
 #include "RsmtConvert.h"
+#include "RsmtFailover.h"
 #include "RsmtJitterBuffer.h"
 #include "RsmtJson.h"
 #include "RsmtProtocol.h"
@@ -282,7 +284,135 @@ static void TestJitter() {
     CHECK(jb.Buffered() == 1);
 }
 
+// Failover without I/O (rsmt::Failover): what is resent after a lost connection, how resumed frames are numbered.
+static Message FrameMsg(const std::string& cid, int seq, int remaining, double x) {
+    Message m;
+    m.kind = MessageKind::Frame;
+    m.character = m.frame.character = cid;
+    m.frame.seq = seq;
+    m.frame.remaining = remaining;
+    m.frame.pose.root = Vec3{x, 0, 0};
+    m.frame.pose.rotations = {Quat{}};
+    return m;
+}
+
+static Message Msg(MessageKind kind, const std::string& cid, const std::string& code = "") {
+    Message m;
+    m.kind = kind;
+    m.character = cid;
+    m.code = code;
+    return m;
+}
+
+static std::vector<double> ContextXs(const std::string& start) {
+    JsonValue v;
+    std::vector<double> xs;
+    if (!ParseJson(start, v)) return xs;
+    for (const JsonValue& r : v.Find("context")->Find("root_positions")->array) xs.push_back(r.array[0].number);
+    return xs;
+}
+
+static Failover MakeFailover() {
+    Failover f;
+    ModelInfo model;
+    model.contextFrames = 4;
+    model.joints.resize(1);
+    f.SetModel(model);
+    return f;
+}
+
+static void TestFailover() {
+    std::vector<Vec3> roots;
+    std::vector<std::vector<Quat>> rots;
+    for (int i = 0; i < 6; ++i) {
+        roots.push_back(Vec3{static_cast<double>(i), 0, 0});
+        rots.push_back({Quat{}});
+    }
+    auto opts = [&](const std::string& cid, int n) {
+        StartOptions o;
+        o.character = cid;
+        o.contextJson = PoseMotionJson(roots, rots);
+        o.targetJson = "{\"bvh\":\"T\"}";
+        o.frames = n;
+        o.styleId = "sty_a";
+        o.model = "m2";
+        o.exactArrival = true;
+        return o;
+    };
+    Failover f = MakeFailover();
+    f.SentStart(opts("hero", 10));
+    Message st = Msg(MessageKind::Started, "hero");
+    f.Received(st);
+    CHECK(!st.resumed && f.Live());
+    for (int seq = 0; seq < 6; ++seq) {
+        Message fm = FrameMsg("hero", seq, 9 - seq, 100.0 + seq);
+        f.Received(fm);
+    }
+    std::vector<std::string> resume = f.ResumeMessages();
+    CHECK(resume.size() == 1 && f.Resumes() == 1);
+    JsonValue r;
+    CHECK(ParseJson(resume[0], r));
+    CHECK(r.NumberOr("frames", 0) == 4 && r.Find("target")->StringOr("bvh", "") == "T" && r.StringOr("style_id", "") == "sty_a");
+    CHECK(r.StringOr("model", "") == "m2" && r.StringOr("character", "") == "hero" && r.Find("exact_arrival") != nullptr);
+    CHECK((ContextXs(resume[0]) == std::vector<double>{102, 103, 104, 105}));
+    st = Msg(MessageKind::Started, "hero");
+    f.Received(st);
+    CHECK(st.resumed);
+    Message last;
+    for (int seq = 0; seq < 4; ++seq) {
+        last = FrameMsg("hero", seq, 3 - seq, 0);
+        f.Received(last);
+    }
+    CHECK(last.frame.seq == 9 && std::fabs(last.frame.t - 10 / 30.0) < 1e-12);
+    Message end = Msg(MessageKind::End, "hero");
+    end.frames = 4;
+    f.Received(end);
+    CHECK(end.frames == 10 && !f.Live() && f.ResumeMessages().empty());
+
+    Failover g = MakeFailover();  // fewer frames than the context: the original context's last poses first
+    g.SentStart(opts("hero", 10));
+    Message g0 = FrameMsg("hero", 0, 9, 50);
+    g.Received(g0);
+    CHECK((ContextXs(g.ResumeMessages()[0]) == std::vector<double>{3, 4, 5, 50}));
+    Failover h = MakeFailover();  // a BVH context: the first received pose held
+    StartOptions bvh = opts("hero", 10);
+    bvh.contextJson = BvhMotionJson("HIERARCHY");
+    h.SentStart(bvh);
+    Message h0 = FrameMsg("hero", 0, 9, 50);
+    h.Received(h0);
+    CHECK((ContextXs(h.ResumeMessages()[0]) == std::vector<double>{50, 50, 50, 50}));
+
+    Failover k = MakeFailover();  // retarget, style and cancel carried over
+    k.SentStart(opts("a", 10));
+    k.SentStart(opts("b", 10));
+    k.SentCancel("b");
+    for (int seq = 0; seq < 5; ++seq) {
+        Message km = FrameMsg("a", seq, 9 - seq, seq);
+        k.Received(km);
+    }
+    k.SentRetarget("a", "{\"bvh\":\"T2\"}", 20);
+    k.SentStyle("a", "sty_b");
+    std::vector<std::string> kr = k.ResumeMessages();
+    JsonValue krj;
+    CHECK(kr.size() == 1 && ParseJson(kr[0], krj) && krj.NumberOr("frames", 0) == 20 &&
+          krj.Find("target")->StringOr("bvh", "") == "T2" && krj.StringOr("style_id", "") == "sty_b");
+
+    Failover u = MakeFailover();  // unknown_style: register again, resend the start
+    u.RememberStyle("sty_a", "{\"name\":\"walk\"}");
+    u.SentStart(opts("hero", 10));
+    Message ue = Msg(MessageKind::Error, "hero", "unknown_style");
+    FailoverAction act = u.Received(ue);
+    CHECK(!act.deliver && act.registerStyleBody == "{\"name\":\"walk\"}" && act.resend == BuildStart(opts("hero", 10)));
+    Failover w = MakeFailover();  // a clip it never held: the error goes to the caller, nothing to resume
+    w.SentStart(opts("hero", 10));
+    Message we = Msg(MessageKind::Error, "hero", "unknown_style");
+    CHECK(w.Received(we).deliver && !w.Live());
+    CHECK(!Failover::Resumable(1008) && !Failover::Resumable(1009) && Failover::Resumable(1006) && Failover::Resumable(1001));
+    CHECK(Failover::ReconnectDelay(0) == 0.25 && Failover::ReconnectDelay(1) == 0.5 && Failover::ReconnectDelay(40) == 4.0);
+}
+
 static int SelfTest() {
+    TestFailover();
     TestJson();
     TestConversion();
     TestProtocol();

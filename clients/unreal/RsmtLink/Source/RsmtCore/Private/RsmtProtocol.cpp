@@ -309,6 +309,7 @@ std::string BuildStart(const StartOptions& o) {
     s += std::string(",\"deterministic\":") + (o.deterministic ? "true" : "false");
     if (o.exactArrival) s += ",\"exact_arrival\":true";
     s += ",\"pace\":" + JsonQuote(o.pace);
+    if (!o.model.empty()) s += ",\"model\":" + JsonQuote(o.model);
     if (!o.requestId.empty()) s += ",\"request_id\":" + JsonQuote(o.requestId);
     return s + "}";
 }

@@ -92,6 +92,7 @@ struct Message {
     std::string reason;     // end: "arrived" or "cancelled"
     std::string code;       // error
     std::string message;    // error
+    bool resumed = false;   // started: a character resumed on a new connection (rsmt::Failover)
     JsonValue json;         // the whole text message (empty for binary frames)
 };
 
@@ -140,6 +141,7 @@ struct StartOptions {
     bool deterministic = false;
     bool exactArrival = false;      // bend the last frames so the arrival frame equals the target pose
     std::string pace = "realtime";  // or "asap"
+    std::string model;              // optional: a model of GET /v1/models
     std::string requestId;          // optional
 };
 

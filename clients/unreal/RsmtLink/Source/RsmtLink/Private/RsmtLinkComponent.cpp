@@ -77,6 +77,9 @@ void URsmtLinkComponent::Connect()
 	Session = rsmt::Session();
 	Assembler.Reset();
 	Buffer = rsmt::JitterBuffer(BufferDelaySeconds);
+	Failover = rsmt::Failover();
+	bResumeOnHello = false;
+	ReconnectAttempt = 0;
 
 	IModularFeatures& Features = IModularFeatures::Get();
 	if (Features.IsModularFeatureAvailable(ILiveLinkClient::ModularFeatureName))
@@ -89,7 +92,11 @@ void URsmtLinkComponent::Connect()
 	{
 		UE_LOG(LogRsmtLink, Warning, TEXT("Live Link is not available: enable the Live Link plugin"));
 	}
+	OpenSocket();
+}
 
+void URsmtLinkComponent::OpenSocket()
+{
 	FWebSocketsModule& WebSockets = FModuleManager::LoadModuleChecked<FWebSocketsModule>(TEXT("WebSockets"));
 	TMap<FString, FString> Headers;
 	if (!ApiKey.IsEmpty())
@@ -109,6 +116,21 @@ void URsmtLinkComponent::Connect()
 
 void URsmtLinkComponent::Disconnect()
 {
+	if (GetWorld() != nullptr)
+	{
+		GetWorld()->GetTimerManager().ClearTimer(ReconnectTimer);
+	}
+	bResumeOnHello = false;
+	CloseSocket();
+	if (Source.IsValid() && IModularFeatures::Get().IsModularFeatureAvailable(ILiveLinkClient::ModularFeatureName))
+	{
+		IModularFeatures::Get().GetModularFeature<ILiveLinkClient>(ILiveLinkClient::ModularFeatureName).RemoveSource(Source);
+	}
+	Source.Reset();
+}
+
+void URsmtLinkComponent::CloseSocket()
+{
 	if (Socket.IsValid())
 	{
 		Socket->OnConnected().RemoveAll(this);
@@ -121,11 +143,28 @@ void URsmtLinkComponent::Disconnect()
 		}
 		Socket.Reset();
 	}
-	if (Source.IsValid() && IModularFeatures::Get().IsModularFeatureAvailable(ILiveLinkClient::ModularFeatureName))
+}
+
+// Failover: after a lost connection (or a failed reconnection), wait and open a new socket to the same URL; the
+// new hello resumes the character (HandleMessage). The Live Link source and the jitter buffer stay.
+void URsmtLinkComponent::ScheduleReconnect(const FString& Why)
+{
+	if (ReconnectAttempt >= ReconnectAttempts || GetWorld() == nullptr)
 	{
-		IModularFeatures::Get().GetModularFeature<ILiveLinkClient>(ILiveLinkClient::ModularFeatureName).RemoveSource(Source);
+		bResumeOnHello = false;
+		OnError.Broadcast(TEXT("closed"), Why + FString::Printf(TEXT(" (gave up after %d reconnection attempts)"), ReconnectAttempt));
+		return;
 	}
-	Source.Reset();
+	bResumeOnHello = true;
+	const float Delay = static_cast<float>(rsmt::Failover::ReconnectDelay(ReconnectAttempt++));
+	UE_LOG(LogRsmtLink, Log, TEXT("connection lost (%s): reconnecting in %.2f s"), *Why, Delay);
+	GetWorld()->GetTimerManager().SetTimer(ReconnectTimer, FTimerDelegate::CreateWeakLambda(this, [this]()
+		{
+			CloseSocket();
+			Session = rsmt::Session();  // the new connection begins with its own hello
+			Assembler.Reset();
+			OpenSocket();
+		}), FMath::Max(Delay, 0.01f), false);
 }
 
 void URsmtLinkComponent::HandleConnected()
@@ -135,12 +174,27 @@ void URsmtLinkComponent::HandleConnected()
 
 void URsmtLinkComponent::HandleConnectionError(const FString& Error)
 {
+	// A refused handshake (429, 503, a replica still starting) while failing over: try again.
+	if (bFailover && (bResumeOnHello || Failover.Live()))
+	{
+		ScheduleReconnect(Error);
+		return;
+	}
 	OnError.Broadcast(TEXT("connection"), Error);
 }
 
 void URsmtLinkComponent::HandleClosed(int32 StatusCode, const FString& Reason, bool bWasClean)
 {
 	// 1000: idle, 1001: server shutting down (reconnect), 1008: not reading fast enough, 1009: message too big.
+	if (bFailover && rsmt::Failover::Resumable(StatusCode) && (bResumeOnHello || Failover.Live()))
+	{
+		if (!bResumeOnHello)
+		{
+			ReconnectAttempt = 0;  // a new loss: a fresh series of attempts
+		}
+		ScheduleReconnect(FString::Printf(TEXT("%d %s"), StatusCode, *Reason));
+		return;
+	}
 	OnError.Broadcast(TEXT("closed"), FString::Printf(TEXT("%d %s"), StatusCode, *Reason));
 }
 
@@ -171,8 +225,18 @@ void URsmtLinkComponent::HandleRawMessage(const void* Data, SIZE_T Size, SIZE_T 
 	HandleMessage(Message);
 }
 
-void URsmtLinkComponent::HandleMessage(const rsmt::Message& Message)
+void URsmtLinkComponent::HandleMessage(rsmt::Message& Message)
 {
+	if (bFailover && Message.kind != rsmt::MessageKind::Hello)
+	{
+		// Renumbers a resumed character's frames (model axes, before conversion); answers unknown_style.
+		const rsmt::FailoverAction Action = Failover.Received(Message);
+		if (!Action.deliver)
+		{
+			PostStyle(Action.registerStyleBody, 0, Action.resend);
+			return;
+		}
+	}
 	switch (Message.kind)
 	{
 	case rsmt::MessageKind::Hello:
@@ -201,7 +265,17 @@ void URsmtLinkComponent::HandleMessage(const rsmt::Message& Message)
 			Source->PushSkeleton(SubjectName, Names, Parents);
 		}
 		OnConnected.Broadcast();
-		if (!PendingStart.empty())
+		if (bResumeOnHello)
+		{
+			bResumeOnHello = false;
+			ReconnectAttempt = 0;
+			PendingStart.clear();  // the resume state holds it
+			for (const std::string& Text : Failover.ResumeMessages())
+			{
+				SendText(Text);
+			}
+		}
+		else if (!PendingStart.empty())
 		{
 			SendText(PendingStart);
 			PendingStart.clear();
@@ -209,7 +283,7 @@ void URsmtLinkComponent::HandleMessage(const rsmt::Message& Message)
 		break;
 	}
 	case rsmt::MessageKind::Started:
-		if (Message.character == ToStd(CharacterId))
+		if (Message.character == ToStd(CharacterId) && !Message.resumed)  // a resumed character plays on
 		{
 			Buffer.Reset();
 		}
@@ -230,7 +304,8 @@ void URsmtLinkComponent::HandleMessage(const rsmt::Message& Message)
 		}
 		break;
 	case rsmt::MessageKind::Error:
-		OnError.Broadcast(FromStd(Message.code), FromStd(Message.message));
+		OnError.Broadcast(FromStd(Message.code), FromStd(Message.message) +
+			(bFailover && Message.code == "unknown_style" ? TEXT(" (no clip held to register it again: use RegisterStyle)") : TEXT("")));
 		break;
 	default:
 		break;
@@ -280,6 +355,10 @@ FString URsmtLinkComponent::BvhMotion(const FString& BvhText)
 
 void URsmtLinkComponent::RetargetMotion(const FString& TargetMotionJson, int32 Frames)
 {
+	if (bFailover)
+	{
+		Failover.SentRetarget(ToStd(CharacterId), ToStd(TargetMotionJson), Frames);
+	}
 	SendText(rsmt::BuildRetarget(ToStd(CharacterId), ToStd(TargetMotionJson), Frames));
 }
 
@@ -296,6 +375,14 @@ void URsmtLinkComponent::StartTransitionMotion(const FString& ContextMotionJson,
 	Options.seed = static_cast<uint64>(FMath::Max(Seed, 0));
 	Options.deterministic = bDeterministic;
 	const std::string Text = rsmt::BuildStart(Options);
+	if (bFailover)
+	{
+		Failover.SentStart(Options);
+	}
+	if (bResumeOnHello)
+	{
+		return;  // reconnecting: the resume sends it
+	}
 	if (Session.HasHello())
 	{
 		SendText(Text);
@@ -308,12 +395,15 @@ void URsmtLinkComponent::StartTransitionMotion(const FString& ContextMotionJson,
 
 void URsmtLinkComponent::Retarget(const FString& TargetBvh, int32 Frames)
 {
-	SendText(rsmt::BuildRetarget(ToStd(CharacterId), TargetBvh.IsEmpty() ? std::string() : rsmt::BvhMotionJson(ToStd(TargetBvh)),
-		Frames));
+	RetargetMotion(TargetBvh.IsEmpty() ? FString() : BvhMotion(TargetBvh), Frames);
 }
 
 void URsmtLinkComponent::Cancel()
 {
+	if (bFailover)
+	{
+		Failover.SentCancel(ToStd(CharacterId));
+	}
 	SendText(rsmt::BuildCancel(ToStd(CharacterId)));
 }
 
@@ -322,7 +412,8 @@ void URsmtLinkComponent::RegisterStyle(const FString& StyleBvh, const FString& N
 	PostStyle("{\"name\":" + rsmt::JsonQuote(ToStd(Name)) + ",\"motion\":" + rsmt::BvhMotionJson(ToStd(StyleBvh)) + "}", 0);
 }
 
-void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt)
+// POST /v1/styles; Then (a re-registration after unknown_style) is sent once the style is registered.
+void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt, const std::string& Then)
 {
 	TSharedRef<IHttpRequest, ESPMode::ThreadSafe> Request = FHttpModule::Get().CreateRequest();
 	FString Base = ServerUrl;
@@ -337,7 +428,7 @@ void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt)
 	Request->SetContentAsString(FromStd(Body));
 	TWeakObjectPtr<URsmtLinkComponent> WeakThis(this);
 	Request->OnProcessRequestComplete().BindLambda(
-		[WeakThis, Body, Attempt](FHttpRequestPtr, FHttpResponsePtr Response, bool bConnected)
+		[WeakThis, Body, Attempt, Then](FHttpRequestPtr, FHttpResponsePtr Response, bool bConnected)
 		{
 			URsmtLinkComponent* This = WeakThis.Get();
 			if (This == nullptr)
@@ -356,7 +447,7 @@ void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt)
 				}
 				FTimerHandle Handle;
 				This->GetWorld()->GetTimerManager().SetTimer(Handle,
-					FTimerDelegate::CreateWeakLambda(This, [This, Body, Attempt]() { This->PostStyle(Body, Attempt + 1); }),
+					FTimerDelegate::CreateWeakLambda(This, [This, Body, Attempt, Then]() { This->PostStyle(Body, Attempt + 1, Then); }),
 					FMath::Max(Wait, 0.01f), false);
 				return;
 			}
@@ -364,6 +455,10 @@ void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt)
 			const std::string Text = Response.IsValid() ? ToStd(Response->GetContentAsString()) : std::string();
 			if (Status != 201 && Status != 200)
 			{
+				if (!Then.empty())
+				{
+					This->Failover.Forget(ToStd(This->CharacterId));  // its style cannot be registered again: not resumable
+				}
 				const bool bParsed = rsmt::ParseJson(Text, Json, nullptr) && Json.Find("error") != nullptr;
 				This->OnError.Broadcast(bParsed ? FromStd(Json.Find("error")->StringOr("code", "http_error")) : TEXT("http_error"),
 					bParsed ? FromStd(Json.Find("error")->StringOr("message", "")) : FString::Printf(TEXT("HTTP %d"), Status));
@@ -371,6 +466,12 @@ void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt)
 			}
 			if (rsmt::ParseJson(Text, Json, nullptr))
 			{
+				This->Failover.RememberStyle(Json.StringOr("style_id", ""), Body);
+				if (!Then.empty())
+				{
+					This->SendText(Then);  // the start or style message that named it, once more
+					return;
+				}
 				This->StyleId = FromStd(Json.StringOr("style_id", ""));
 				This->OnStyleRegistered.Broadcast(This->StyleId);
 			}

@@ -12,6 +12,7 @@
 #include <string>
 
 // RsmtCore headers are plain C++ (no Unreal types); they are included here so the members below are complete.
+#include "RsmtFailover.h"
 #include "RsmtJitterBuffer.h"
 #include "RsmtProtocol.h"
 #include "RsmtReassembler.h"
@@ -57,6 +58,18 @@ public:
 	/** Seconds frames wait in the jitter buffer before they play (0.05 - 0.3 is typical). */
 	UPROPERTY(EditAnywhere, BlueprintReadWrite, Category = "RSMT", meta = (ClampMin = "0.0", ClampMax = "2.0"))
 	float BufferDelaySeconds = 0.1f;
+
+	/**
+	 * Failover: when the connection is lost (a replica behind the load balancer died or drained; not on 1008/1009),
+	 * connect again to the same URL with backoff and resume the character from the frames it received last
+	 * (README, "Failover across replicas"). Styles registered with RegisterStyle are registered again when needed.
+	 */
+	UPROPERTY(EditAnywhere, BlueprintReadWrite, Category = "RSMT")
+	bool bFailover = false;
+
+	/** Connection attempts after a loss (0.25 s doubling up to 4 s between them). */
+	UPROPERTY(EditAnywhere, BlueprintReadWrite, Category = "RSMT", meta = (ClampMin = "1"))
+	int32 ReconnectAttempts = 8;
 
 	/** The style used by StartTransition (set by RegisterStyle, or paste an id). */
 	UPROPERTY(EditAnywhere, BlueprintReadWrite, Category = "RSMT")
@@ -114,9 +127,12 @@ private:
 	void HandleConnectionError(const FString& Error);
 	void HandleClosed(int32 StatusCode, const FString& Reason, bool bWasClean);
 	void HandleRawMessage(const void* Data, SIZE_T Size, SIZE_T BytesRemaining);
-	void HandleMessage(const rsmt::Message& Message);
+	void HandleMessage(rsmt::Message& Message);
 	void SendText(const std::string& Text);
-	void PostStyle(const std::string& Body, int32 Attempt);
+	void PostStyle(const std::string& Body, int32 Attempt, const std::string& Then = std::string());
+	void OpenSocket();
+	void CloseSocket();
+	void ScheduleReconnect(const FString& Why);
 
 	TSharedPtr<IWebSocket> Socket;
 	TSharedPtr<FRsmtLiveLinkSource> Source;
@@ -124,6 +140,10 @@ private:
 	rsmt::MessageAssembler Assembler;  // 1 MiB per message at most
 	rsmt::JitterBuffer Buffer;
 	std::string PendingStart;  // a start requested before hello arrived
+	rsmt::Failover Failover;   // resume state (bFailover)
+	bool bResumeOnHello = false;
+	int32 ReconnectAttempt = 0;
+	FTimerHandle ReconnectTimer;
 	TArray<FTransform> RestTransforms;
 	double CmPerUnit = 1.0;
 };
