@@ -107,6 +107,22 @@ def test_unknown_style_registers_the_clip_again_and_resends():
     assert g.received(err).item == err and not g.live
 
 
+def test_unknown_style_during_a_resume_resends_the_resume_not_the_original_start():
+    f = Failover(CTX, FPS, NAMES)
+    f.remember_style("sty_a", {"name": "walk", "motion": {"bvh": "S"}})
+    f.sent(start(frames=10))
+    f.received({"type": "started", "character": "hero"})
+    for seq in range(6):
+        f.received(frame("hero", seq, 9 - seq, value=100.0 + seq))
+    (resume,) = f.resume_messages()
+    # the new replica does not know the style: register it, then resend what was refused, the resume
+    act = f.received({"type": "error", "character": "hero", "code": "unknown_style", "message": "m"})
+    assert act.register is not None and act.send == [resume]
+    assert act.send[0]["frames"] == 4 and act.send[0]["context"] != start()["context"]
+    f.received({"type": "started", "character": "hero"})
+    assert [f.received(frame("hero", s, 3 - s)).item.seq for s in range(4)] == [6, 7, 8, 9]
+
+
 def test_http_url():
     assert http_url("ws://lb:8000/v1/stream?encoding=binary&token=k") == "http://lb:8000"
     assert http_url("wss://h/prefix/v1/stream?encoding=json") == "https://h/prefix"

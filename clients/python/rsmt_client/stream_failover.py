@@ -47,6 +47,7 @@ class _Character:
     """One live character as the failover sees it."""
 
     start: Message  # the start message as it stands now (target, style, frames updated)
+    last_start: Message  # the start last sent for it: the original one, or the resume after a reconnection
     recent: deque[Frame]  # the last context_frames frames received, delivered numbering
     delivered: int = 0  # frames handed to the caller
     base: int = 0  # frames delivered before this connection's stream of it began
@@ -82,8 +83,8 @@ class Failover:
     def sent(self, message: Message) -> None:
         kind, cid = message.get("type"), message.get("character")
         if kind == "start" and cid is not None:
-            self.characters[cid] = _Character(copy.deepcopy(message), deque(maxlen=self.context_frames),
-                                              remaining=int(message["frames"]))
+            self.characters[cid] = _Character(copy.deepcopy(message), copy.deepcopy(message),
+                                              deque(maxlen=self.context_frames), remaining=int(message["frames"]))
             return
         ch = self.characters.get(cid) if cid is not None else None
         if ch is None:
@@ -148,7 +149,8 @@ class Failover:
     def _error(self, ch: _Character, item: Message) -> Actions:
         cid = item["character"]
         if item.get("code") == "unknown_style":
-            named = ch.start if ch.awaiting_start else ch.last_style
+            # A start refused during a resume is resent as the resume (received context, frames still to come).
+            named = ch.last_start if ch.awaiting_start else ch.last_style
             sid = named.get("style_id") if named is not None else None
             body = self.styles.get(sid) if isinstance(sid, str) else None
             if named is not None and isinstance(sid, str) and body is not None:
@@ -175,6 +177,7 @@ class Failover:
                 msg["context"] = self._context(ch)
                 msg["frames"] = remaining
             ch.base, ch.remaining, ch.awaiting_start, ch.resent = ch.delivered, remaining, True, True
+            ch.last_start = copy.deepcopy(msg)
             out.append(msg)
         if out:
             self.resumes += 1
