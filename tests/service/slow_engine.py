@@ -9,11 +9,22 @@ from __future__ import annotations
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from model.inference.engine import Engine
+from tests.service.server import Server
 
 DELAY_ENV = "RSMT_TEST_GENERATE_DELAY_S"
+
+
+def slow_server(bundle: Path, delay_s: float, queue_limit: int, env: dict[str, str] | None = None) -> Server:
+    """A (not yet started) real ``rsmt serve`` through this module: one work thread, each transition held
+    ``delay_s`` seconds, at most ``queue_limit`` requests waiting; ``env`` adds settings."""
+    return Server(bundle, command=[sys.executable, "-m", "tests.service.slow_engine", "serve", "--host", "127.0.0.1",
+                                   "--port", "{port}"],
+                  env={DELAY_ENV: str(delay_s), "RSMT_QUEUE_LIMIT": str(queue_limit), "RSMT_REQUEST_THREADS": "1",
+                       **(env or {})})
 
 
 def install(delay_s: float) -> None:

@@ -6,13 +6,11 @@ uvicorn's plain-text 500 of a cancelled request), and the process exits within t
 from __future__ import annotations
 
 import signal
-import sys
 import time
 
 from tests.service.burst import Burst, metric, wait_for
 from tests.service.conftest import transition_body
-from tests.service.server import Server
-from tests.service.slow_engine import DELAY_ENV
+from tests.service.slow_engine import slow_server
 
 REQUESTS = 64
 DELAY_S = 0.3  # 64 queued hold the one thread ~19 s: far beyond the drain and the grace
@@ -20,10 +18,8 @@ DRAIN_S, GRACE_S = 0.5, 5.0
 
 
 def test_sigterm_with_64_queued_answers_json_and_exits_in_time(bundle_dir):
-    srv = Server(bundle_dir, command=[sys.executable, "-m", "tests.service.slow_engine", "serve", "--host", "127.0.0.1",
-                                      "--port", "{port}"],
-                 env={DELAY_ENV: str(DELAY_S), "RSMT_QUEUE_LIMIT": str(REQUESTS), "RSMT_REQUEST_THREADS": "1",
-                      "RSMT_SHUTDOWN_DRAIN_S": str(DRAIN_S), "RSMT_SHUTDOWN_GRACE_S": str(GRACE_S)})
+    srv = slow_server(bundle_dir, DELAY_S, REQUESTS,
+                      {"RSMT_SHUTDOWN_DRAIN_S": str(DRAIN_S), "RSMT_SHUTDOWN_GRACE_S": str(GRACE_S)})
     srv.start()
     try:
         burst = Burst(srv.url, transition_body(frames=10), REQUESTS)

@@ -6,15 +6,13 @@ dropped before it runs; a WebSocket ``start`` does not wait behind the HTTP queu
 
 from __future__ import annotations
 
-import sys
 import time
 
 import pytest
 
 from tests.service.burst import Burst, metric, post, wait_for
 from tests.service.conftest import bvh, transition_body, walk
-from tests.service.server import Server
-from tests.service.slow_engine import DELAY_ENV
+from tests.service.slow_engine import slow_server
 from tests.service.wsclient import Ws, start_message
 
 DELAY_S = 1.5  # each transition holds the one work thread this long
@@ -24,9 +22,7 @@ FRAMES = 10
 
 @pytest.fixture(scope="module")
 def server(bundle_dir):
-    srv = Server(bundle_dir, command=[sys.executable, "-m", "tests.service.slow_engine", "serve", "--host", "127.0.0.1",
-                                      "--port", "{port}"],
-                 env={DELAY_ENV: str(DELAY_S), "RSMT_QUEUE_LIMIT": str(LIMIT), "RSMT_REQUEST_THREADS": "1"})
+    srv = slow_server(bundle_dir, DELAY_S, LIMIT)
     srv.start()
     yield srv
     srv.stop()

@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import json
 import socket
-import sys
 
 import pytest
 
 from tests.service.burst import Burst, metric, post, wait_for
 from tests.service.conftest import transition_body
-from tests.service.server import Server
-from tests.service.slow_engine import DELAY_ENV
+from tests.service.slow_engine import slow_server
 
 DELAY_S = 5.0  # each transition holds the work thread this long: the queue stays full for at least that
 FRAMES = 10
@@ -26,9 +24,7 @@ BODY_BYTES = 850_000
 
 @pytest.fixture(scope="module")
 def server(bundle_dir):
-    srv = Server(bundle_dir, command=[sys.executable, "-m", "tests.service.slow_engine", "serve", "--host", "127.0.0.1",
-                                      "--port", "{port}"],
-                 env={DELAY_ENV: str(DELAY_S), "RSMT_QUEUE_LIMIT": "1", "RSMT_REQUEST_THREADS": "1"})
+    srv = slow_server(bundle_dir, DELAY_S, 1)
     srv.start()
     yield srv
     srv.stop()
