@@ -20,17 +20,13 @@ from typing import Any
 import numpy as np
 
 from model.motion.bvh import BvhDocument, BvhJoint
-from model.motion.standing_pose import FORWARD, UP, Pose, Rig, arms_lowered, t_pose
+from model.motion.standing_pose import FORWARD, UP, Pose, Rig, arms_lowered, t_pose, unit
 
 ARMS_DOWN_DEG = 40.0      # the sample motion lowers the arms by this much
 MOTION_FRAMES = 31
 
 
 # ---------------------------------------------------------------------- rotations (3x3 matrices, x,y,z,w quaternions)
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
-
 
 def matrix_to_quat(m: np.ndarray) -> tuple[float, float, float, float]:
     """x, y, z, w with w >= 0 (Shepperd's method: from the largest of w, x, y, z, exact near 180 degrees too)."""
@@ -131,9 +127,9 @@ def _stick_mesh(rig: Rig, pos: np.ndarray, scale: float) -> tuple[np.ndarray, np
         a, b = pos[j] * scale, pos[k] * scale
         d = b - a
         length = float(np.linalg.norm(d))
-        side = np.cross(d, FORWARD if abs(float(_unit(d) @ FORWARD)) < 0.9 else UP)
-        u = _unit(side) * min(0.1 * length, 0.03)
-        v = _unit(np.cross(d, u)) * min(0.1 * length, 0.03)
+        side = np.cross(d, FORWARD if abs(float(unit(d) @ FORWARD)) < 0.9 else UP)
+        u = unit(side) * min(0.1 * length, 0.03)
+        v = unit(np.cross(d, u)) * min(0.1 * length, 0.03)
         mid = a + 0.2 * d
         base = len(verts)
         verts += [a, mid + u, mid + v, mid - u, mid - v, b]

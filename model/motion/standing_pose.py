@@ -71,13 +71,14 @@ class Rig:
         return out
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit(v: np.ndarray) -> np.ndarray:
+    """``v`` scaled to length 1."""
     return v / np.linalg.norm(v)
 
 
 def axis_angle(axis: np.ndarray, deg: float) -> np.ndarray:
     """Right-handed rotation matrix of ``deg`` degrees about ``axis``."""
-    x, y, z = _unit(np.asarray(axis, dtype=np.float64))
+    x, y, z = unit(np.asarray(axis, dtype=np.float64))
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
     k = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
     return np.eye(3) * c + s * k + (1 - c) * np.outer([x, y, z], [x, y, z])
@@ -85,7 +86,7 @@ def axis_angle(axis: np.ndarray, deg: float) -> np.ndarray:
 
 def between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Shortest-arc rotation taking direction u onto v (for opposite directions: about world forward, else left)."""
-    u, v = _unit(u), _unit(v)
+    u, v = unit(u), unit(v)
     axis = np.cross(u, v)
     if np.linalg.norm(axis) < 1e-9:
         if float(u @ v) > 0:
@@ -99,8 +100,8 @@ def frame_from(primary_local: np.ndarray, primary_world: np.ndarray, second_loca
                second_world: np.ndarray) -> np.ndarray:
     """The rotation taking local primary onto world primary exactly and local second as close as possible to world second."""
     def basis(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        e0 = _unit(a)
-        e1 = _unit(b - (b @ e0) * e0)
+        e0 = unit(a)
+        e1 = unit(b - (b @ e0) * e0)
         return np.stack([e0, e1, np.cross(e0, e1)], axis=1)
     return basis(primary_world, second_world) @ basis(primary_local, second_local).T
 
@@ -145,7 +146,7 @@ def _bone_targets(rig: Rig) -> dict[int, np.ndarray]:
         for j in rig.descendants(r[f"{side}_hip"]):
             targets[j] = -UP
         for j in rig.descendants(ankle):
-            targets[j] = _unit(FORWARD - math.tan(math.radians(FOOT_PITCH_DEG)) * UP)
+            targets[j] = unit(FORWARD - math.tan(math.radians(FOOT_PITCH_DEG)) * UP)
     missing = [names[j] for j in range(len(names)) if j not in targets]
     if missing:
         raise ValueError(f"no T-pose direction for joint(s) {', '.join(missing)}: not on the spine, an arm or a leg")
