@@ -77,7 +77,7 @@ class BuiltinStyle:
 
     @property
     def nbytes(self) -> int:
-        return sum(getattr(self.context, f).numel() * getattr(self.context, f).element_size() for f in CONTEXT_FIELDS)
+        return self.context.nbytes
 
 
 def check_name(name: str) -> str:

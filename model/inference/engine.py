@@ -197,9 +197,7 @@ class Engine:
         with torch.inference_mode():
             code = self.sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
             ctx = self.sampler.style_context(code)
-        nbytes = sum(getattr(ctx, f).numel() * 4
-                     for f in ("keys1", "values1", "keys2", "values2", "gamma1", "beta1", "gamma2", "beta2"))
-        style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, nbytes)
+        style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, ctx.nbytes)
         self.styles.put(sid, style)
         return style, False
 

@@ -169,6 +169,11 @@ class StyleContext:
     def index(self, idx) -> StyleContext:
         return StyleContext(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
 
+    @property
+    def nbytes(self) -> int:
+        """Memory of its tensors (what a style cache holds per style)."""
+        return sum(t.numel() * t.element_size() for t in (getattr(self, f.name) for f in fields(self)))
+
     @staticmethod
     def stack(items: list[StyleContext]) -> StyleContext:
         """Concatenate along the batch, padding shorter codes (masked out) to the longest."""
