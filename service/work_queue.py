@@ -70,9 +70,9 @@ class WorkQueue:
 
         Raises ``overloaded`` (queue full) or ``shutting_down`` (closed) without waiting.
         """
-        if self.closed:
-            self._count(SHUT_DOWN)
-            raise shutting_down_error()
+        refused = self.refusal()
+        if refused is not None:
+            raise refused
         if self._has_free_thread():
             self.running += 1
         else:
@@ -98,6 +98,10 @@ class WorkQueue:
     def _has_free_thread(self) -> bool:
         return self.running < self.threads and not self._waiting
 
+    def _full(self) -> bool:
+        """No free thread and ``limit`` jobs already waiting: a job arriving now is refused."""
+        return not self._has_free_thread() and len(self._waiting) >= self.limit
+
     def refusal(self) -> ServiceError | None:
         """The error a job arriving now would get at once (``shutting_down`` or ``overloaded``), counted as
         refused; None when it would run or wait. For a check before the request's body is read
@@ -105,24 +109,19 @@ class WorkQueue:
         if self.closed:
             self._count(SHUT_DOWN)
             return shutting_down_error()
-        if self._has_free_thread() or len(self._waiting) < self.limit:
-            return None
-        return self.reject()
+        return self.reject() if self._full() else None
 
     def reject(self) -> ServiceError:
         """Count a job refused for want of room and return its ``overloaded`` error (with Retry-After)."""
         self._count(REJECTED)
-        return self._overloaded()
-
-    def would_refuse(self) -> bool:
-        """Whether :meth:`refusal` would refuse now (counts nothing)."""
-        return self.closed or (not self._has_free_thread() and len(self._waiting) >= self.limit)
-
-    def _overloaded(self) -> ServiceError:
         wait = self.retry_after_s()
         return ServiceError("overloaded", f"model {self.name!r} already has {self.limit} requests waiting "
                                           f"(RSMT_QUEUE_LIMIT) and {self.running} running; retry in about "
                                           f"{wait} s, or on another replica", headers={"Retry-After": str(wait)})
+
+    def would_refuse(self) -> bool:
+        """Whether :meth:`refusal` would refuse now (counts nothing)."""
+        return self.closed or self._full()
 
     def _finished(self, future: asyncio.Future[Any], started: float) -> None:
         if not future.cancelled():
@@ -131,9 +130,7 @@ class WorkQueue:
         self._release()
 
     async def _wait_for_slot(self, gone: Callable[[], Awaitable[None]] | None) -> None:
-        if len(self._waiting) >= self.limit:
-            self._count(REJECTED)
-            raise self._overloaded()
+        """Wait in line (:meth:`run` has checked there is room)."""
         ticket: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._waiting.append(ticket)
         self._gauge()
