@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import shlex
@@ -86,6 +87,9 @@ def _register_recipe(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: each preset's own setting)")
     p.add_argument("--compile", action="store_true",
                    help="train the sampler's per-frame functions through torch.compile (as rsmt train --compile)")
+    p.add_argument("--holdout-style", action="append", default=[], metavar="STYLE",
+                   help="leave this style out of every stage (repeatable): a model that never saw it, for scoring "
+                        "unseen styles; the bundle's name gets '-without-STYLE...'")
     add_device_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_recipe)
@@ -195,13 +199,18 @@ def _run_recipe(args: argparse.Namespace) -> int:
     run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / f"recipe-{recipe.name}"
     began = time.monotonic()
     command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    held = tuple(sorted(set(args.holdout_style)))
     last = run_recipe(recipe, Path(data), run_dir, threads=args.threads, compile=args.compile, device=device,
-                      progress=not args.quiet, command=command, report=_print_stage(len(recipe.stages)))
+                      progress=not args.quiet, command=command, report=_print_stage(len(recipe.stages)),
+                      holdout_styles=held)
     if last is None:
         print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
         return 3
     t0 = time.monotonic()
-    status = _package(recipe.package.arguments(), last, args.out)
+    package = recipe.package
+    if held:
+        package = dataclasses.replace(package, name=f"{package.name or recipe.name}-without-{'-'.join(held)}")
+    status = _package(package.arguments(), last, args.out)
     print(f"package: {time.monotonic() - t0:.1f} s", flush=True)
     print(f"total: {_duration(time.monotonic() - began)}", flush=True)
     return status

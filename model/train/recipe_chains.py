@@ -153,14 +153,21 @@ def stage_done(run_dir: Path, stage: ChainStage, cfg: TrainConfig) -> bool:
 
 def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, compile: bool = False,
                device: torch.device | str = "auto", progress: bool = True, command: str | None = None,
-               report: Callable[[StageReport], None] | None = None) -> Path | None:
+               report: Callable[[StageReport], None] | None = None,
+               holdout_styles: tuple[str, ...] = ()) -> Path | None:
     """Run the recipe's stages in order in ``run_dir``, skipping those whose bundle is there already.
 
     ``threads`` (when not 0), ``compile`` and ``device`` are the machine's, as for ``rsmt train``.
+    ``holdout_styles`` are put aside from every stage's data (and so from its critics): the recipe
+    then trains a model that never saw them, the yardstick of unseen styles.
     Every stage's preset is resolved and checked against the run folder before anything trains.
     Returns the last stage's bundle folder, or None when a stage stopped before its end.
     """
     configs = [load_preset(stage.preset) for stage in recipe.stages]
+    if holdout_styles:
+        held = tuple(sorted(set(holdout_styles)))
+        for cfg in configs:
+            cfg.holdout_styles = held
     done = [stage_done(run_dir, stage, cfg) for stage, cfg in zip(recipe.stages, configs)]
     first_missing = done.index(False) if False in done else len(done)
     if any(done[first_missing:]):

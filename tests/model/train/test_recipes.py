@@ -156,3 +156,21 @@ def test_a_run_folder_with_a_gap_or_other_settings_is_refused_before_training(tm
     assert not (tmp_path / "gap" / "recipe.json").exists()
     stage = ChainStage("A", "all", "smoke")
     assert stage_folder(tmp_path, stage) == tmp_path / "stages" / "A"
+
+
+def test_held_out_styles_reach_every_stage_and_the_bundle_name(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
+    data = tmp_path / "data"
+    write_synthetic_dataset(data)
+    run_dir = tmp_path / "run"
+    assert main(["train", "recipe", "smoke", "--data", str(data), "--run", str(run_dir), "--device", "cpu",
+                 "--out", str(tmp_path / "ship"), "--quiet", "--holdout-style", "bouncy"]) == 0
+    for stage in load_recipe("smoke").stages:
+        saved = json.loads((stage_folder(run_dir, stage) / "train_config.json").read_text())
+        assert saved["holdout_styles"] == ["bouncy"]
+    critic = json.loads((run_dir / "critic" / "config.json").read_text())
+    assert "bouncy" not in critic["styles"] and len(critic["styles"]) == 2
+    assert Bundle.load(tmp_path / "ship").meta.name == "rsmt-smoke-without-bouncy"
+    # The same run folder without the holdout trains other settings: refused, not overwritten.
+    with pytest.raises(ValueError, match="holdout_styles"):
+        run_recipe(load_recipe("smoke"), data, run_dir)
