@@ -40,7 +40,9 @@ def _run(args: argparse.Namespace) -> int:
     engine = Engine(bundle, **output_overrides(args))
     out = engine.output
     label = (f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
-             f"foot lock {'on' if out.foot_lock else 'off'}{', int8 LSTM' if engine.inference.int8_lstm else ''})")
+             f"foot lock {'on' if out.foot_lock else 'off'}"
+             f"{f', steering {out.steering.window}' if out.steering.on else ''}"
+             f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     if not args.no_paper:
         results.append(bench_engine(paper_size_engine(bundle), "paper-size, random weights", sizes, budget_s=args.budget))

@@ -132,12 +132,10 @@ def _command(args: argparse.Namespace) -> str:
         parts.append("--exact-arrival")
     if args.stream_retarget:
         parts.append("--stream-retarget")
-    if args.smoothing is not None:
-        parts += ["--smoothing", f"{args.smoothing:g}"]
-    if args.root_smoothing is not None:
-        parts += ["--root-smoothing", f"{args.root_smoothing:g}"]
-    if args.foot_lock is not None:
-        parts += ["--foot-lock", args.foot_lock]
+    for flag, setting in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing),
+                          ("--foot-lock", args.foot_lock), ("--steering", args.steering), ("--int8-lstm", args.int8_lstm)):
+        if setting is not None:
+            parts += [flag, f"{setting:g}" if isinstance(setting, float) else str(setting)]
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),
                                  ("--diversity-samples", args.diversity_samples, 10)):
         if value != default:

@@ -13,11 +13,12 @@ class OutputOverrides(TypedDict):
     root_smoothing: float | None
     foot_lock: bool | None
     int8_lstm: bool | None
+    steering: int | None
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
-    """``--smoothing``, ``--root-smoothing``, ``--foot-lock`` and ``--int8-lstm``; ``owner`` names whose settings they
-    override in the help ("each bundle", "the bundle")."""
+    """``--smoothing``, ``--root-smoothing``, ``--foot-lock``, ``--steering`` and ``--int8-lstm``; ``owner``
+    names whose settings they override in the help ("each bundle", "the bundle")."""
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help=f"output-filter strength, in [0, 1) (default: {owner}'s own setting; 0 gives the network's "
                         "raw frames)")
@@ -26,6 +27,9 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
                         f"else {owner}'s own)")
     p.add_argument("--foot-lock", choices=("on", "off"), default=None,
                    help=f"foot locking on or off (default: {owner}'s own setting)")
+    p.add_argument("--steering", type=int, default=None, metavar="FRAMES",
+                   help=f"steer the root toward the target over the last FRAMES frames (0: off; default: {owner}'s "
+                        "own setting)")
     p.add_argument("--int8-lstm", choices=("on", "off"), default=None,
                    help=f"run the LSTM cell of the per-frame step with int8 weights, on or off (default: {owner}'s "
                         "own setting)")
@@ -37,6 +41,8 @@ def output_overrides(args: argparse.Namespace) -> OutputOverrides:
     for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
         if value is not None and not 0.0 <= value < 1.0:
             raise ValueError(f"{flag} must be in [0, 1)")
-    return {"smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
+    if args.steering is not None and args.steering < 0:
+        raise ValueError("--steering must be 0 (off) or more frames")
+    return {"steering": args.steering, "smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
             "foot_lock": None if args.foot_lock is None else args.foot_lock == "on",
             "int8_lstm": None if args.int8_lstm is None else args.int8_lstm == "on"}

@@ -48,6 +48,10 @@ class Settings(BaseSettings):
         description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
     foot_lock: bool | None = Field(
         default=None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
+    steering: int | None = Field(
+        default=None, ge=0, le=240,
+        description="steer each character's root toward its target over the last this many frames (0: off; default: "
+        "each bundle's own)")
     int8_lstm: bool | None = Field(
         default=None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
     eager: bool = Field(

@@ -20,6 +20,7 @@ from model.inference.bundle import Bundle
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.foot_lock import FootLock
 from model.inference.int8_step import int8_lstm_sampler
+from model.inference.steering import steer
 from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.motion.clip import Clip
@@ -94,14 +95,17 @@ class Engine:
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
                  cache_bytes: int = 256 << 20, compiled: bool = True, smoothing: float | None = None,
                  foot_lock: bool | None = None, root_smoothing: float | None = None,
-                 int8_lstm: bool | None = None) -> None:
+                 int8_lstm: bool | None = None, steering: int | None = None) -> None:
         """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
         the root, :mod:`model.inference.output_filter`) and ``foot_lock`` (:mod:`model.inference.foot_lock`) override the
         bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
-        ``int8_lstm`` overrides the bundle's inference setting (:mod:`model.inference.int8_step`).
+        ``steering`` overrides the steering window of the bundle's output settings (frames; 0: off;
+        :mod:`model.inference.steering`). ``int8_lstm`` overrides the bundle's inference setting
+        (:mod:`model.inference.int8_step`).
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
-        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock)
+        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering)
+        self.steering = self.output.steering
         self.inference = bundle.inference.with_overrides(int8_lstm)
         if threads:
             torch.set_num_threads(threads)
@@ -441,10 +445,14 @@ class CharacterBatch:
             raise ValueError("no live characters to step")
         assert self._state is not None and self._style is not None
         self._state = self.engine.step_fn(self._state, self._style)
+        shift = None
+        if self.engine.steering.on:
+            self._state, shift = steer(self._state, self.engine.skeleton.roles.root, self.engine.steering)
         post = self._post
         assert post is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])
-        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post)  # type: ignore[arg-type]
+        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post,  # type: ignore[arg-type]
+                                                    shift)
         post.update(memory)
         exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
         if exact:

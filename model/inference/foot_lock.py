@@ -53,15 +53,17 @@ class FootLockConfig:
 @dataclass
 class FootLockState:
     """Rows of characters: ``ground [N]`` (ankle ground height), ``locked [N, 2]``, ``anchor``,
-    ``offset`` (shown minus generated ankle) and ``previous`` (generated ankle) ``[N, 2, 3]``."""
+    ``offset`` (shown minus generated ankle), ``previous`` (generated ankle) and ``carried`` (how far
+    the engine's steering has moved the body since the foot locked) ``[N, 2, 3]``."""
 
     ground: Tensor
     locked: Tensor
     anchor: Tensor
     offset: Tensor
     previous: Tensor
+    carried: Tensor
 
-    FIELDS = ("ground", "locked", "anchor", "offset", "previous")
+    FIELDS = ("ground", "locked", "anchor", "offset", "previous", "carried")
     # The engine keeps the fields as named rows of its batch's per-character memory, under these keys.
     MEMORY_KEYS = tuple(f"lock_{f}" for f in FIELDS)
 
@@ -118,10 +120,10 @@ class FootLock:
         speed = (last - before)[..., [0, 2]].norm(dim=-1) * self.fps
         locked = ((last[..., 1] - ground) < self.config.contact_cm) & (speed < self.config.plant_speed_cm_s)
         return FootLockState(ground, locked.view(1, 2), last.view(1, 2, 3).clone(), torch.zeros(1, 2, 3),
-                             last.view(1, 2, 3).clone())
+                             last.view(1, 2, 3).clone(), torch.zeros(1, 2, 3))
 
     def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState,
-              skip_idle: bool = True) -> tuple[Tensor, FootLockState]:
+              skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, FootLockState]:
         """Lock the feet of one frame of ``N`` characters; returns new local rotations and state.
 
         Args:
@@ -129,22 +131,29 @@ class FootLock:
             remaining: ``[N]`` frames left after this one (0 on the arrival frame).
             skip_idle: return early when no foot needs moving (eager use); False keeps the
                 operations independent of the data, as a traced graph needs.
+            shift: ``[N, 3]`` how far the engine's steering (:mod:`model.inference.steering`) moved
+                the whole body this frame. A foot the network keeps still is then still in the
+                network's motion, not in the world: planting and drift are judged without the
+                shift, so the lock holds the foot while the body is carried over it.
         """
         c = self.config
         pos, grot = self._legs_fk(rotations, roots)
         ank = pos[:, -1]  # [N, 2, 3]
+        step = torch.zeros_like(ank) if shift is None else shift.unsqueeze(1).expand_as(ank)
+        carried = state.carried + step
         height = ank[..., 1] - state.ground.unsqueeze(-1)
-        speed = (ank - state.previous)[..., [0, 2]].norm(dim=-1) * self.fps
+        speed = (ank - step - state.previous)[..., [0, 2]].norm(dim=-1) * self.fps
         open_time = (remaining >= c.fade).unsqueeze(-1)  # [N, 1]
-        drift = (ank - state.anchor)[..., [0, 2]].norm(dim=-1)
+        drift = (ank - carried - state.anchor)[..., [0, 2]].norm(dim=-1)
         keep = state.locked & (height < c.lift_cm) & (drift < c.release_cm) & open_time
         rejoined = state.offset.norm(dim=-1) < c.rejoin_cm  # no re-lock mid catch-up: the foot would hop
         begin = ~state.locked & rejoined & (height < c.contact_cm) & (speed < c.plant_speed_cm_s) & open_time
         anchor = torch.where(begin.unsqueeze(-1), ank + state.offset, state.anchor)
         locked = keep | begin
+        carried = torch.where(keep.unsqueeze(-1), carried, torch.zeros_like(carried))
         fade = (remaining.float() / max(c.fade, 1)).clamp(0.0, 1.0).view(-1, 1, 1)
         offset = torch.where(locked.unsqueeze(-1), anchor - ank, state.offset * (1.0 - c.catch_up) * fade)
-        new_state = FootLockState(state.ground, locked, anchor, offset, ank)
+        new_state = FootLockState(state.ground, locked, anchor, offset, ank, carried)
         move = offset.norm(dim=-1) > 1e-4  # [N, 2]
         if skip_idle and not bool(move.any()):
             return rotations, new_state

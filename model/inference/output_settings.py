@@ -7,18 +7,23 @@ A bundle saved without this section gets the network's frames as they are.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import dataclasses
+from dataclasses import asdict, dataclass, field
+
+from model.inference.steering import SteeringConfig
 
 
 @dataclass(frozen=True)
 class OutputConfig:
     """``smoothing``: the causal output filter's weight of the previous emitted frame for the joint
     rotations, in [0, 1) (0: off); ``root_smoothing``: the same for the root position (None: as
-    ``smoothing``). ``foot_lock``: hold planted feet by leg IK."""
+    ``smoothing``). ``foot_lock``: hold planted feet by leg IK. ``steering``: keep the root on course
+    for the target (:mod:`model.inference.steering`; its window 0: off)."""
 
     smoothing: float = 0.0
     foot_lock: bool = False
     root_smoothing: float | None = None
+    steering: SteeringConfig = field(default_factory=SteeringConfig)
 
     def __post_init__(self) -> None:
         for name, value in (("output smoothing", self.smoothing), ("root smoothing", self.root_strength)):
@@ -34,22 +39,27 @@ class OutputConfig:
         return self.smoothing > 0 or self.root_strength > 0
 
     def with_overrides(self, smoothing: float | None = None, root_smoothing: float | None = None,
-                       foot_lock: bool | None = None) -> OutputConfig:
+                       foot_lock: bool | None = None, steering: int | None = None) -> OutputConfig:
         """These settings with a caller's overrides (None keeps a setting). Once either strength is
-        given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value."""
+        given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value.
+        ``steering`` is the steering window in frames (0: off)."""
         if smoothing is not None or root_smoothing is not None:
             rot = self.smoothing if smoothing is None else float(smoothing)
             root = None if root_smoothing is None else float(root_smoothing)
         else:
             rot, root = self.smoothing, self.root_smoothing
-        return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root)
+        steer = self.steering if steering is None else dataclasses.replace(self.steering, window=int(steering))
+        return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> OutputConfig:
-        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock"}
+        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering"}
         if unknown:
             raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
+        data = dict(data)
+        if "steering" in data:
+            data["steering"] = SteeringConfig.from_dict(data["steering"])
         return cls(**data)

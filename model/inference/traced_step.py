@@ -99,9 +99,11 @@ class FrameOutput:
         self.keys = ("prev_rot", "prev_root") + (FootLockState.MEMORY_KEYS if lock else ())
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
-                 skip_idle: bool = True) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+                 skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """Local rotations ``[N, J, 4]``, root positions ``[N, 3]`` and the new memory, for rows with
-        ``remaining [N]`` frames after this one."""
+        ``remaining [N]`` frames after this one; ``shift [N, 2]`` is the ground shift steering gave each
+        row's body this frame (canonical x, z; :mod:`model.inference.steering`), which the foot lock
+        discounts."""
         local, root = world_pose(pose, yaw, origin, self.parents, self.root)
         out = self.output
         if out.smooths:
@@ -112,7 +114,12 @@ class FrameOutput:
         # follows the network's motion.
         new = {"prev_rot": local, "prev_root": root}
         if self.lock is not None:
-            local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle)
+            world_shift = None
+            if shift is not None:
+                frame = CanonicalFrame(yaw, torch.zeros_like(origin))
+                world_shift = frame.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], -1))
+            local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle,
+                                           shift=world_shift)
             new.update(state.memory())
         return local, root, new
 
@@ -123,9 +130,9 @@ class _FlatFrameOutput(torch.nn.Module):
         self.fn = fn
 
     def forward(self, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, yaw: Tensor, origin: Tensor,
-                remaining: Tensor, *memory: Tensor) -> tuple[Tensor, ...]:
+                remaining: Tensor, shift: Tensor, *memory: Tensor) -> tuple[Tensor, ...]:
         local, root, new = self.fn(PoseState(rel, vel, rot, root_xz), yaw, origin, remaining,
-                                   dict(zip(self.fn.keys, memory)), skip_idle=False)
+                                   dict(zip(self.fn.keys, memory)), skip_idle=False, shift=shift)
         return (local, root, *(new[k] for k in self.fn.keys))
 
 
@@ -146,13 +153,16 @@ class CompiledFrameOutput:
         self.failed = not traced
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor,
-                 memory: dict[str, Tensor]) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        args = (pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin, remaining, *(memory[k] for k in self.fn.keys))
+                 memory: dict[str, Tensor], shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        if shift is None:
+            shift = torch.zeros(pose.root_xz.shape)
+        args = (pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin, remaining, shift,
+                *(memory[k] for k in self.fn.keys))
         if self._graph is None and not self.failed:
             self._graph = _trace(_FlatFrameOutput(self.fn), args)
             self.failed = self._graph is None
         if self._graph is None:
-            return self.fn(pose, yaw, origin, remaining, memory)
+            return self.fn(pose, yaw, origin, remaining, memory, shift=shift)
         local, root, *rest = self._graph(*args)
         return local, root, dict(zip(self.fn.keys, rest))
 

@@ -51,6 +51,7 @@ class PackageSettings:
     smoothing: float | None = None
     foot_lock: bool | None = None
     int8_lstm: bool | None = None
+    steering: int | None = None
 
     def arguments(self) -> list[str]:
         """These settings as ``rsmt package`` options."""
@@ -62,6 +63,8 @@ class PackageSettings:
         for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm)):
             if value is not None:
                 args += [flag, "on" if value else "off"]
+        if self.steering is not None:
+            args += ["--steering", str(self.steering)]
         return args
 
 

@@ -245,7 +245,10 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=2))
     raw = BundleMethod(bundle_dir, smoothing=0.0, foot_lock=False)
     smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
-    assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None}
+    steering = {"window": 0, "momentum": 1.0, "max_step_cm": 10.0}
+    assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None,
+                                           "steering": steering}
+    assert BundleMethod(bundle_dir, steering=12).describe()["output"]["steering"] == {**steering, "window": 12}
     a = raw.generate(cs, Request(variant("gap10")))
     b = smooth.generate(cs, Request(variant("gap10")))
     assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way
@@ -253,6 +256,8 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     data, _ = dataset
     assert main(["eval", "--model", str(bundle_dir), "--data", str(data), "--smoothing", "1.5", "--quiet"]) == 2
     assert "--smoothing" in capsys.readouterr().err
+    assert main(["eval", "--model", str(bundle_dir), "--data", str(data), "--steering", "-1", "--quiet"]) == 2
+    assert "--steering" in capsys.readouterr().err
 
 
 def test_unknown_model_is_an_error(dataset: tuple[Path, Path], capsys: pytest.CaptureFixture[str]) -> None:

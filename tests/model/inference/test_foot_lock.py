@@ -134,3 +134,25 @@ def test_config_is_validated():
         FootLockConfig(contact_cm=6.0, lift_cm=5.0)
     with pytest.raises(ValueError):
         FootLockConfig(catch_up=0.0)
+
+
+def test_a_foot_carried_by_steering_stays_locked():
+    """The body slides 4 cm a frame: judged in the world the planted foot drifts away and is let go
+    (10 cm), but when that slide is the engine's steering shift the network still holds the foot
+    still, so the lock keeps it until it lifts."""
+    sk, rot, root = _sliding_pose(30, speed_cm=4.0, still=9)
+    lock = FootLock(sk, 30.0, MECHANICS)
+    plain, _ = _run(lock, rot, root, context=10)
+    state = lock.start(rot[:10], root[:10])
+    shift = torch.tensor([[4.0, 0.0, 0.0]])
+    carried = []
+    for t in range(10, 30):
+        r, state = lock.apply(rot[t : t + 1], root[t : t + 1], torch.tensor([100]), state, shift=shift)
+        carried.append(r[0])
+    planted = lock.ankles(rot[9:10], root[9:10])[0, 0]
+    plain_left = (lock.ankles(plain, root[10:])[:, 0] - planted).norm(dim=-1)
+    carried_left = (lock.ankles(torch.stack(carried), root[10:])[:, 0] - planted).norm(dim=-1)
+    assert plain_left[-1] > 20.0  # released and dragged along
+    assert (carried_left[:4] < 0.05).all()  # held exactly while the leg reaches (IK), past the 10 cm drift
+    assert (carried_left < 0.5 * plain_left.clamp_min(1.0)).all()  # then pulled only as far as the leg falls short
+    assert bool(state.locked[0, 0])
