@@ -85,12 +85,17 @@ def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Te
     return shift * (config.max_step_cm / norm.clamp_min(config.max_step_cm))
 
 
-def steer(state: SamplerState, root: int, config: SteeringConfig) -> tuple[SamplerState, Tensor]:
-    """``state`` with every row's body moved by :func:`steering_shift` (positions and velocities), and
-    that shift ``[N, 2]``."""
-    shift = steering_shift(state, root, config)
+def shifted(state: SamplerState, shift: Tensor) -> SamplerState:
+    """``state`` with every row's body moved on the ground by ``shift [N, 2]`` (positions and velocities)."""
     pose = state.pose
     ground = torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], dim=-1)
     moved = PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift)
     return SamplerState(state.h, state.c, moved, state.phase, state.target_vec, state.target_pos, state.target_rot,
-                        state.target_emb, state.tta, state.noise), shift
+                        state.target_emb, state.tta, state.noise)
+
+
+def steer(state: SamplerState, root: int, config: SteeringConfig) -> tuple[SamplerState, Tensor]:
+    """``state`` with every row's body moved by :func:`steering_shift` (positions and velocities), and
+    that shift ``[N, 2]``."""
+    shift = steering_shift(state, root, config)
+    return shifted(state, shift), shift

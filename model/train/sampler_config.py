@@ -54,6 +54,10 @@ class SamplerStageConfig:
     control_turn: float = 0.0
     # Moved targets also move up to this far (cm) across the window's travel (the evaluation's 1 m sideways).
     control_side: float = 0.0
+    # With steering_window above 0, the changed-control windows are steered as the engine steers a bundle
+    # with that window (model.inference.steering): the shift carries no gradient, so their losses (feet,
+    # target, critics) train the gait that goes with being carried toward the target.
+    steering_window: int = 0
     # The fraction of training windows whose target comes without its velocity (the sampler's
     # target_velocity_flag tells it so): a game usually sends the target frame alone.
     target_velocity_drop: float = 0.0
@@ -81,6 +85,8 @@ class SamplerStageConfig:
             raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
         if self.control_dt < 1.0 or self.control_shift < 0.0 or self.control_turn < 0.0 or self.control_side < 0.0:
             raise ValueError("control_dt must be at least 1, and control_shift, control_turn and control_side at least 0")
+        if self.steering_window < 0:
+            raise ValueError(f"steering_window must be 0 (off) or more frames, got {self.steering_window}")
         if not 0.0 <= self.target_velocity_drop <= 1.0:
             raise ValueError(f"target_velocity_drop must be in [0, 1], got {self.target_velocity_drop}")
 

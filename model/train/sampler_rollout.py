@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
+from model.inference.steering import SteeringConfig, shifted, steering_shift
 from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_quat, yaw_quat
 from model.nets.pose_state import PoseState
@@ -101,8 +102,18 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
         target = turn_target(target, target_turn)
     state = model.begin(ctx, target, torch.full((b,), steps, device=dev), noise, style, start_phase, known)
     poses, auxes = [], []
+    changed = duration is not None or target_shift is not None or target_turn is not None
+    steering = SteeringConfig(window=cfg.steering_window) if cfg.steering_window > 0 and changed else None
     for _ in range(steps):
         state, aux = model.step(state, style)
+        if steering is not None:
+            # The engine's steering (model.inference.steering), as a push from outside: no gradient
+            # flows through the shift, so the losses teach the gait that goes with being carried.
+            # Changed-control windows only: steering the windows scored against the capture frame by
+            # frame degraded every loss within 200 steps (docs/experiments/2026-11-25-steering.md).
+            with torch.no_grad():
+                shift = steering_shift(state, c.root, steering)
+            state = shifted(state, shift)
         poses.append(state.pose)
         auxes.append(aux)
     # The generated frames stacked once ([B, steps, J, *]) for every loss.

@@ -87,11 +87,12 @@ def smoke_config(**stage) -> dict:
 def test_a_run_seeded_from_a_bundle_trains_with_unknown_velocities_and_turned_targets(tmp_path, monkeypatch):
     """``rsmt train sampler --from-bundle`` writes the bundle's stages into the run folder, the flag's
     column starts at zero (the same output for targets with their velocity), and the stage then trains
-    from the given step with dropped velocities and all three kinds of changed-control windows."""
+    from the given step with dropped velocities, all three kinds of changed-control windows and steered
+    rollouts."""
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
     write_synthetic_dataset(data)
-    raw = smoke_config(target_velocity_drop=0.5, control_batch=6, control_turn=90.0, control_side=50.0)
+    raw = smoke_config(target_velocity_drop=0.5, control_batch=6, control_turn=90.0, control_side=50.0, steering_window=6)
     cfg = TrainConfig.from_dict(raw)
     sk = tiny_bundle(0).skeleton
     fit_to_skeleton(cfg, sk.num_joints, sk.roles.root)
