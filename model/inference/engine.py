@@ -105,7 +105,6 @@ class Engine:
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
         self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering)
-        self.steering = self.output.steering
         self.inference = bundle.inference.with_overrides(int8_lstm)
         if threads:
             torch.set_num_threads(threads)
@@ -446,8 +445,9 @@ class CharacterBatch:
         assert self._state is not None and self._style is not None
         self._state = self.engine.step_fn(self._state, self._style)
         shift = None
-        if self.engine.steering.on:
-            self._state, shift = steer(self._state, self.engine.skeleton.roles.root, self.engine.steering)
+        steering = self.engine.output.steering
+        if steering.on:
+            self._state, shift = steer(self._state, self.engine.skeleton.roles.root, steering)
         post = self._post
         assert post is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])

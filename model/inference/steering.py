@@ -8,7 +8,8 @@ inside the recurrent loop, in the transition's canonical frame, frame by frame:
   frame) is predicted to end at ``p + m r v`` (``m``: ``momentum``, how much of its current speed
   the character is expected to keep);
 * the predicted miss, spread over the frames left, ``miss / (r + 1)``, moves the whole body
-  (weighted by a smoothstep that is 0 more than ``window`` frames before arrival and 1 on it);
+  (weighted by exact arrival's smoothstep, :func:`model.inference.arrival.arrival_weight`: 0 more
+  than ``window`` frames before arrival, 1 on it);
 * the shift is written into the sampler's own state (root position and every joint's velocity), so
   the next step sees where the character now is and how fast it went, and its gait follows.
 
@@ -26,6 +27,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 
+from model.inference.arrival import arrival_weight
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerState
 
@@ -50,7 +52,6 @@ class SteeringConfig:
         if self.max_step_cm <= 0:
             raise ValueError(f"the steering step cap must be positive, got {self.max_step_cm}")
 
-
     @property
     def on(self) -> bool:
         return self.window > 0
@@ -66,12 +67,6 @@ class SteeringConfig:
         return cls(**data)
 
 
-def steering_weight(remaining: Tensor, window: int) -> Tensor:
-    """0 for ``remaining >= window`` frames before arrival, rising by a smoothstep to 1 on arrival."""
-    u = ((window - remaining.float()) / window).clamp(0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
-
-
 def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Tensor:
     """The ground shift ``[N, 2]`` (x, z in the canonical frame) steering gives each row of ``state``,
     a state just stepped (its ``tta`` counts the frames after the one it holds)."""
@@ -80,7 +75,7 @@ def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Te
     velocity = pose.vel[:, root][:, [0, 2]]
     goal = state.target_pos[:, root][:, [0, 2]]
     miss = goal - (pose.root_xz + config.momentum * remaining * velocity)
-    shift = steering_weight(state.tta, config.window).unsqueeze(-1) * miss / (remaining + 1.0)
+    shift = arrival_weight(state.tta, config.window).unsqueeze(-1) * miss / (remaining + 1.0)
     norm = shift.norm(dim=-1, keepdim=True)
     return shift * (config.max_step_cm / norm.clamp_min(config.max_step_cm))
 

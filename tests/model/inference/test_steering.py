@@ -8,10 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
+from model.inference.arrival import arrival_weight
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
 from model.inference.output_settings import OutputConfig
-from model.inference.steering import SteeringConfig, steer, steering_shift, steering_weight
+from model.inference.steering import SteeringConfig, steer, steering_shift
 from model.motion.clip import Clip
 from model.nets.manifold import ManifoldConfig
 from model.nets.pose_state import PoseState
@@ -72,7 +73,7 @@ def test_steer_moves_the_whole_body_and_its_velocity():
 
 
 def test_weight_rises_from_zero_to_one():
-    w = steering_weight(torch.arange(45, -1, -1), 40)
+    w = arrival_weight(torch.arange(45, -1, -1), 40)  # the smoothstep steering shares with exact arrival
     assert torch.all(w[:6] == 0) and w[-1] == 1 and torch.all(w[1:] >= w[:-1])
 
 
