@@ -157,10 +157,33 @@ def _judge_tables(methods: dict[str, Any], report: dict[str, Any], key: str, gt_
         per.update({name: m.get(key, {}).get(v["name"], {}).get("judge_accuracy_by_style") for name, m in methods.items()})
         lines += _per_style_table(f"Style (judge) per requested style, {v['label']}, {where}:", per)
         if v["name"] == "gap40":
-            cross = {name: m.get(key, {}).get("gap40", {}).get("judge_accuracy_cross_by_style")
-                     for name, m in methods.items()}
-            lines += _per_style_table(f"Style (judge) with another style's clip, per requested (clip) style, "
-                                      f"{v['label']}, {where}:", cross)
+            lines += _judge_gap40_tables(methods, report.get(gt_key, {}).get("gap40", {}), key, v["label"], where)
+    return lines
+
+
+def _judge_gap40_tables(methods: dict[str, Any], gt: dict[str, Any], key: str, label: str, where: str) -> list[str]:
+    """The judge's other figures on the 40-frame gap, per style: with another style's clip, the mean
+    probability of the requested style, and FMD in the judge's feature space."""
+
+    def per(field: str) -> dict[str, dict[str, float] | None]:
+        return {name: m.get(key, {}).get("gap40", {}).get(field) for name, m in methods.items()}
+
+    lines = _per_style_table(f"Style (judge) with another style's clip, per requested (clip) style, {label}, {where}:",
+                             per("judge_accuracy_cross_by_style"))
+    lines += _per_style_table(f"With another style's clip, the share the judge reads as the context's own style, per "
+                              f"context style, {label}, {where}:", per("judge_cross_as_context_by_style"))
+    lines += _per_style_table(f"Mean probability the judge gives the requested style (same-style clip), {label}, "
+                              f"{where}:", {GT_NAME: gt.get("judge_accuracy_prob_by_style"),
+                                            **per("judge_accuracy_prob_by_style")})
+    fmd = {GT_NAME + " (split halves)": gt.get("judge_fmd_split_half_by_style"), **per("judge_fmd_by_style")}
+    if any(fmd.values()):
+        overall = {name: m.get(key, {}).get("gap40", {}).get("judge_fmd") for name, m in methods.items()}
+        lines += _per_style_table(
+            f"FMD in the judge's feature space (its standardised window statistics; no training network sees them) "
+            f"to the real transitions of the same cases, per case style, {label}, {where}; overall: "
+            + ", ".join(f"{n} {_fmt(x, 2)}" for n, x in overall.items())
+            + f"; the ground-truth row is two halves of the real transitions, the floor at this number of cases "
+              f"(overall {_fmt(gt.get('judge_fmd_split_half'), 2)}):", fmd, digits=2)
     return lines
 
 
@@ -202,12 +225,12 @@ def _style_tables(methods: dict[str, Any], report: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _per_style_table(title: str, per_method: dict[str, dict[str, float] | None]) -> list[str]:
+def _per_style_table(title: str, per_method: dict[str, dict[str, float] | None], digits: int = 3) -> list[str]:
     """A titled table of per-style figures, a row per method that has them (none: no lines)."""
     names = sorted({s for d in per_method.values() if d for s in d})
     if not names:
         return []
-    rows = [[name] + [_fmt(d.get(s)) if s in d else "–" for s in names] for name, d in per_method.items() if d]
+    rows = [[name] + [_fmt(d.get(s), digits) if s in d else "–" for s in names] for name, d in per_method.items() if d]
     return [title, "", *_table(["method", *names], rows), ""]
 
 

@@ -10,7 +10,8 @@ evenly spread subset of the cases (``diversity_samples`` transitions each, noise
 Every variant is scored twice: on all cases (``variants``) and on the locomotion cases alone
 (``locomotion``: walk, walk turns, run; the acceptance figures). The turned and moved targets are
 asked of the locomotion cases only. With a style judge (:mod:`model.evaluation.style_judge`), every
-transition of at least 40 frames also gets the judge's style accuracy, overall and per style.
+transition of at least 40 frames also gets the judge's style accuracy and the mean probability it gives
+the requested style, overall and per style, and the 40-frame gap the judge's FMD to the real transitions.
 Methods are sent ``settings.target_frames`` target frames (1: the target alone, the default).
 """
 
@@ -44,7 +45,7 @@ from model.evaluation.methods import BaselineMethod, Method, Request, Unavailabl
 from model.evaluation.reference import ReferenceStats, reference_stats
 from model.evaluation.scoring import Transitions, ground_truth_transitions, root_speed, score, to_canonical
 from model.evaluation.style_judge import StyleJudge
-from model.evaluation.style_scores import StyleScorer, judge_rows, matched_reference
+from model.evaluation.style_scores import StyleScorer, judge_fmd_floor, judge_fmd_rows, judge_rows, matched_reference
 from model.nets.style_classifier import StyleClassifier
 
 Tensor = torch.Tensor
@@ -206,6 +207,7 @@ def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[
                                **root_speed(gt.positions, cases)}
         if run.judge is not None and v.gap == STYLE_GAP:
             row.update(judge_rows(run.judge, gt.positions, styles))
+            row.update(judge_fmd_floor(run.judge, gt.positions, styles))
         if scorer is not None and v.gap == STYLE_GAP:
             logits, gt_features = scorer.classify(gt)
             row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
@@ -234,6 +236,7 @@ def _score_ground_truth_locomotion(run: EvalRun) -> dict[str, dict[str, Any]]:
         row.update({f"context_{k}": x for k, x in context.items()})
         if run.judge is not None and v.gap == STYLE_GAP:
             row.update(judge_rows(run.judge, gt.positions, styles))
+            row.update(judge_fmd_floor(run.judge, gt.positions, styles))
         rows[v.name] = row
     return rows
 
@@ -285,10 +288,14 @@ def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSetting
 
 
 def _judged(run: EvalRun, v: Variant, cases: CaseSet, out: Transitions) -> dict[str, Any]:
-    """:func:`score` of ``out`` plus, for 40 frames or more and a judge, the judge's style accuracy."""
+    """:func:`score` of ``out`` plus, for 40 frames or more and a judge, the judge's style accuracy; on the
+    40-frame gap with ground truth also the judge's FMD to the real transitions."""
     row: dict[str, Any] = score(cases, v, out, run.stats)
+    styles = [c.style for c in cases.cases]
     if run.judge is not None and v.frames >= STYLE_GAP:
-        row.update(judge_rows(run.judge, out.positions, [c.style for c in cases.cases]))
+        row.update(judge_rows(run.judge, out.positions, styles))
+    if run.judge is not None and v.gap == STYLE_GAP and v.has_ground_truth:
+        row.update(judge_fmd_rows(run.judge, out.positions, ground_truth_transitions(cases, v).positions, styles))
     return row
 
 
@@ -305,7 +312,6 @@ def _judge_cross(judge: StyleJudge, cases: CaseSet, positions: Tensor) -> dict[s
     """The judge's accuracy with other-style clips, on the clip's style, and the share read as the context's style."""
     row = judge_rows(judge, positions, [c.cross_style for c in cases.cases], prefix="judge_accuracy_cross")
     as_context = judge_rows(judge, positions, [c.style for c in cases.cases], prefix="judge_cross_as_context")
-    as_context.pop("judge_cross_as_context_by_style", None)
     return {**row, **as_context}
 
 

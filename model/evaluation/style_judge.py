@@ -111,10 +111,21 @@ class StyleJudge:
         z = (features.to(torch.float64) - self.mean) / self.std
         return z @ self.weight.T + self.bias
 
-    def log_probs(self, positions: Tensor) -> Tensor:
-        """``[B, S]`` log-probabilities of each style for sequences of global positions ``[B, T, J, 3]``."""
+    def embed(self, positions: Tensor) -> Tensor:
+        """``[B, F]`` standardised window statistics of sequences ``[B, T, J, 3]`` (the mean over their
+        windows): what the judge reads, and the feature space of its FMD (:func:`judge_fmd_rows`)."""
+        self._check(positions)
+        z = [(window_features(positions[:, s:s + WINDOW], self.fps, self.root) - self.mean) / self.std
+             for s in _windows(positions.shape[1])]
+        return torch.stack(z).mean(dim=0)
+
+    def _check(self, positions: Tensor) -> None:
         if positions.shape[-2] != len(self.joints):
             raise ValueError(f"the style judge is for {len(self.joints)} joints, got {positions.shape[-2]}")
+
+    def log_probs(self, positions: Tensor) -> Tensor:
+        """``[B, S]`` log-probabilities of each style for sequences of global positions ``[B, T, J, 3]``."""
+        self._check(positions)
         scores = [torch.log_softmax(self.logits_of_features(
             window_features(positions[:, s:s + WINDOW], self.fps, self.root)), dim=-1)
             for s in _windows(positions.shape[1])]

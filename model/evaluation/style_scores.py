@@ -14,7 +14,9 @@
   the same style mix.
 
 :func:`judge_rows`: the same accuracy from the style judge (:mod:`model.evaluation.style_judge`), a
-classifier of another kind than any training critic, which gives the acceptance figures.
+classifier of another kind than any training critic, which gives the acceptance figures, with the
+mean probability it gives the requested style; :func:`judge_fmd_rows`: FMD in the judge's feature
+space (summary statistics no training network sees), with its noise floor :func:`judge_fmd_floor`.
 
 The classifier sees the last context frame followed by the generated frames (``N + 1`` poses give
 ``N`` frames of motion).
@@ -23,6 +25,7 @@ The classifier sees the last context frame followed by the generated frames (``N
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 
@@ -106,7 +109,44 @@ def judge_rows(judge: StyleJudge, positions: Tensor, requested: Sequence[str], p
     known = labels >= 0
     if not bool(known.any()):
         return {}
-    hit = judge.predict(positions) == labels
+    log_probs = judge.log_probs(positions)
+    hit = log_probs.argmax(dim=-1) == labels
+    # The probability the judge gives the requested style: it moves before the accuracy does, which shows a
+    # style clip pulling the motion toward its style even where the judge's vote still goes elsewhere.
+    prob = log_probs.exp().gather(1, labels.clamp_min(0).unsqueeze(1)).squeeze(1)
+    present = {s: k for s, k in index.items() if bool((labels == k).any())}
     return {prefix: float(hit[known].float().mean()),
-            prefix + "_by_style": {s: float(hit[labels == k].float().mean()) for s, k in index.items()
-                                   if bool((labels == k).any())}}
+            prefix + "_by_style": {s: float(hit[labels == k].float().mean()) for s, k in present.items()},
+            prefix + "_prob": float(prob[known].mean()),
+            prefix + "_prob_by_style": {s: float(prob[labels == k].mean()) for s, k in present.items()}}
+
+
+def judge_fmd_rows(judge: StyleJudge, positions: Tensor, reference: Tensor, styles: Sequence[str]) -> dict:
+    """FMD in the judge's feature space: the Fréchet distance between the judge's standardised window
+    statistics (:meth:`StyleJudge.embed`) of transitions ``[B, T, J, 3]`` and of the real transitions of the
+    same cases (``reference``, same shape), over all cases (``judge_fmd``) and per case style
+    (``judge_fmd_by_style``; styles with fewer than two cases are left out). No training network shares
+    these features, unlike the classifier's FMD (:class:`StyleScorer`)."""
+    if positions.shape != reference.shape or positions.shape[0] != len(styles):
+        raise ValueError(f"judge FMD needs transitions and references of one shape, a style per case; got "
+                         f"{list(positions.shape)}, {list(reference.shape)} and {len(styles)} styles")
+    feats, ref = judge.embed(positions), judge.embed(reference)
+    out: dict[str, Any] = {"judge_fmd": StyleScorer.fmd(feats, ref), "judge_fmd_by_style": {}}
+    for s in sorted(set(styles)):
+        idx = torch.tensor([i for i, c in enumerate(styles) if c == s])
+        if len(idx) >= 2:
+            out["judge_fmd_by_style"][s] = StyleScorer.fmd(feats[idx], ref[idx])
+    return out
+
+
+def judge_fmd_floor(judge: StyleJudge, reference: Tensor, styles: Sequence[str]) -> dict:
+    """The noise floor of :func:`judge_fmd_rows` at this number of cases: real transitions of alternate
+    cases against each other, over all cases and per style (``judge_fmd_split_half``, ``..._by_style``)."""
+    feats = judge.embed(reference)
+    out: dict[str, Any] = {"judge_fmd_split_half": StyleScorer.fmd(feats[0::2], feats[1::2]),
+                           "judge_fmd_split_half_by_style": {}}
+    for s in sorted(set(styles)):
+        idx = torch.tensor([i for i, c in enumerate(styles) if c == s])
+        if len(idx) >= 4:
+            out["judge_fmd_split_half_by_style"][s] = StyleScorer.fmd(feats[idx[0::2]], feats[idx[1::2]])
+    return out

@@ -18,6 +18,7 @@ from model.evaluation.cases import LAST_CONTEXT, LOCOMOTION, variant
 from model.evaluation.methods import BundleMethod, Request
 from model.evaluation.metrics import max_root_speed
 from model.evaluation.style_judge import StyleJudge, accuracy_report, fit_judge, take_windows, window_features
+from model.evaluation.style_scores import judge_fmd_floor, judge_fmd_rows, judge_rows
 from model.inference.bundle import Bundle
 from model.motion.clip import Clip
 from model.motion.kinematics import forward_kinematics
@@ -233,3 +234,35 @@ def test_eval_with_judge_reports_which_classifier_and_per_style_rows(dataset: tu
     cross = loco["gap40"]
     assert cross["judge_accuracy_cross"] + cross["judge_cross_as_context"] <= 1.0 + 1e-9
     assert "other-style clip" in text and "with another style's clip" in text
+    # FMD in the judge's space: interpolation is farther from the real transitions than two halves of them.
+    assert cross["judge_fmd"] > 0.0 and set(cross["judge_fmd_by_style"]) <= set(report["styles"])
+    assert gt["judge_fmd_split_half"] >= 0.0 and 0.0 <= cross["judge_accuracy_prob"] <= 1.0
+    assert "FMD in the judge's feature space" in text and "Mean probability the judge gives" in text
+    assert "judge_fmd" not in loco["gap40-turn+90"]  # no ground truth there
+
+
+def test_judge_fmd_is_zero_on_the_real_motion_and_grows_as_the_motion_departs(cache: MotionCache) -> None:
+    feats, styles, _ = take_windows(cache, cache.split.train, step=10)
+    index = {s: k for k, s in enumerate(cache.styles)}
+    sk = cache.skeleton(cache.split.train[0])
+    judge = fit_judge(feats, torch.tensor([index[s] for s in styles]), cache.styles, list(sk.names), cache.fps)
+    takes = list(cache.split.train)[:6]
+    real = torch.stack([cache_positions(cache, t)[:41] for t in takes]).double()
+    names = [cache.styles[i % 2] for i in range(len(takes))]
+    same = judge_fmd_rows(judge, real, real, names)
+    assert same["judge_fmd"] == pytest.approx(0.0, abs=1e-4)
+    assert all(x == pytest.approx(0.0, abs=1e-4) for x in same["judge_fmd_by_style"].values())
+    def damped(a: float) -> torch.Tensor:  # each joint moves ``a`` times as far from where it starts
+        return real[:, :1] + a * (real - real[:, :1])
+
+    near, far = judge_fmd_rows(judge, damped(0.9), real, names), judge_fmd_rows(judge, damped(0.5), real, names)
+    assert far["judge_fmd"] > near["judge_fmd"] > 1e-3
+    with pytest.raises(ValueError):
+        judge_fmd_rows(judge, real[:3], real, names)
+    floor = judge_fmd_floor(judge, real, names)
+    assert floor["judge_fmd_split_half"] >= 0.0 and floor["judge_fmd_split_half_by_style"] == {}  # 3 a style: too few
+    rows = judge_rows(judge, real, names)
+    probs = judge.log_probs(real).exp()
+    want = probs[torch.arange(len(takes)), torch.tensor([judge.styles.index(n) for n in names])].mean()
+    assert rows["judge_accuracy_prob"] == pytest.approx(float(want))
+    assert set(rows["judge_accuracy_prob_by_style"]) == set(names)
