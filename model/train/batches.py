@@ -10,6 +10,7 @@ from model.motion.features import CanonicalFrame, soft_contacts
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import PoseState, state_from_positions
 from model.train.motion_tensors import MotionTensors
+from model.train.time_warp import warped_rows
 
 Tensor = torch.Tensor
 
@@ -36,16 +37,33 @@ class WindowBatch:
 
 def make_batch(tensors: MotionTensors, starts: Tensor, owners: Tensor, length: int, reference: int,
                with_phase: bool = True) -> WindowBatch:
+    """Windows of ``length`` frames starting at global rows ``starts`` (takes ``owners``), in the
+    canonical frame of their frame ``reference``."""
     pos, rot = tensors.gather(starts, length)
+    phase = tensors.gather_phase(starts, length) if with_phase else None
+    return _batch(tensors, pos, rot, phase, owners, reference)
+
+
+def make_warped_batch(tensors: MotionTensors, starts: Tensor, owners: Tensor, context: int, length: int,
+                      factor: Tensor, ramp: int, with_phase: bool = True) -> WindowBatch:
+    """Windows of ``context`` captured frames and a transition of ``length`` frames replaying
+    ``factor [B]`` times as much of the capture (:mod:`model.train.time_warp`), in the canonical frame
+    of their last context frame."""
+    rows, speed = warped_rows(starts, context, length, factor, ramp)
+    pos, rot = tensors.gather_at(rows)
+    phase = tensors.gather_phase_at(rows, speed) if with_phase else None
+    return _batch(tensors, pos, rot, phase, owners, context - 1)
+
+
+def _batch(tensors: MotionTensors, pos: Tensor, rot: Tensor, phase: tuple[Tensor, Tensor, Tensor] | None,
+           owners: Tensor, reference: int) -> WindowBatch:
     sk = tensors.skeleton
     frame = CanonicalFrame.at_frame(pos, sk, reference)
     cpos, crot = frame.positions_to(pos), frame.rotations_to(rot)
     states = state_from_positions(cpos, quat_to_sixd(crot), sk.roles.root)
     # The first frame's velocity would be a copy; use the true one from the frame before when there is one.
     contacts = soft_contacts(states.vel[:, :, list(sk.feet)])
-    ph = amp = fr = None
-    if with_phase:
-        ph, amp, fr = tensors.gather_phase(starts, length)
+    ph, amp, fr = phase if phase is not None else (None, None, None)
     # Style ids live on the CPU with the take bookkeeping; the batch lives where the motion does.
     return WindowBatch(states, ph, amp, fr, contacts, tensors.style[owners].to(pos.device), crot)
 

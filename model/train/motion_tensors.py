@@ -177,6 +177,40 @@ class MotionTensors:
         idx = (starts.unsqueeze(1) + torch.arange(length)).to(self.phase.device)
         return self.phase[idx], self.amplitude[idx], self.frequency[idx]
 
+    def gather_at(self, rows: Tensor) -> tuple[Tensor, Tensor]:
+        """``(positions [B, L, J, 3], rotations [B, L, J, 4])`` at fractional global ``rows [B, L]``
+        (:mod:`model.train.time_warp`): positions interpolated linearly between the neighbouring frames,
+        rotations normalised-linearly (neighbouring frames of a take share a sign, see :meth:`from_clips`).
+        A fractional row must lie inside one take."""
+        i0, i1, w = self._neighbours(rows)
+        w = w[..., None, None]  # over joints and components
+        pos = torch.lerp(self.positions[i0], self.positions[i1], w)
+        rot = torch.lerp(self.rotations[i0], self.rotations[i1], w)
+        return pos, rot / rot.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+
+    def gather_phase_at(self, rows: Tensor, speed: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Phase labels at fractional ``rows [B, L]`` of motion replayed at ``speed [B, L]`` capture frames
+        per frame: amplitudes interpolated, phase directions interpolated at that amplitude, and the
+        frequency (the phase's advance per frame) times the speed."""
+        if self.phase is None or self.amplitude is None or self.frequency is None:
+            raise ValueError("phase labels are missing: label the data with the phase model first")
+        i0, i1, w = self._neighbours(rows)
+        wm = w.unsqueeze(-1)  # [B, L, 1] over the phase channels
+        amp = torch.lerp(self.amplitude[i0], self.amplitude[i1], wm)
+        direction = torch.lerp(self.phase[i0], self.phase[i1], wm.unsqueeze(-1))
+        phase = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-6) * amp.unsqueeze(-1)
+        freq = torch.lerp(self.frequency[i0], self.frequency[i1], wm) * speed.to(amp).unsqueeze(-1)
+        return phase, amp, freq
+
+    def _neighbours(self, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The frames before and after fractional ``rows`` and the weight of the one after, on this device."""
+        rows = rows.to(torch.float64)
+        i0 = rows.floor().long()
+        w = (rows - i0).to(self.positions.dtype)
+        i1 = torch.where(w > 0, i0 + 1, i0)
+        dev = self.positions.device
+        return i0.to(dev), i1.to(dev), w.to(dev)
+
     def take_slice(self, i: int) -> slice:
         s = int(self.take_start[i])
         return slice(s, s + int(self.take_len[i]))

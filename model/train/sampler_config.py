@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 from model.train.loop import LoopConfig
+from model.train.time_warp import MAX_FACTOR
 
 CRITIC_INPUTS = ("velocity", "dynamics", "acceleration")  # input selections that depend on positions only
 
@@ -58,6 +59,13 @@ class SamplerStageConfig:
     # with that window (model.inference.steering): the shift carries no gradient, so their losses (feet,
     # target, critics) train the gait that goes with being carried toward the target.
     steering_window: int = 0
+    # Time-warped windows per step (model.train.time_warp), scored against their ground truth like the batch's
+    # own: the capture replayed from the last context frame at a speed that ramps over warp_ramp frames to
+    # cover a factor in [1/warp_factor, warp_factor] of the transition's frames, so a request for twice the
+    # distance or half the time has real feet and poses to learn from. Drawn only once the extra losses apply.
+    warp_batch: int = 0
+    warp_factor: float = 2.0
+    warp_ramp: int = 10
     # The fraction of training windows whose target comes without its velocity (the sampler's
     # target_velocity_flag tells it so): a game usually sends the target frame alone.
     target_velocity_drop: float = 0.0
@@ -85,6 +93,8 @@ class SamplerStageConfig:
             raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
         if self.control_dt < 1.0 or self.control_shift < 0.0 or self.control_turn < 0.0 or self.control_side < 0.0:
             raise ValueError("control_dt must be at least 1, and control_shift, control_turn and control_side at least 0")
+        if self.warp_batch < 0 or self.warp_ramp < 0 or not 1.0 <= self.warp_factor <= MAX_FACTOR:
+            raise ValueError(f"warp_batch and warp_ramp must be 0 or more and warp_factor in [1, {MAX_FACTOR:g}]")
         if self.steering_window < 0:
             raise ValueError(f"steering_window must be 0 (off) or more frames, got {self.steering_window}")
         if not 0.0 <= self.target_velocity_drop <= 1.0:

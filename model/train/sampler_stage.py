@@ -20,13 +20,14 @@ from model.evaluation.metrics import ground_levels
 from model.motion.features import local_frame_features
 from model.nets.sampler import TransitionSampler
 from model.nets.style_classifier import StyleClassifier
-from model.train.batches import WindowBatch, make_batch
+from model.train.batches import WindowBatch, make_batch, make_warped_batch
 from model.train.loop import LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 from model.train.sampler_config import CRITIC_INPUTS, SamplerStageConfig, cross_style_weights, curriculum_length
 from model.train.sampler_losses import acceleration_profile, score_rollout, transition_losses, weighted_sum
 from model.train.sampler_rollout import Rollout, concat_batches, rollout
 from model.train.step_compiler import compiled_steps
+from model.train.time_warp import draw_factors, source_span
 
 Tensor = torch.Tensor
 
@@ -135,6 +136,9 @@ class SamplerSteps:
         self.model, self.train, self.val, self.stage, self.device = model, train, val, stage, device
         self.context, self.max_transition = c.context, c.max_transition
         self.pairs = StylePairs(train, c.context + stage.max_transition, stage.style_frames)
+        # Warped windows read up to warp_factor times the transition's frames of the capture.
+        self.warp_pairs = StylePairs(train, source_span(c.context, stage.max_transition, stage.warp_factor),
+                                     stage.style_frames) if stage.warp_batch > 0 else None
         vpairs = StylePairs(val, c.context + stage.validation_transition, stage.style_frames, step=20)
         vgen = torch.Generator().manual_seed(stage.loop.seed + 1)
         self.val_sets = [vpairs.sample(16, vgen) for _ in range(4)]
@@ -178,22 +182,41 @@ class SamplerSteps:
         styled = bool(self.critics) and extra
         labels = self.labels_of(train.style[owners])
         feats = self.features_of(style_starts, train)
+        scored = stage.batch  # the windows scored against their ground truth come first
+        if extra and self.warp_pairs is not None:
+            # Drawn after the batch's own, so runs without warped windows draw what they did.
+            batch, feats, labels = self.add_warped_windows(batch, feats, labels, length, gen)
+            scored += stage.warp_batch
         cross = None
         if styled and stage.cross_batch > 0 and length >= stage.style_loss_min_frames:
             # Windows with a style clip of another style, generated in the same rollout as the batch's own:
             # the recurrent loop's cost is mostly per operation, not per window (about 0.2 s a step saved).
             batch, feats, cross = self.add_cross_windows(batch, feats, length, gen)
         r = rollout(self.model, train, batch, feats, length, stage, gen, True)
-        losses = score_rollout(r, train, stage, slice(0, stage.batch), self.critics if styled else (), labels,
+        losses = score_rollout(r, train, stage, slice(0, scored), self.critics if styled else (), labels,
                                ground=self.ground if extra else None)
         total = weighted_sum(losses, self.weights if extra else self.base_weights)
         shown = {k: v.item() for k, v in losses.items() if k in SHOWN_TRAIN}
         if cross is not None:
-            total = total + self.cross_terms(r, cross, shown)
+            total = total + self.cross_terms(r, cross, shown, scored)
         if extra and stage.control_batch > 0:
             total = total + self.control_terms(length, gen, shown)
         total.backward()
         return shown
+
+    def add_warped_windows(self, batch: WindowBatch, feats: Tensor, labels: Tensor | None, length: int,
+                           gen: torch.Generator) -> tuple[WindowBatch, Tensor, Tensor | None]:
+        """``batch``, its clips' features and critic labels followed by ``warp_batch`` time-warped windows
+        (:mod:`model.train.time_warp`) of one style, with clips of that style at the capture's own speed."""
+        stage = self.stage
+        assert self.warp_pairs is not None
+        ws, wo, wclips = self.warp_pairs.sample(stage.warp_batch, gen)
+        factor = draw_factors(stage.warp_batch, stage.warp_factor, gen)
+        warped = make_warped_batch(self.train, ws, wo, self.context, length, factor, stage.warp_ramp)
+        wlabels = self.labels_of(self.train.style[wo])
+        if labels is not None and wlabels is not None:
+            labels = torch.cat([labels, wlabels])
+        return concat_batches(batch, warped), torch.cat([feats, self.features_of(wclips, self.train)]), labels
 
     def add_cross_windows(self, batch: WindowBatch, feats: Tensor, length: int,
                           gen: torch.Generator) -> tuple[WindowBatch, Tensor, CrossWindows]:
@@ -205,11 +228,12 @@ class SamplerSteps:
         feats = torch.cat([feats, local_frame_features(xpos, xrot, self.train.skeleton)])
         return batch, feats, CrossWindows(xlabels, xpos)
 
-    def cross_terms(self, r: Rollout, cross: CrossWindows, shown: dict[str, float]) -> Tensor:
-        """The weighted losses of the other-style windows of ``r`` (no ground truth), scaled to the batch's."""
+    def cross_terms(self, r: Rollout, cross: CrossWindows, shown: dict[str, float], first: int) -> Tensor:
+        """The weighted losses of the other-style windows of ``r`` (no ground truth; its rows from ``first``
+        on), scaled to the batch's."""
         stage = self.stage
         clip_acc = acceleration_profile(torch.diff(cross.clip_positions, dim=1)) if stage.w_clip_acc > 0 else None
-        xl = score_rollout(r, self.train, stage, slice(stage.batch, None), self.critics, cross.labels, ground_truth=False,
+        xl = score_rollout(r, self.train, stage, slice(first, None), self.critics, cross.labels, ground_truth=False,
                            ground=self.ground, clip_acc=clip_acc)
         if "style_acc" in xl:
             shown["cross_acc"] = xl["style_acc"].item()
