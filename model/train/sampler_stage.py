@@ -197,6 +197,9 @@ class SamplerSteps:
                                ground=self.ground if extra else None)
         total = weighted_sum(losses, self.weights if extra else self.base_weights)
         shown = {k: v.item() for k, v in losses.items() if k in SHOWN_TRAIN}
+        if scored > stage.batch:
+            with torch.no_grad():  # the warped windows' own error, to watch them apart from the batch's
+                shown["warp_fk_cm"] = score_rollout(r, train, stage, slice(stage.batch, scored))["fk_error_cm"].item()
         if cross is not None:
             total = total + self.cross_terms(r, cross, shown, scored)
         if extra and stage.control_batch > 0:

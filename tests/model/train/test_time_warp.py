@@ -126,3 +126,5 @@ def test_a_sampler_run_trains_on_warped_windows(tmp_path, monkeypatch):
     assert len(drawn) == 8 and all(len(f) == 3 and bool(((f >= 0.5) & (f <= 2.0)).all()) for f in drawn)
     saved = json.loads((tmp_path / "run" / "train_config.json").read_text())
     assert saved["sampler_stage"]["warp_batch"] == 3
+    history = json.loads((tmp_path / "run" / "sampler" / "checkpoint.json").read_text())["history"]
+    assert history[-1]["train_warp_fk_cm"] > 0
