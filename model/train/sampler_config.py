@@ -66,6 +66,9 @@ class SamplerStageConfig:
     warp_batch: int = 0
     warp_factor: float = 2.0
     warp_ramp: int = 10
+    # The warped windows' own foot-slide loss (feet that the replay keeps planted), added with this weight on
+    # top of the batch's mean: without it a sampler reaches further by gliding (docs/experiments/2026-11-26-time-warp.md).
+    w_warp_foot: float = 0.0
     # The fraction of training windows whose target comes without its velocity (the sampler's
     # target_velocity_flag tells it so): a game usually sends the target frame alone.
     target_velocity_drop: float = 0.0
@@ -93,8 +96,8 @@ class SamplerStageConfig:
             raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
         if self.control_dt < 1.0 or self.control_shift < 0.0 or self.control_turn < 0.0 or self.control_side < 0.0:
             raise ValueError("control_dt must be at least 1, and control_shift, control_turn and control_side at least 0")
-        if self.warp_batch < 0 or self.warp_ramp < 0 or not 1.0 <= self.warp_factor <= MAX_FACTOR:
-            raise ValueError(f"warp_batch and warp_ramp must be 0 or more and warp_factor in [1, {MAX_FACTOR:g}]")
+        if self.warp_batch < 0 or self.warp_ramp < 0 or self.w_warp_foot < 0 or not 1.0 <= self.warp_factor <= MAX_FACTOR:
+            raise ValueError(f"warp_batch, warp_ramp and w_warp_foot must be 0 or more and warp_factor in [1, {MAX_FACTOR:g}]")
         if self.steering_window < 0:
             raise ValueError(f"steering_window must be 0 (off) or more frames, got {self.steering_window}")
         if not 0.0 <= self.target_velocity_drop <= 1.0:

@@ -198,8 +198,7 @@ class SamplerSteps:
         total = weighted_sum(losses, self.weights if extra else self.base_weights)
         shown = {k: v.item() for k, v in losses.items() if k in SHOWN_TRAIN}
         if scored > stage.batch:
-            with torch.no_grad():  # the warped windows' own error, to watch them apart from the batch's
-                shown["warp_fk_cm"] = score_rollout(r, train, stage, slice(stage.batch, scored))["fk_error_cm"].item()
+            total = total + self.warp_terms(r, slice(stage.batch, scored), shown)
         if cross is not None:
             total = total + self.cross_terms(r, cross, shown, scored)
         if extra and stage.control_batch > 0:
@@ -220,6 +219,15 @@ class SamplerSteps:
         if labels is not None and wlabels is not None:
             labels = torch.cat([labels, wlabels])
         return concat_batches(batch, warped), torch.cat([feats, self.features_of(wclips, self.train)]), labels
+
+    def warp_terms(self, r: Rollout, rows: slice, shown: dict[str, float]) -> Tensor:
+        """The warped windows' extra foot term (``w_warp_foot`` times their own foot-slide loss, which the
+        batch's mean weighs at ``w_foot`` only), and their joint error shown apart from the batch's."""
+        with torch.set_grad_enabled(self.stage.w_warp_foot > 0):
+            wl = score_rollout(r, self.train, self.stage, rows)
+        shown["warp_fk_cm"] = wl["fk_error_cm"].item()
+        shown["warp_foot"] = wl["foot"].item()
+        return self.stage.w_warp_foot * wl["foot"] if self.stage.w_warp_foot > 0 else torch.zeros((), device=self.device)
 
     def add_cross_windows(self, batch: WindowBatch, feats: Tensor, length: int,
                           gen: torch.Generator) -> tuple[WindowBatch, Tensor, CrossWindows]:

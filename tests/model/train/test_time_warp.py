@@ -55,7 +55,7 @@ def test_factor_one_is_the_capture_itself_and_factors_stay_in_range():
             draw_factors(2, bad, torch.Generator())
     with pytest.raises(ValueError, match="positive"):
         warp_times(4, torch.tensor([0.0]), 2)
-    for bad_cfg in ({"warp_batch": -1}, {"warp_factor": 0.5}, {"warp_ramp": -2}):
+    for bad_cfg in ({"warp_batch": -1}, {"warp_factor": 0.5}, {"warp_ramp": -2}, {"w_warp_foot": -1.0}):
         with pytest.raises(ValueError, match="warp"):
             SamplerStageConfig(**bad_cfg)
 
@@ -120,11 +120,12 @@ def test_a_sampler_run_trains_on_warped_windows(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sampler_stage, "make_warped_batch", spy)
     path = tmp_path / "warp.json"
-    path.write_text(json.dumps(smoke_config(target_velocity_drop=0.5, warp_batch=3, warp_factor=2.0, warp_ramp=4)))
+    cfg = smoke_config(target_velocity_drop=0.5, warp_batch=3, warp_factor=2.0, warp_ramp=4, w_warp_foot=0.5)
+    path.write_text(json.dumps(cfg))
     assert main(["train", "all", "--config", str(path), "--data", str(data), "--out", str(tmp_path / "out"),
                  "--run", str(tmp_path / "run"), "--quiet"]) == 0
     assert len(drawn) == 8 and all(len(f) == 3 and bool(((f >= 0.5) & (f <= 2.0)).all()) for f in drawn)
     saved = json.loads((tmp_path / "run" / "train_config.json").read_text())
     assert saved["sampler_stage"]["warp_batch"] == 3
     history = json.loads((tmp_path / "run" / "sampler" / "checkpoint.json").read_text())["history"]
-    assert history[-1]["train_warp_fk_cm"] > 0
+    assert history[-1]["train_warp_fk_cm"] > 0 and history[-1]["train_warp_foot"] >= 0
