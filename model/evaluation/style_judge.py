@@ -107,29 +107,31 @@ class StyleJudge:
     std: Tensor
     info: dict[str, Any] = field(default_factory=dict)
 
+    def standardise(self, features: Tensor) -> Tensor:
+        """Window statistics ``[..., F]`` in standard deviations of the judge's training windows."""
+        return (features.to(torch.float64) - self.mean) / self.std
+
     def logits_of_features(self, features: Tensor) -> Tensor:
-        z = (features.to(torch.float64) - self.mean) / self.std
+        return self._logits(self.standardise(features))
+
+    def _logits(self, z: Tensor) -> Tensor:
         return z @ self.weight.T + self.bias
+
+    def _window_statistics(self, positions: Tensor) -> Tensor:
+        """``[W, B, F]`` standardised statistics of the :data:`WINDOW`-pose windows of sequences ``[B, T, J, 3]``."""
+        if positions.shape[-2] != len(self.joints):
+            raise ValueError(f"the style judge is for {len(self.joints)} joints, got {positions.shape[-2]}")
+        return torch.stack([self.standardise(window_features(positions[:, s:s + WINDOW], self.fps, self.root))
+                            for s in _windows(positions.shape[1])])
 
     def embed(self, positions: Tensor) -> Tensor:
         """``[B, F]`` standardised window statistics of sequences ``[B, T, J, 3]`` (the mean over their
         windows): what the judge reads, and the feature space of its FMD (:func:`judge_fmd_rows`)."""
-        self._check(positions)
-        z = [(window_features(positions[:, s:s + WINDOW], self.fps, self.root) - self.mean) / self.std
-             for s in _windows(positions.shape[1])]
-        return torch.stack(z).mean(dim=0)
-
-    def _check(self, positions: Tensor) -> None:
-        if positions.shape[-2] != len(self.joints):
-            raise ValueError(f"the style judge is for {len(self.joints)} joints, got {positions.shape[-2]}")
+        return self._window_statistics(positions).mean(dim=0)
 
     def log_probs(self, positions: Tensor) -> Tensor:
         """``[B, S]`` log-probabilities of each style for sequences of global positions ``[B, T, J, 3]``."""
-        self._check(positions)
-        scores = [torch.log_softmax(self.logits_of_features(
-            window_features(positions[:, s:s + WINDOW], self.fps, self.root)), dim=-1)
-            for s in _windows(positions.shape[1])]
-        return torch.stack(scores).mean(dim=0)
+        return torch.log_softmax(self._logits(self._window_statistics(positions)), dim=-1).mean(dim=0)
 
     def predict(self, positions: Tensor) -> Tensor:
         """``[B]`` index into :attr:`styles` of the most likely style."""

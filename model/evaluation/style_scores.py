@@ -25,7 +25,6 @@ The classifier sees the last context frame followed by the generated frames (``N
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import torch
 
@@ -131,22 +130,20 @@ def judge_fmd_rows(judge: StyleJudge, positions: Tensor, reference: Tensor, styl
         raise ValueError(f"judge FMD needs transitions and references of one shape, a style per case; got "
                          f"{list(positions.shape)}, {list(reference.shape)} and {len(styles)} styles")
     feats, ref = judge.embed(positions), judge.embed(reference)
-    out: dict[str, Any] = {"judge_fmd": StyleScorer.fmd(feats, ref), "judge_fmd_by_style": {}}
-    for s in sorted(set(styles)):
-        idx = torch.tensor([i for i, c in enumerate(styles) if c == s])
-        if len(idx) >= 2:
-            out["judge_fmd_by_style"][s] = StyleScorer.fmd(feats[idx], ref[idx])
-    return out
+    return {"judge_fmd": StyleScorer.fmd(feats, ref),
+            "judge_fmd_by_style": {s: StyleScorer.fmd(feats[i], ref[i]) for s, i in _cases_by_style(styles, 2).items()}}
 
 
 def judge_fmd_floor(judge: StyleJudge, reference: Tensor, styles: Sequence[str]) -> dict:
     """The noise floor of :func:`judge_fmd_rows` at this number of cases: real transitions of alternate
     cases against each other, over all cases and per style (``judge_fmd_split_half``, ``..._by_style``)."""
     feats = judge.embed(reference)
-    out: dict[str, Any] = {"judge_fmd_split_half": StyleScorer.fmd(feats[0::2], feats[1::2]),
-                           "judge_fmd_split_half_by_style": {}}
-    for s in sorted(set(styles)):
-        idx = torch.tensor([i for i, c in enumerate(styles) if c == s])
-        if len(idx) >= 4:
-            out["judge_fmd_split_half_by_style"][s] = StyleScorer.fmd(feats[idx[0::2]], feats[idx[1::2]])
-    return out
+    return {"judge_fmd_split_half": StyleScorer.fmd(feats[0::2], feats[1::2]),
+            "judge_fmd_split_half_by_style": {s: StyleScorer.fmd(feats[i[0::2]], feats[i[1::2]])
+                                              for s, i in _cases_by_style(styles, 4).items()}}
+
+
+def _cases_by_style(styles: Sequence[str], at_least: int) -> dict[str, Tensor]:
+    """The case indices of each style with at least ``at_least`` cases, styles in name order."""
+    return {s: idx for s in sorted(set(styles))
+            if len(idx := torch.tensor([i for i, c in enumerate(styles) if c == s])) >= at_least}
