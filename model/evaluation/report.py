@@ -175,6 +175,14 @@ def _judge_gap40_tables(methods: dict[str, Any], gt: dict[str, Any], key: str, l
     lines += _per_style_table(f"Mean probability the judge gives the requested style (same-style clip), {label}, "
                               f"{where}:", {GT_NAME: gt.get("judge_accuracy_prob_by_style"),
                                             **per("judge_accuracy_prob_by_style")})
+    if key == "locomotion":
+        for name, m in methods.items():
+            read_as: dict[str, dict[str, float]] | None = m.get(key, {}).get("gap40", {}).get(
+                "judge_accuracy_read_as_by_style")
+            if read_as:
+                lines += _per_style_table(f"What the judge reads {name}'s transitions as (a row per requested style, "
+                                          f"shares of its cases), {label}, {where}:",
+                                          {f"asked {s}": row for s, row in read_as.items()})
     fmd = {GT_NAME + " (split halves)": gt.get("judge_fmd_split_half_by_style"), **per("judge_fmd_by_style")}
     if any(fmd.values()):
         overall = {name: m.get(key, {}).get("gap40", {}).get("judge_fmd") for name, m in methods.items()}

@@ -102,7 +102,9 @@ def matched_reference(gt_features: Tensor, case_styles: Sequence[str], requested
 
 def judge_rows(judge: StyleJudge, positions: Tensor, requested: Sequence[str], prefix: str = "judge_accuracy") -> dict:
     """The style judge's accuracy on sequences ``[B, T, J, 3]`` against the requested styles, overall
-    (``prefix``) and per requested style (``prefix + "_by_style"``); styles it does not know are left out."""
+    (``prefix``) and per requested style (``prefix + "_by_style"``), the mean probability it gives the
+    requested style (``..._prob``, ``..._prob_by_style``) and the share of each requested style's cases it
+    reads as each style (``..._read_as_by_style``); styles it does not know are left out."""
     index = {s: k for k, s in enumerate(judge.styles)}
     labels = torch.tensor([index.get(s, -1) for s in requested], dtype=torch.long)
     known = labels >= 0
@@ -114,10 +116,16 @@ def judge_rows(judge: StyleJudge, positions: Tensor, requested: Sequence[str], p
     # style clip pulling the motion toward its style even where the judge's vote still goes elsewhere.
     prob = log_probs.exp().gather(1, labels.clamp_min(0).unsqueeze(1)).squeeze(1)
     present = {s: k for s, k in index.items() if bool((labels == k).any())}
+    # What each requested style is read as (a row of the confusion matrix): where a style is missed, the
+    # style the motion fell back to says what the model did with the clip.
+    votes = log_probs.argmax(dim=-1)
+    read_as = {s: {t: float((votes[labels == k] == j).float().mean()) for t, j in index.items()}
+               for s, k in present.items()}
     return {prefix: float(hit[known].float().mean()),
             prefix + "_by_style": {s: float(hit[labels == k].float().mean()) for s, k in present.items()},
             prefix + "_prob": float(prob[known].mean()),
-            prefix + "_prob_by_style": {s: float(prob[labels == k].mean()) for s, k in present.items()}}
+            prefix + "_prob_by_style": {s: float(prob[labels == k].mean()) for s, k in present.items()},
+            prefix + "_read_as_by_style": read_as}
 
 
 def judge_fmd_rows(judge: StyleJudge, positions: Tensor, reference: Tensor, styles: Sequence[str]) -> dict:

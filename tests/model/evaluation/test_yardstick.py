@@ -239,6 +239,8 @@ def test_eval_with_judge_reports_which_classifier_and_per_style_rows(dataset: tu
     assert gt["judge_fmd_split_half"] >= 0.0 and 0.0 <= cross["judge_accuracy_prob"] <= 1.0
     assert "FMD in the judge's feature space" in text and "Mean probability the judge gives" in text
     assert "judge_fmd" not in loco["gap40-turn+90"]  # no ground truth there
+    assert "What the judge reads interp's transitions as" in text
+    assert set(cross["judge_accuracy_read_as_by_style"]) == set(cross["judge_accuracy_by_style"])
 
 
 def test_judge_fmd_is_zero_on_the_real_motion_and_grows_as_the_motion_departs(cache: MotionCache) -> None:
@@ -266,3 +268,9 @@ def test_judge_fmd_is_zero_on_the_real_motion_and_grows_as_the_motion_departs(ca
     want = probs[torch.arange(len(takes)), torch.tensor([judge.styles.index(n) for n in names])].mean()
     assert rows["judge_accuracy_prob"] == pytest.approx(float(want))
     assert set(rows["judge_accuracy_prob_by_style"]) == set(names)
+    votes = probs.argmax(dim=-1)
+    for style, shares in rows["judge_accuracy_read_as_by_style"].items():  # a confusion row per requested style
+        assert sum(shares.values()) == pytest.approx(1.0)
+        assert shares[style] == pytest.approx(rows["judge_accuracy_by_style"][style])
+        mine = votes[[i for i, n in enumerate(names) if n == style]]
+        assert all(shares[t] == pytest.approx(float((mine == judge.styles.index(t)).float().mean())) for t in shares)
