@@ -19,6 +19,7 @@ GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("serve_commands", ("serve",)),
     ("eval_commands", ("eval",)),
     ("finetune_commands", ("finetune-style",)),
+    ("style_probe_commands", ("style-probe",)),
     ("average_commands", ("average",)),
     ("package_commands", ("package", "bundle")),
     ("client_commands", ("client",)),

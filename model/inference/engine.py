@@ -184,6 +184,12 @@ class Engine:
     def style_id(self, clip: Clip) -> str:
         return clip_content_hash(self.conform(clip, "style clip"), self.version)
 
+    def style_code(self, clip: Clip) -> Tensor:
+        """The style encoder's code ``[1, T', C]`` of a clip already on this model's rig (see :meth:`conform`)."""
+        pos, rot = self._global(clip)
+        with torch.inference_mode():
+            return self.sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
+
     def encode_style(self, clip: Clip, name: str = "") -> tuple[EncodedStyle, bool]:
         """Encode a style clip, or return the cached encoding; the bool says whether it was cached."""
         clip = self.conform(clip, "style clip")
@@ -196,9 +202,8 @@ class Engine:
         cached = self.styles.get(sid)
         if cached is not None:
             return cached, True
-        pos, rot = self._global(clip)
+        code = self.style_code(clip)
         with torch.inference_mode():
-            code = self.sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
             ctx = self.sampler.style_context(code)
         style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, ctx.nbytes)
         self.styles.put(sid, style)
