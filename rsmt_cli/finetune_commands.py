@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -16,20 +17,27 @@ MIN_CLIPS, MAX_CLIPS = 1, 5
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "finetune-style", help="adapt a trained bundle to a style it never saw, from a few BVH clips",
-        description="Train only the style encoder and the FiLM/attention linear layers on a few clips of a new "
-                    "style (mirrored and time-rescaled copies added), and write the adapted bundle with the new style "
-                    "built in (style id builtin:NAME, served like the others by rsmt serve --models DIR). With --data, "
+        description="Train a bundle on a few clips of a new style (mirrored and time-rescaled copies added) and write "
+                    "the adapted bundle with the new style built in (style id builtin:NAME, served like the others by "
+                    "rsmt serve --models DIR). With --data, every step also rehearses the styles the bundle was trained "
+                    "on (the data's train split, without the styles its training held out), so it keeps them, and "
                     "the data's styles are encoded by the adapted weights and built in too.")
     p.add_argument("--model", type=Path, required=True, help="the trained bundle to adapt")
     p.add_argument("--clips", type=Path, nargs="+", required=True, metavar="BVH",
                    help=f"{MIN_CLIPS} to {MAX_CLIPS} clips of the new style (3 is the measured case)")
     p.add_argument("--name", required=True, help="name of the new style (its built-in style id is builtin:NAME)")
     p.add_argument("--data", type=Path, metavar="DATA",
-                   help="a motion dataset: also build in one walking clip per style of its train split, encoded by the "
-                        "adapted weights (a style of the same name as --name is left to the new clips)")
+                   help="the bundle's training data: rehearse its known styles while fine-tuning, and build in one "
+                        "walking clip per style of its train split, encoded by the adapted weights (a style of the same "
+                        "name as --name is left to the new clips)")
+    p.add_argument("--scope", choices=("network", "style"), default="network",
+                   help="what learns: network (default; every sampler weight but the manifold decoder) or style (the "
+                        "paper's: the style encoder and the FiLM/attention layers)")
+    p.add_argument("--no-rehearsal", action="store_true", help="with --data, do not rehearse the known styles")
     p.add_argument("--out", type=Path, required=True, help="folder of the adapted bundle")
     p.add_argument("--iterations", type=int, default=300, help="optimiser steps (default 300)")
-    p.add_argument("--run", type=Path, help="folder for checkpoints (default: OUT/../.finetune-NAME)")
+    p.add_argument("--run", type=Path, help="folder for checkpoints, resumed by the same command (default: "
+                                            "OUT/../.finetune-NAME, where a run of other settings is replaced)")
     p.add_argument("--threads", type=int, default=0, help="torch threads")
     add_device_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -45,6 +53,7 @@ def _run(args: argparse.Namespace) -> int:
     from model.inference.style_packing import write_builtin_styles
     from model.motion.bvh_clip import load_clip
     from model.train.finetune import FinetuneConfig, finetune_style
+    from model.train.finetune_data import rehearsal_motion
 
     if not MIN_CLIPS <= len(args.clips) <= MAX_CLIPS:
         raise ValueError(f"--clips takes {MIN_CLIPS} to {MAX_CLIPS} clips of the new style; got {len(args.clips)}")
@@ -56,11 +65,18 @@ def _run(args: argparse.Namespace) -> int:
     engine = Engine(bundle)
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
     base_styles = _data_styles(args.data, bundle, args.name) if args.data is not None else []  # before the long part
-    cfg = FinetuneConfig()
+    rehearsal = None
+    if args.data is not None and not args.no_rehearsal:
+        rehearsal = rehearsal_motion(args.data, bundle, args.model, args.name, progress=not args.quiet)
+    cfg = FinetuneConfig.for_scope(args.scope)
     cfg.loop.iterations = args.iterations
     cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, args.iterations))
     run = args.run or args.out.parent / f".finetune-{args.name}"
-    tuned, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device)
+    claim_run_folder(run, {"model": str(args.model.resolve()), "version": bundle.version, "name": args.name,
+                           "clips": [str(c.resolve()) for c in args.clips], "scope": args.scope,
+                           "iterations": args.iterations, "rehearsal": rehearsal is not None}, replace=args.run is None)
+    tuned, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device,
+                                   rehearsal=rehearsal)
     if not result.finished:
         print(f"stopped early; run again to resume from {run}")
         return 3
@@ -73,6 +89,25 @@ def _run(args: argparse.Namespace) -> int:
         print(f"only builtin:{args.name} is built in: the model's other built-in styles were encoded by the weights "
               "before fine-tuning; give --data DATA to encode the data's styles with the adapted ones", file=sys.stderr)
     return 0
+
+
+def claim_run_folder(run: Path, request: dict[str, Any], replace: bool = False) -> None:
+    """Resume only the same run: a run folder (checkpoints) holding another request is never mixed in; it is
+    refused, or with ``replace`` (the default folder, ours) started afresh."""
+    marker = run / "request.json"
+    if marker.is_file():
+        held = json.loads(marker.read_text())
+        if held != request:
+            changed = sorted(k for k in {*held, *request} if held.get(k) != request.get(k))
+            if not replace:
+                raise ValueError(f"{run} holds a fine-tuning run with other settings ({', '.join(changed)}): remove "
+                                 "it, or give another --run folder")
+            print(f"{run}: a run with other settings ({', '.join(changed)}) is replaced", file=sys.stderr)
+            shutil.rmtree(run)
+    elif run.is_dir() and any(run.iterdir()):
+        raise ValueError(f"{run} is not empty and holds no fine-tuning request: remove it, or give another --run folder")
+    run.mkdir(parents=True, exist_ok=True)
+    marker.write_text(json.dumps(request, indent=1))
 
 
 def _new_style(clips: list, paths: list[Path], name: str, bundle: Any) -> Any:

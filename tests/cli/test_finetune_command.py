@@ -75,3 +75,32 @@ def test_clip_count_and_name_are_checked_before_training(setup, capsys):
     args[args.index("bouncy")] = "no spaces allowed"
     assert main(args) == 2
     assert not (tmp_path / "tuned").exists() and not (tmp_path / ".finetune-bouncy").exists()
+
+
+def test_data_rehearses_the_known_styles_unless_told_not_to(setup, capsys):
+    tmp_path, data, bouncy = setup
+    assert main(_args(tmp_path, bouncy[:3], "--data", str(data))) == 0
+    notes = Bundle.load(tmp_path / "tuned").meta.notes
+    assert "rehearsing brisk, slow" in notes and "every sampler weight" in notes
+    capsys.readouterr()
+    args = _args(tmp_path, bouncy[:3], "--data", str(data), "--no-rehearsal", "--scope", "style")
+    args[args.index(str(tmp_path / "tuned"))] = str(tmp_path / "tuned2")
+    assert main(args) == 0
+    assert "a run with other settings (rehearsal, scope) is replaced" in capsys.readouterr().err  # the default folder
+    notes = Bundle.load(tmp_path / "tuned2").meta.notes
+    assert "rehearsing" not in notes and "FiLM/attention linears only" in notes
+
+
+def test_a_run_folder_of_other_settings_is_refused_not_mixed_in(setup, capsys):
+    tmp_path, _, bouncy = setup
+    run = tmp_path / "run"
+    assert main(_args(tmp_path, bouncy[:2], "--run", str(run))) == 0
+    assert main(_args(tmp_path, bouncy[:2], "--run", str(run))) == 0  # the same request: resumed (already finished)
+    capsys.readouterr()
+    assert main(_args(tmp_path, bouncy[:2], "--run", str(run), "--scope", "style")) == 2
+    assert "other settings (scope)" in capsys.readouterr().err
+    stray = tmp_path / "stray"
+    stray.mkdir()
+    (stray / "notes.txt").write_text("mine")
+    assert main(_args(tmp_path, bouncy[:2], "--run", str(stray))) == 2
+    assert "holds no fine-tuning request" in capsys.readouterr().err
