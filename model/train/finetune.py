@@ -6,8 +6,9 @@ Two scopes of what learns:
   blocks; everything else stays frozen.
 * ``network`` (the default): every weight of the sampler but the manifold decoder, at a lower rate.
   A network whose recurrent core and head only ever made its training styles cannot make a new one
-  by modulation alone: on validation the style scope moved the judge's reading of a held-out style
-  from 0% to 2%, this scope to 47% (docs/experiments/2026-11-25-unseen-styles.md).
+  by modulation alone: on validation, with an early checkpoint of a model trained without the style,
+  the style scope moved the judge's reading of that style from 0% to 2%, this scope to 47%
+  (docs/experiments/2026-11-25-unseen-styles.md).
 
 Either way the FiLM and attention layers are shared by every style, so the other styles drift. With
 ``rehearsal`` (windows of the styles the bundle was trained on, from its data), every step also
