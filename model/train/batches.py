@@ -34,6 +34,22 @@ class WindowBatch:
     style: Tensor
     rotations: Tensor  # [B, L, J, 4] canonical world rotations
 
+    @staticmethod
+    def cat(batches: list[WindowBatch]) -> WindowBatch:
+        """One batch of the windows of ``batches`` (of one length, all with or all without phases)."""
+
+        def join(parts: list[Tensor | None]) -> Tensor | None:
+            if any(x is None for x in parts):
+                if not all(x is None for x in parts):
+                    raise ValueError("cannot join windows with phase labels and windows without")
+                return None
+            return torch.cat([x for x in parts if x is not None])
+
+        states = PoseState(*(torch.cat([getattr(b.states, f) for b in batches]) for f in ("rel", "vel", "rot", "root_xz")))
+        return WindowBatch(states, join([b.phase for b in batches]), join([b.amplitude for b in batches]),
+                           join([b.frequency for b in batches]), torch.cat([b.contacts for b in batches]),
+                           torch.cat([b.style for b in batches]), torch.cat([b.rotations for b in batches]))
+
 
 def make_batch(tensors: MotionTensors, starts: Tensor, owners: Tensor, length: int, reference: int,
                with_phase: bool = True) -> WindowBatch:

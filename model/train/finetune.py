@@ -26,7 +26,7 @@ import torch
 from model.inference.bundle import Bundle
 from model.motion.clip import Clip
 from model.motion.features import local_frame_features
-from model.train.batches import make_batch
+from model.train.batches import WindowBatch, make_batch
 from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 from model.train.phase_stage import label_tensors
@@ -83,8 +83,8 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     """A copy of ``bundle`` adapted to the style of ``clips`` (already on the bundle's rig, model fps).
 
     ``rehearsal``: motion of the styles the bundle knows (phase-labelled or not), trained on beside the
-    clips (``cfg.rehearsal_batch`` windows a step). Trains on ``device``; the returned bundle is on the
-    CPU, like every loaded one.
+    clips (``cfg.rehearsal_batch`` of its windows join each step's batch; validation reads the clips
+    only). Trains on ``device``; the returned bundle is on the CPU, like every loaded one.
     """
     dev = resolve_device(device)
     if bundle.phase_model is None:
@@ -118,11 +118,17 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     val_gen = torch.Generator().manual_seed(cfg.loop.seed + 1)
     val_sets = [pairs.sample(8, val_gen) for _ in range(2)]
 
-    def run_losses(motion, starts, owners, style_starts, length, gen, training):
+    def windows(motion, starts, owners, style_starts, length):
         batch = make_batch(motion, starts, owners, c.context + length, c.context - 1)
         pos, rot = motion.gather(style_starts, style_frames)
-        feats = local_frame_features(pos, rot, motion.skeleton)
-        return transition_losses(sampler, motion, batch, feats, length, stage, gen, training)
+        return batch, local_frame_features(pos, rot, motion.skeleton)
+
+    def run_losses(starts, owners, style_starts, length, gen, training):
+        batch, feats = windows(tensors, starts, owners, style_starts, length)
+        if training and old is not None:  # the known styles' windows join the batch: one pass for both
+            known, known_feats = windows(old[0], *old[1].sample(cfg.rehearsal_batch, gen), length)
+            batch, feats = WindowBatch.cat([batch, known]), torch.cat([feats, known_feats])
+        return transition_losses(sampler, tensors, batch, feats, length, stage, gen, training)
 
     def objective(out: dict) -> torch.Tensor:
         return (out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + 0.05 * out["foot"]
@@ -131,18 +137,12 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     def step(i: int) -> dict[str, float]:
         gen = step_generator(cfg.loop.seed, i)
         length = int(torch.randint(5, transition + 1, (1,), generator=gen))
-        out = run_losses(tensors, *pairs.sample(cfg.batch, gen), length, gen, True)
-        total = objective(out)
-        logged = {k: out[k].item() for k in ("pos", "fk_error_cm")}
-        if old is not None:
-            known = run_losses(old[0], *old[1].sample(cfg.rehearsal_batch, gen), length, gen, True)
-            total = total + objective(known)
-            logged["known_fk_error_cm"] = known["fk_error_cm"].item()
-        total.backward()
-        return logged
+        out = run_losses(*pairs.sample(cfg.batch, gen), length, gen, True)
+        objective(out).backward()
+        return {k: out[k].item() for k in ("pos", "fk_error_cm")}
 
     def validate() -> dict[str, float]:
-        vals = [run_losses(tensors, *v, stage.validation_transition, None, False) for v in val_sets]
+        vals = [run_losses(*v, stage.validation_transition, None, False) for v in val_sets]
         return {k: sum(v[k].item() for v in vals) / len(vals) for k in ("fk_error_cm", "last_fk_error_cm")}
 
     result = train_loop("finetune", folder, sampler, params, cfg.loop, step, validate, progress)
@@ -152,11 +152,15 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
         p.requires_grad_(False)
     tuned.meta = copy.deepcopy(bundle.meta)
     tuned.meta.name = f"{bundle.meta.name}+{style_name}"
+    tuned.meta.notes = _notes(bundle.meta.notes, len(clips), style_name, cfg, None if old is None else old[0])
+    return tuned, result
+
+
+def _notes(before: str, clips: int, style_name: str, cfg: FinetuneConfig, rehearsed: MotionTensors | None) -> str:
     what = ("style encoder and FiLM/attention linears only" if cfg.scope == "style"
             else "every sampler weight but the manifold decoder")
     kept = ""
-    if old is not None:
-        kept = ", rehearsing " + ", ".join(sorted({old[0].styles[k] for k in old[0].style.unique().tolist()}))
-    tuned.meta.notes = (f"{bundle.meta.notes} Fine-tuned on {len(clips)} clip(s) of style {style_name!r} "
-                        f"({what}; {cfg.loop.iterations} steps{kept}).").strip()
-    return tuned, result
+    if rehearsed is not None:
+        kept = ", rehearsing " + ", ".join(sorted({rehearsed.styles[k] for k in rehearsed.style.unique().tolist()}))
+    return (f"{before} Fine-tuned on {clips} clip(s) of style {style_name!r} "
+            f"({what}; {cfg.loop.iterations} steps{kept}).").strip()
