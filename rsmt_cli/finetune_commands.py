@@ -65,16 +65,15 @@ def _run(args: argparse.Namespace) -> int:
     engine = Engine(bundle)
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
     base_styles = _data_styles(args.data, bundle, args.name) if args.data is not None else []  # before the long part
-    rehearsal = None
-    if args.data is not None and not args.no_rehearsal:
-        rehearsal = rehearsal_motion(args.data, bundle, args.model, args.name, progress=not args.quiet)
+    rehearse = args.data is not None and not args.no_rehearsal
     cfg = FinetuneConfig.for_scope(args.scope)
     cfg.loop.iterations = args.iterations
     cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, args.iterations))
     run = args.run or args.out.parent / f".finetune-{args.name}"
     claim_run_folder(run, {"model": str(args.model.resolve()), "version": bundle.version, "name": args.name,
                            "clips": [str(c.resolve()) for c in args.clips], "scope": args.scope,
-                           "iterations": args.iterations, "rehearsal": rehearsal is not None}, replace=args.run is None)
+                           "iterations": args.iterations, "rehearsal": rehearse}, replace=args.run is None)
+    rehearsal = rehearsal_motion(args.data, bundle, args.model, args.name, progress=not args.quiet) if rehearse else None
     tuned, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device,
                                    rehearsal=rehearsal)
     if not result.finished:
@@ -105,7 +104,11 @@ def claim_run_folder(run: Path, request: dict[str, Any], replace: bool = False) 
             print(f"{run}: a run with other settings ({', '.join(changed)}) is replaced", file=sys.stderr)
             shutil.rmtree(run)
     elif run.is_dir() and any(run.iterdir()):
-        raise ValueError(f"{run} is not empty and holds no fine-tuning request: remove it, or give another --run folder")
+        if not replace:
+            raise ValueError(f"{run} is not empty and holds no fine-tuning request: remove it, or give another --run "
+                             "folder")
+        print(f"{run}: an earlier run without a request is replaced", file=sys.stderr)
+        shutil.rmtree(run)
     run.mkdir(parents=True, exist_ok=True)
     marker.write_text(json.dumps(request, indent=1))
 

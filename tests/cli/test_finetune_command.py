@@ -104,3 +104,9 @@ def test_a_run_folder_of_other_settings_is_refused_not_mixed_in(setup, capsys):
     (stray / "notes.txt").write_text("mine")
     assert main(_args(tmp_path, bouncy[:2], "--run", str(stray))) == 2
     assert "holds no fine-tuning request" in capsys.readouterr().err
+    # The default folder is ours: an earlier run there without a request is replaced, not refused.
+    default = tmp_path / ".finetune-bouncy"
+    default.mkdir()
+    (default / "checkpoint.json").write_text("{}")
+    assert main(_args(tmp_path, bouncy[:2])) == 0
+    assert "an earlier run without a request is replaced" in capsys.readouterr().err
