@@ -77,13 +77,14 @@ def _judge_line(report: dict[str, Any]) -> list[str]:
 def _unchanged_controls(methods: dict[str, Any], report: dict[str, Any], key: str, gt_key: str) -> list[str]:
     """Per gap: the figures that need ground truth."""
     header = ["gap", "method", "L2P", "L2Q", "NPSS", "100×NPSS", "MPJPE cm", "foot skate", "GT foot skate",
-              "last frame cm", "max root speed cm/s", "style (judge)", "style (judge), other-style clip",
+              "below floor cm", "last frame cm", "max root speed cm/s", "style (judge)", "style (judge), other-style clip",
               "diversity cm"]
     rows = []
     gts = report.get(gt_key, {})
     for v in _variants(report, True):
         gt = gts.get(v["name"], {})
-        rows.append([str(v["gap"]), GT_NAME, "–", "–", "–", "–", "–", _fmt(gt.get("foot_skate")), "–", "–",
+        rows.append([str(v["gap"]), GT_NAME, "–", "–", "–", "–", "–", _fmt(gt.get("foot_skate")), "–",
+                     _fmt(gt.get("floor_depth_cm"), 2), "–",
                      _fmt(gt.get("max_root_speed_cm_s"), 1), _fmt(gt.get("judge_accuracy")), "–", "–"])
         for name, m in methods.items():
             r = m.get(key, {}).get(v["name"], {})
@@ -92,20 +93,22 @@ def _unchanged_controls(methods: dict[str, Any], report: dict[str, Any], key: st
                 continue
             rows.append([str(v["gap"]), name, _fmt(r.get("l2p")), _fmt(r.get("l2q")), _fmt(r.get("npss"), 5),
                          _fmt(r.get("npss_x100")), _fmt(r.get("mpjpe_cm"), 2), _fmt(r.get("foot_skate")),
-                         _fmt(gt.get("foot_skate")), _fmt(r.get("last_frame_cm"), 2),
+                         _fmt(gt.get("foot_skate")), _fmt(r.get("floor_depth_cm"), 2), _fmt(r.get("last_frame_cm"), 2),
                          _fmt(r.get("max_root_speed_cm_s"), 1), _fmt(r.get("judge_accuracy")),
                          _fmt(r.get("judge_accuracy_cross")), _fmt(r.get("diversity_cm"), 2)])
     where = "locomotion cases" if key == "locomotion" else "all contents"
     return [f"### Unchanged controls, {where} (ground truth exists)", "", *_table(header, rows), "",
             "Max root speed: per case the largest root speed between consecutive frames (the last context "
-            "frame first), averaged over cases; style (judge): the judge's accuracy on the requested style, 40-frame "
+            "frame first), averaged over cases; below floor: per case the deepest a foot joint goes under its ground "
+            "level, averaged over cases; style (judge): the judge's accuracy on the requested style, 40-frame "
             "gap, with a clip of the case's own style and with a clip of another style (baselines ignore the clip).",
             ""]
 
 
 def _changed_controls(methods: dict[str, Any], report: dict[str, Any], key: str, gt_key: str) -> list[str]:
     """The 40-frame gap with the target moved, turned or the duration scaled (no ground truth)."""
-    header = ["variant", "method", "frames", "arrival cm", "last-frame L2P", "foot skate", "max root speed cm/s",
+    header = ["variant", "method", "frames", "arrival cm", "last-frame L2P", "foot skate", "below floor cm",
+              "max root speed cm/s",
               "worst root speed cm/s", "style (judge)"]
     clf = report.get("classifier") if key == "variants" else None
     if clf:
@@ -120,7 +123,7 @@ def _changed_controls(methods: dict[str, Any], report: dict[str, Any], key: str,
                 rows.append([v["label"], name, str(v["frames"])] + ["n/a"] * (len(header) - 3))
                 continue
             cells = [v["label"], name, str(v["frames"]), _fmt(r.get("last_frame_cm"), 2), _fmt(r.get("last_frame_l2p")),
-                     _fmt(r.get("foot_skate")), _fmt(r.get("max_root_speed_cm_s"), 1),
+                     _fmt(r.get("foot_skate")), _fmt(r.get("floor_depth_cm"), 2), _fmt(r.get("max_root_speed_cm_s"), 1),
                      _fmt(r.get("max_root_speed_cm_s_worst"), 1), _fmt(r.get("judge_accuracy"))]
             if clf:
                 cells.append(_fmt(r.get("style_accuracy")))

@@ -41,6 +41,7 @@ from model.evaluation.cases import (
     build_cases,
     stable_hash,
 )
+from model.evaluation.floor import floor_depth
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
 from model.evaluation.scoring import Transitions, ground_truth_transitions, root_speed, score, to_canonical
@@ -204,6 +205,7 @@ def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[
         gt = ground_truth_transitions(cases, v)
         row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
                                "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground)),
+                               "floor_depth_cm": float(floor_depth(gt.generated_positions, stats.feet, stats.ground).mean()),
                                **root_speed(gt.positions, cases)}
         if run.judge is not None and v.gap == STYLE_GAP:
             row.update(judge_rows(run.judge, gt.positions, styles))
@@ -231,6 +233,8 @@ def _score_ground_truth_locomotion(run: EvalRun) -> dict[str, dict[str, Any]]:
         gt = ground_truth_transitions(loco, v)
         row: dict[str, Any] = {"cases": len(loco), "frames": v.gap,
                                "foot_skate": float(metrics.foot_skate(gt.positions, run.stats.feet, run.stats.ground)),
+                               "floor_depth_cm": float(floor_depth(gt.generated_positions, run.stats.feet,
+                                                                   run.stats.ground).mean()),
                                **root_speed(gt.positions, loco)}
         context = root_speed(loco.canonical_positions[:, :CONTEXT], loco)
         row.update({f"context_{k}": x for k, x in context.items()})

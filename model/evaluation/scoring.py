@@ -19,7 +19,9 @@ after any target shift), ``last_frame_l2p`` (the same in standardised units, the
 "L2 norm of global position of the last frame"), ``foot_skate``, and the largest root speed over
 the transition (last context frame included, cm/s): ``max_root_speed_cm_s``, the mean over cases of
 each case's largest, and ``max_root_speed_cm_s_worst``, the largest of all (a course correction by
-jumping shows there).
+jumping shows there); ``floor_depth_cm`` (and ``floor_depth_cm_gt`` with ground truth): per case the
+deepest a foot joint goes below its ground level over the generated frames, mean over cases
+(:mod:`model.evaluation.floor`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import torch
 
 from model.evaluation import metrics
 from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
+from model.evaluation.floor import floor_depth
 from model.evaluation.reference import ReferenceStats
 
 Tensor = torch.Tensor
@@ -85,6 +88,7 @@ def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> 
         "last_frame_cm": float(metrics.last_frame_error_cm(pred_pos, target)),
         "last_frame_l2p": float(metrics.l2p(pred_pos[:, -1:], target, ref.positions)),
         "foot_skate": float(metrics.foot_skate(out.positions, ref.feet, ref.ground)),
+        "floor_depth_cm": float(floor_depth(out.generated_positions, ref.feet, ref.ground).mean()),
         **root_speed(out.positions, cases),
     }
     if v.has_ground_truth:
@@ -98,5 +102,6 @@ def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> 
             "npss_x100": 100.0 * npss,
             "mpjpe_cm": float(metrics.mean_joint_error_cm(pred_pos, gt_pos)),
             "foot_skate_gt": float(metrics.foot_skate(gt.positions, ref.feet, ref.ground)),
+            "floor_depth_cm_gt": float(floor_depth(gt_pos, ref.feet, ref.ground).mean()),
         })
     return result

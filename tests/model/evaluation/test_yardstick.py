@@ -240,6 +240,7 @@ def test_eval_with_judge_reports_which_classifier_and_per_style_rows(dataset: tu
     assert "FMD in the judge's feature space" in text and "Mean probability the judge gives" in text
     assert "judge_fmd" not in loco["gap40-turn+90"]  # no ground truth there
     assert "What the judge reads interp's transitions as" in text
+    assert cross["floor_depth_cm"] >= 0.0 and gt["floor_depth_cm"] >= 0.0 and "below floor cm" in text
     assert set(cross["judge_accuracy_read_as_by_style"]) == set(cross["judge_accuracy_by_style"])
 
 
