@@ -41,7 +41,7 @@ def _run(args: argparse.Namespace) -> int:
     out = engine.output
     label = (f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
              f"foot lock {'on' if out.foot_lock else 'off'}"
-             f"{f', steering {out.steering.window}' if out.steering.on else ''}"
+             f"{f', steering {out.steering.window}' if out.steering.on else ''}{', floor contact' if out.floor else ''}"
              f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     if not args.no_paper:

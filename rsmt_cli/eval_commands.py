@@ -133,7 +133,8 @@ def _command(args: argparse.Namespace) -> str:
     if args.stream_retarget:
         parts.append("--stream-retarget")
     for flag, setting in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing),
-                          ("--foot-lock", args.foot_lock), ("--steering", args.steering), ("--int8-lstm", args.int8_lstm)):
+                          ("--foot-lock", args.foot_lock), ("--steering", args.steering), ("--floor", args.floor),
+                          ("--int8-lstm", args.int8_lstm)):
         if setting is not None:
             parts += [flag, f"{setting:g}" if isinstance(setting, float) else str(setting)]
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),

@@ -14,10 +14,11 @@ class OutputOverrides(TypedDict):
     foot_lock: bool | None
     int8_lstm: bool | None
     steering: int | None
+    floor: bool | None
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
-    """``--smoothing``, ``--root-smoothing``, ``--foot-lock``, ``--steering`` and ``--int8-lstm``; ``owner``
+    """``--smoothing``, ``--root-smoothing``, ``--foot-lock``, ``--steering``, ``--floor`` and ``--int8-lstm``; ``owner``
     names whose settings they override in the help ("each bundle", "the bundle")."""
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help=f"output-filter strength, in [0, 1) (default: {owner}'s own setting; 0 gives the network's "
@@ -30,6 +31,9 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
     p.add_argument("--steering", type=int, default=None, metavar="FRAMES",
                    help=f"steer the root toward the target over the last FRAMES frames (0: off; default: {owner}'s "
                         "own setting)")
+    p.add_argument("--floor", choices=("on", "off"), default=None,
+                   help=f"lift a body whose feet sink under its context's floor, on or off (default: {owner}'s own "
+                        "setting)")
     p.add_argument("--int8-lstm", choices=("on", "off"), default=None,
                    help=f"run the LSTM cell of the per-frame step with int8 weights, on or off (default: {owner}'s "
                         "own setting)")
@@ -45,4 +49,5 @@ def output_overrides(args: argparse.Namespace) -> OutputOverrides:
         raise ValueError("--steering must be 0 (off) or more frames")
     return {"steering": args.steering, "smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
             "foot_lock": None if args.foot_lock is None else args.foot_lock == "on",
+            "floor": None if args.floor is None else args.floor == "on",
             "int8_lstm": None if args.int8_lstm is None else args.int8_lstm == "on"}

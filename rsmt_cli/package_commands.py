@@ -74,7 +74,7 @@ def _run(args: argparse.Namespace) -> int:
     # Codes belong to the weights that made them: they are written after the copy's weights (float16 or not).
     kept, bundle.styles = bundle.styles, {}
     bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
-                                                 overrides["foot_lock"], overrides["steering"])
+                                                 overrides["foot_lock"], overrides["steering"], overrides["floor"])
     bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)

@@ -18,6 +18,7 @@ import torch
 from model.inference.arrival import ArrivalCorrector, ArrivalState
 from model.inference.bundle import Bundle
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
+from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock
 from model.inference.int8_step import int8_lstm_sampler
 from model.inference.steering import steer
@@ -95,16 +96,17 @@ class Engine:
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
                  cache_bytes: int = 256 << 20, compiled: bool = True, smoothing: float | None = None,
                  foot_lock: bool | None = None, root_smoothing: float | None = None,
-                 int8_lstm: bool | None = None, steering: int | None = None) -> None:
+                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None) -> None:
         """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
         the root, :mod:`model.inference.output_filter`) and ``foot_lock`` (:mod:`model.inference.foot_lock`) override the
         bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
         ``steering`` overrides the steering window of the bundle's output settings (frames; 0: off;
-        :mod:`model.inference.steering`). ``int8_lstm`` overrides the bundle's inference setting
+        :mod:`model.inference.steering`), ``floor`` its floor contact (:mod:`model.inference.floor_contact`).
+        ``int8_lstm`` overrides the bundle's inference setting
         (:mod:`model.inference.int8_step`).
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
-        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering)
+        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering, floor)
         self.inference = bundle.inference.with_overrides(int8_lstm)
         if threads:
             torch.set_num_threads(threads)
@@ -129,7 +131,9 @@ class Engine:
         self.step_fn = CompiledStep(stepper) if compiled else (lambda st, sty: stepper.step(st, sty)[0])
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
-        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock), traced=compiled)
+        self.floor = FloorContact(self.skeleton) if self.output.floor else None
+        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor),
+                                             traced=compiled)
         self._ids = itertools.count()
 
     # ------------------------------------------------------------------ description
@@ -239,6 +243,8 @@ class Engine:
         ch._init, ch._frame = (cstate, tstate, frames, noise, known), frame
         crot = quat_normalize(context.rotations)
         ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
+        if self.floor is not None:
+            ch._post["floor"] = self.floor.floor(crot, context.root_positions)
         if self.foot_lock is not None:
             lock = self.foot_lock.start(crot, context.root_positions)
             ch._post.update(lock.memory())

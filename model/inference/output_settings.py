@@ -18,12 +18,14 @@ class OutputConfig:
     """``smoothing``: the causal output filter's weight of the previous emitted frame for the joint
     rotations, in [0, 1) (0: off); ``root_smoothing``: the same for the root position (None: as
     ``smoothing``). ``foot_lock``: hold planted feet by leg IK. ``steering``: keep the root on course
-    for the target (:mod:`model.inference.steering`; its window 0: off)."""
+    for the target (:mod:`model.inference.steering`; its window 0: off). ``floor``: lift a body whose
+    feet sink under the floor of its context (:mod:`model.inference.floor_contact`)."""
 
     smoothing: float = 0.0
     foot_lock: bool = False
     root_smoothing: float | None = None
     steering: SteeringConfig = field(default_factory=SteeringConfig)
+    floor: bool = False
 
     def __post_init__(self) -> None:
         for name, value in (("output smoothing", self.smoothing), ("root smoothing", self.root_strength)):
@@ -39,7 +41,8 @@ class OutputConfig:
         return self.smoothing > 0 or self.root_strength > 0
 
     def with_overrides(self, smoothing: float | None = None, root_smoothing: float | None = None,
-                       foot_lock: bool | None = None, steering: int | None = None) -> OutputConfig:
+                       foot_lock: bool | None = None, steering: int | None = None,
+                       floor: bool | None = None) -> OutputConfig:
         """These settings with a caller's overrides (None keeps a setting). Once either strength is
         given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value.
         ``steering`` is the steering window in frames (0: off)."""
@@ -49,14 +52,15 @@ class OutputConfig:
         else:
             rot, root = self.smoothing, self.root_smoothing
         steer = self.steering if steering is None else dataclasses.replace(self.steering, window=int(steering))
-        return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer)
+        return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer,
+                            self.floor if floor is None else bool(floor))
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> OutputConfig:
-        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering"}
+        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering", "floor"}
         if unknown:
             raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
         data = dict(data)

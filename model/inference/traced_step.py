@@ -17,6 +17,7 @@ import warnings
 
 import torch
 
+from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock, FootLockState
 from model.inference.output_filter import smooth_frame, smoothing_weight
 from model.inference.output_settings import OutputConfig
@@ -87,16 +88,19 @@ def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int],
 
 class FrameOutput:
     """What happens to a generated frame before it leaves, for one skeleton and output settings:
-    to world space, the output filter (:mod:`model.inference.output_filter`), then the foot lock.
+    to world space, the output filter (:mod:`model.inference.output_filter`), floor contact
+    (:mod:`model.inference.floor_contact`), then the foot lock.
 
     Each character's memory is a dict of named rows ``[N, ...]`` (:attr:`keys`): the previous
     emitted frame for the filter, and the lock's state. Eager and traced paths share this code.
     """
 
-    def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None) -> None:
+    def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None,
+                 floor: FloorContact | None = None) -> None:
         self.parents, self.root = list(skeleton.parents), skeleton.roles.root
-        self.output, self.lock = output, lock
-        self.keys = ("prev_rot", "prev_root") + (FootLockState.MEMORY_KEYS if lock else ())
+        self.output, self.lock, self.floor = output, lock, floor
+        self.keys = (("prev_rot", "prev_root") + (("floor",) if floor else ())
+                     + (FootLockState.MEMORY_KEYS if lock else ()))
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
                  skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
@@ -113,6 +117,9 @@ class FrameOutput:
         # Remembered before the foot lock (and the engine's exact arrival) bend the frame: the filter
         # follows the network's motion.
         new = {"prev_rot": local, "prev_root": root}
+        if self.floor is not None:  # before the lock, so the feet it holds are where the body was lifted to
+            root = self.floor.lift(local, root, memory["floor"])
+            new["floor"] = memory["floor"]
         if self.lock is not None:
             world_shift = None
             if shift is not None:

@@ -52,6 +52,7 @@ class PackageSettings:
     foot_lock: bool | None = None
     int8_lstm: bool | None = None
     steering: int | None = None
+    floor: bool | None = None
 
     def arguments(self) -> list[str]:
         """These settings as ``rsmt package`` options."""
@@ -60,7 +61,7 @@ class PackageSettings:
             args += ["--name", self.name]
         if self.smoothing is not None:
             args += ["--smoothing", repr(self.smoothing)]
-        for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm)):
+        for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm), ("--floor", self.floor)):
             if value is not None:
                 args += [flag, "on" if value else "off"]
         if self.steering is not None:
