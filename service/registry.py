@@ -181,7 +181,8 @@ def load_registry(settings: Settings) -> Registry:
         engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
                         cache_bytes=settings.style_cache_bytes, smoothing=settings.output_smoothing,
                         foot_lock=settings.foot_lock, root_smoothing=settings.output_root_smoothing,
-                        int8_lstm=settings.int8_lstm, steering=settings.steering, compiled=not settings.eager)
+                        int8_lstm=settings.int8_lstm, steering=settings.steering, floor=settings.floor,
+                        compiled=not settings.eager)
         name = engine.name if engine.name not in names else path.name
         if name in names:
             raise NoModelError(f"two bundles are named {name!r}; rename one directory")

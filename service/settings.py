@@ -48,6 +48,9 @@ class Settings(BaseSettings):
         description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
     foot_lock: bool | None = Field(
         default=None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
+    floor: bool | None = Field(
+        default=None, description="lift a body whose feet sink under its context's floor, for every model (default: "
+        "each bundle's own)")
     steering: int | None = Field(
         default=None, ge=0, le=240,
         description="steer each character's root toward its target over the last this many frames (0: off; default: "

@@ -75,6 +75,9 @@ def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     assert engine.inference.int8_lstm and engine.bundle.inference.int8_lstm  # the default bundle's setting
     monkeypatch.setenv("RSMT_INT8_LSTM", "false")
     assert not _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).inference.int8_lstm
+    assert engine.floor is not None  # the default bundle's floor contact, and the setting that turns it off
+    monkeypatch.setenv("RSMT_FLOOR", "false")
+    assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).floor is None
 
 
 def test_eager_reaches_the_engines(monkeypatch):

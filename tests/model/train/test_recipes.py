@@ -43,7 +43,7 @@ def test_every_recipe_loads_and_names_presets_that_exist():
         ("E1", "sampler", "cross-style-1-critics"), ("E2", "sampler", "cross-style-2-arrival"),
         ("E3", "sampler", "cross-style-3-accuracy"), ("F", "sampler", "control-1-one-frame")]
     assert shipped.package == PackageSettings(name="rsmt-default", float16=True, smoothing=0.3, foot_lock=True,
-                                              int8_lstm=True, steering=40)
+                                              int8_lstm=True, steering=40, floor=True)
 
 
 def test_recipe_files_are_checked():
@@ -63,15 +63,16 @@ def test_recipe_files_are_checked():
 
 
 def test_package_settings_are_the_package_command_options():
-    settings = PackageSettings(name="shipped", float16=True, smoothing=0.3, foot_lock=True, int8_lstm=False, steering=40)
+    settings = PackageSettings(name="shipped", float16=True, smoothing=0.3, foot_lock=True, int8_lstm=False, steering=40,
+                               floor=True)
     options = settings.arguments()
     assert options == ["--float16", "--name", "shipped", "--smoothing", "0.3", "--foot-lock", "on", "--int8-lstm", "off",
-                       "--steering", "40"]
+                       "--floor", "on", "--steering", "40"]
     parser = argparse.ArgumentParser()
     package_commands.register(parser.add_subparsers())
     args = parser.parse_args(["package", "--model", "m", "--out", "o", *options])
-    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm, args.steering) == (
-        "shipped", True, 0.3, "on", "off", 40)
+    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm, args.steering, args.floor) == (
+        "shipped", True, 0.3, "on", "off", 40, "on")
     assert PackageSettings().arguments() == []
 
 
