@@ -170,7 +170,8 @@ def test_traced_step_matches_eager(walk):
     bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
     results = []
     for compiled in (False, True):
-        eng = Engine(bundle, compiled=compiled, foot_lock=True)
+        eng = Engine(bundle, compiled=compiled, foot_lock=True, floor=True)
+        assert eng.floor is not None
         short, _ = eng.encode_style(walk.window(0, 40))
         long, _ = eng.encode_style(walk.window(10, 150))
         # Traced at batch 1 with one style length, then run at batch 3 with mixed lengths.
@@ -180,7 +181,7 @@ def test_traced_step_matches_eager(walk):
         results.append((first, eng.generate(chars)))
         if compiled:
             assert not eng.step_fn.failed and eng.step_fn._graph is not None
-            # The frame's way out (world space, filter, foot lock) too.
+            # The frame's way out (world space, filter, floor contact, foot lock) too.
             assert not eng.output_fn.failed and eng.output_fn._graph is not None and eng.foot_lock is not None
         else:
             assert eng.output_fn._graph is None and eng.foot_lock is not None
