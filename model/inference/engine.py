@@ -130,7 +130,7 @@ class Engine:
                 stepper = quantized
         self.step_fn = CompiledStep(stepper) if compiled else (lambda st, sty: stepper.step(st, sty)[0])
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
-        # What happens to a frame before it leaves (world space, filter, foot lock), traced as one graph.
+        # What happens to a frame before it leaves (world space, filter, floor contact, foot lock), traced as one graph.
         self.floor = FloorContact(self.skeleton) if self.output.floor else None
         self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor),
                                              traced=compiled)

@@ -1,8 +1,10 @@
 """What the engine does to the network's frames before they leave: a bundle setting.
 
-Both steps are causal and per character, so whole transitions and streams get the same frames;
-both hand the arrival frame back untouched (see :mod:`model.inference.output_filter`, :mod:`model.inference.foot_lock`).
-A bundle saved without this section gets the network's frames as they are.
+Every step is causal and per character, so whole transitions and streams get the same frames. The
+filter and the foot lock hand the arrival frame back untouched (see :mod:`model.inference.output_filter`,
+:mod:`model.inference.foot_lock`); floor contact lifts any frame whose feet sink, the arrival frame
+included (:mod:`model.inference.floor_contact`). A bundle saved without this section gets the
+network's frames as they are.
 """
 
 from __future__ import annotations
