@@ -247,8 +247,9 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
     steering = {"window": 0, "momentum": 1.0, "max_step_cm": 10.0}
     assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None,
-                                           "steering": steering}
+                                           "steering": steering, "floor": False}
     assert BundleMethod(bundle_dir, steering=12).describe()["output"]["steering"] == {**steering, "window": 12}
+    assert BundleMethod(bundle_dir, floor=True).describe()["output"]["floor"] is True
     a = raw.generate(cs, Request(variant("gap10")))
     b = smooth.generate(cs, Request(variant("gap10")))
     assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way
