@@ -45,10 +45,10 @@ class WindowBatch:
                 return None
             return torch.cat([x for x in parts if x is not None])
 
-        states = PoseState(*(torch.cat([getattr(b.states, f) for b in batches]) for f in ("rel", "vel", "rot", "root_xz")))
-        return WindowBatch(states, join([b.phase for b in batches]), join([b.amplitude for b in batches]),
-                           join([b.frequency for b in batches]), torch.cat([b.contacts for b in batches]),
-                           torch.cat([b.style for b in batches]), torch.cat([b.rotations for b in batches]))
+        return WindowBatch(PoseState.cat([b.states for b in batches]), join([b.phase for b in batches]),
+                           join([b.amplitude for b in batches]), join([b.frequency for b in batches]),
+                           torch.cat([b.contacts for b in batches]), torch.cat([b.style for b in batches]),
+                           torch.cat([b.rotations for b in batches]))
 
 
 def make_batch(tensors: MotionTensors, starts: Tensor, owners: Tensor, length: int, reference: int,

@@ -61,18 +61,20 @@ class FinetuneConfig:
     @classmethod
     def for_scope(cls, scope: str) -> FinetuneConfig:
         """The defaults of a scope: the style scope keeps the paper's higher rate (3e-4)."""
-        if scope not in SCOPES:
-            raise ValueError(f"unknown fine-tuning scope {scope!r}: use one of {', '.join(SCOPES)}")
-        cfg = cls(scope=scope)
+        cfg = cls(scope=_checked(scope))
         if scope == "style":
             cfg.loop.lr, cfg.loop.lr_final = 3e-4, 3e-5
         return cfg
 
 
-def trainable_parameters(bundle: Bundle, scope: str = "network") -> list[tuple[str, torch.nn.Parameter]]:
+def _checked(scope: str) -> str:
     if scope not in SCOPES:
         raise ValueError(f"unknown fine-tuning scope {scope!r}: use one of {', '.join(SCOPES)}")
-    if scope == "style":
+    return scope
+
+
+def trainable_parameters(bundle: Bundle, scope: str = "network") -> list[tuple[str, torch.nn.Parameter]]:
+    if _checked(scope) == "style":
         return [(n, p) for n, p in bundle.sampler.named_parameters() if n.startswith(STYLE_PREFIXES)]
     return [(n, p) for n, p in bundle.sampler.named_parameters() if not n.startswith(FROZEN_PREFIXES)]
 
