@@ -132,12 +132,16 @@ class HaproxyProcess:
 
     def __init__(self, replicas: list[int]) -> None:
         self.binary = need("haproxy")
-        self.port, self.stats_port = free_port(), free_port()
+        self.replicas = replicas
         self.dir = Path(tempfile.mkdtemp(prefix="rsmt-haproxy-"))
         self.config = self.dir / "haproxy.cfg"
-        self.config.write_text(haproxy_config(self.port, replicas, stats_port=self.stats_port))
         self.log = self.dir / "haproxy.log"
         self.proc: subprocess.Popen | None = None
+        self._pick_ports()
+
+    def _pick_ports(self) -> None:
+        self.port, self.stats_port = free_port(), free_port()
+        self.config.write_text(haproxy_config(self.port, self.replicas, stats_port=self.stats_port))
 
     @property
     def url(self) -> str:
@@ -147,11 +151,21 @@ class HaproxyProcess:
     def stats_url(self) -> str:
         return f"http://127.0.0.1:{self.stats_port}/stats"
 
-    def start(self, timeout_s: float = 20.0) -> HaproxyProcess:
-        with self.log.open("a") as log:
-            self.proc = subprocess.Popen([self.binary, "-db", "-f", str(self.config)], stdout=log,
-                                         stderr=subprocess.STDOUT)
-        _wait_port(self.port, self.proc, "haproxy", self.log, timeout_s)
+    def start(self, timeout_s: float = 20.0, attempts: int = 3) -> HaproxyProcess:
+        """Start haproxy; a free port taken by another process before haproxy bound it (the race of
+        :func:`free_port`) is retried on new ports, at most ``attempts`` times in all."""
+        for attempt in range(attempts):
+            with self.log.open("a") as log:
+                self.proc = subprocess.Popen([self.binary, "-db", "-f", str(self.config)], stdout=log,
+                                             stderr=subprocess.STDOUT)
+            try:
+                _wait_port(self.port, self.proc, "haproxy", self.log, timeout_s)
+                return self
+            except RuntimeError as exc:
+                if "Address already in use" not in str(exc) or attempt == attempts - 1:
+                    raise
+                self.log.write_text("")
+                self._pick_ports()
         return self
 
     def cleanup(self) -> None:
