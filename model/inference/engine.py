@@ -21,7 +21,6 @@ from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFra
 from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock
 from model.inference.int8_step import int8_lstm_sampler
-from model.inference.steering import steer
 from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.motion.clip import Clip
@@ -128,7 +127,7 @@ class Engine:
                 self.inference = self.inference.with_overrides(int8_lstm=False)
             else:
                 stepper = quantized
-        self.step_fn = CompiledStep(stepper) if compiled else (lambda st, sty: stepper.step(st, sty)[0])
+        self.step_fn = CompiledStep(stepper, self.skeleton.roles.root, self.output.steering, traced=compiled)
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         # What happens to a frame before it leaves (world space, filter, floor contact, foot lock), traced as one graph.
         self.floor = FloorContact(self.skeleton) if self.output.floor else None
@@ -454,11 +453,7 @@ class CharacterBatch:
         if not self.members:
             raise ValueError("no live characters to step")
         assert self._state is not None and self._style is not None
-        self._state = self.engine.step_fn(self._state, self._style)
-        shift = None
-        steering = self.engine.output.steering
-        if steering.on:
-            self._state, shift = steer(self._state, self.engine.skeleton.roles.root, steering)
+        self._state, shift = self.engine.step_fn(self._state, self._style)  # steering included
         post = self._post
         assert post is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])

@@ -1,4 +1,4 @@
-"""The sampler's per-frame step, and what happens to each frame before it leaves (world space,
+"""The sampler's per-frame step (with root steering), and what happens to each frame before it leaves (world space,
 output filter, foot lock), traced to TorchScript: the fastest path measured on this CPU.
 
 At batch 1 a step is a few dozen small operations, so Python dispatch costs as much as the
@@ -21,6 +21,7 @@ from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock, FootLockState
 from model.inference.output_filter import smooth_frame, smoothing_weight
 from model.inference.output_settings import OutputConfig
+from model.inference.steering import SteeringConfig, steer
 from model.motion.features import CanonicalFrame
 from model.motion.kinematics import global_to_local_rotations
 from model.motion.rotations import sixd_to_quat
@@ -32,10 +33,20 @@ log = logging.getLogger(__name__)
 Tensor = torch.Tensor
 
 
+def step_and_steer(sampler: TransitionSampler, state: SamplerState, style: StyleContext, root: int,
+                   steering: SteeringConfig) -> tuple[SamplerState, Tensor | None]:
+    """One frame of the sampler, then root steering where it is on (:mod:`model.inference.steering`):
+    the new state and the ground shift steering gave each row (None when off)."""
+    new, _ = sampler.step(state, style)
+    if not steering.on:
+        return new, None
+    return steer(new, root, steering)
+
+
 class _FlatStep(torch.nn.Module):
-    def __init__(self, sampler: TransitionSampler) -> None:
+    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig) -> None:
         super().__init__()
-        self.sampler = sampler
+        self.sampler, self.root, self.steering = sampler, root, steering
 
     def forward(self, h: Tensor, c: Tensor, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, phase: Tensor,
                 target_vec: Tensor, target_pos: Tensor, target_rot: Tensor, target_emb: Tensor, tta: Tensor,
@@ -44,8 +55,9 @@ class _FlatStep(torch.nn.Module):
         state = SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, target_vec, target_pos, target_rot,
                              target_emb, tta, noise)
         style = StyleContext(g1, b1, k1, v1, g2, b2, k2, v2, mask)
-        new, _ = self.sampler.step(state, style)
-        return new.h, new.c, new.pose.rel, new.pose.vel, new.pose.rot, new.pose.root_xz, new.phase, new.tta
+        new, shift = step_and_steer(self.sampler, state, style, self.root, self.steering)
+        out = (new.h, new.c, new.pose.rel, new.pose.vel, new.pose.rot, new.pose.root_xz, new.phase, new.tta)
+        return out if shift is None else (*out, shift)
 
 
 def _flat(state: SamplerState, style: StyleContext) -> tuple[Tensor, ...]:
@@ -56,25 +68,24 @@ def _flat(state: SamplerState, style: StyleContext) -> tuple[Tensor, ...]:
 
 
 class CompiledStep:
-    """``step(state, style) -> state`` through a traced graph, built on first use."""
+    """``step(state, style) -> (state, shift)``: :func:`step_and_steer` through a traced graph, built on
+    first use (eager if tracing fails or ``traced`` is False). Steering is inside the graph: eager,
+    its few dozen small operations cost a third of the network's step at batch 1."""
 
-    def __init__(self, sampler: TransitionSampler) -> None:
-        self.sampler = sampler
+    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig, traced: bool = True) -> None:
+        self.sampler, self.root, self.steering = sampler, root, steering
         self._graph: torch.jit.ScriptModule | None = None
-        self.failed = False
+        self.failed = not traced
 
-    def __call__(self, state: SamplerState, style: StyleContext) -> SamplerState:
+    def __call__(self, state: SamplerState, style: StyleContext) -> tuple[SamplerState, Tensor | None]:
         if self._graph is None and not self.failed:
-            self._build(state, style)
+            self._graph = _trace(_FlatStep(self.sampler, self.root, self.steering), _flat(state, style))
+            self.failed = self._graph is None
         if self._graph is None:
-            return self.sampler.step(state, style)[0]
-        h, c, rel, vel, rot, root_xz, phase, tta = self._graph(*_flat(state, style))
-        return SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
-                            state.target_rot, state.target_emb, tta, state.noise)
-
-    def _build(self, state: SamplerState, style: StyleContext) -> None:
-        self._graph = _trace(_FlatStep(self.sampler), _flat(state, style))
-        self.failed = self._graph is None
+            return step_and_steer(self.sampler, state, style, self.root, self.steering)
+        h, c, rel, vel, rot, root_xz, phase, tta, *shift = self._graph(*_flat(state, style))
+        return (SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
+                             state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)
 
 
 def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int], root: int) -> tuple[Tensor, Tensor]:

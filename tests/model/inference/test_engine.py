@@ -170,8 +170,8 @@ def test_traced_step_matches_eager(walk):
     bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
     results = []
     for compiled in (False, True):
-        eng = Engine(bundle, compiled=compiled, foot_lock=True, floor=True)
-        assert eng.floor is not None
+        eng = Engine(bundle, compiled=compiled, foot_lock=True, floor=True, steering=6)
+        assert eng.floor is not None and eng.output.steering.on
         short, _ = eng.encode_style(walk.window(0, 40))
         long, _ = eng.encode_style(walk.window(10, 150))
         # Traced at batch 1 with one style length, then run at batch 3 with mixed lengths.
