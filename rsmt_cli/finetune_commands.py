@@ -19,21 +19,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "finetune-style", help="adapt a trained bundle to a style it never saw, from a few BVH clips",
         description="Train a bundle on a few clips of a new style (mirrored and time-rescaled copies added) and write "
                     "the adapted bundle with the new style built in (style id builtin:NAME, served like the others by "
-                    "rsmt serve --models DIR). With --data, every step also rehearses the styles the bundle was trained "
-                    "on (the data's train split, without the styles its training held out), so it keeps them, and "
-                    "the data's styles are encoded by the adapted weights and built in too.")
+                    "rsmt serve --models DIR). With --data, the data's styles are encoded by the adapted weights and "
+                    "built in too; with --rehearsal as well, every step also trains on the styles the bundle was trained "
+                    "on (the data's train split, without the styles its training held out).")
     p.add_argument("--model", type=Path, required=True, help="the trained bundle to adapt")
     p.add_argument("--clips", type=Path, nargs="+", required=True, metavar="BVH",
                    help=f"{MIN_CLIPS} to {MAX_CLIPS} clips of the new style (3 is the measured case)")
     p.add_argument("--name", required=True, help="name of the new style (its built-in style id is builtin:NAME)")
     p.add_argument("--data", type=Path, metavar="DATA",
-                   help="the bundle's training data: rehearse its known styles while fine-tuning, and build in one "
-                        "walking clip per style of its train split, encoded by the adapted weights (a style of the same "
-                        "name as --name is left to the new clips)")
+                   help="the bundle's training data: build in one walking clip per style of its train split, encoded "
+                        "by the adapted weights (a style of the same name as --name is left to the new clips); what "
+                        "--rehearsal trains on")
     p.add_argument("--scope", choices=("network", "style"), default="network",
                    help="what learns: network (default; every sampler weight but the manifold decoder) or style (the "
                         "paper's: the style encoder and the FiLM/attention layers)")
-    p.add_argument("--no-rehearsal", action="store_true", help="with --data, do not rehearse the known styles")
+    p.add_argument("--rehearsal", action=argparse.BooleanOptionalAction, default=False,
+                   help="with --data, every step also trains on windows of the styles the bundle knows (default: off; "
+                        "on validation it did not keep them and learned the new style less; see the model card)")
     p.add_argument("--out", type=Path, required=True, help="folder of the adapted bundle")
     p.add_argument("--iterations", type=int, default=300, help="optimiser steps (default 300)")
     p.add_argument("--run", type=Path, help="folder for checkpoints, resumed by the same command (default: "
@@ -65,7 +67,9 @@ def _run(args: argparse.Namespace) -> int:
     engine = Engine(bundle)
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
     base_styles = _data_styles(args.data, bundle, args.name) if args.data is not None else []  # before the long part
-    rehearse = args.data is not None and not args.no_rehearsal
+    if args.rehearsal and args.data is None:
+        raise ValueError("--rehearsal trains on the bundle's training data: give it with --data DATA")
+    rehearse = bool(args.rehearsal)
     cfg = FinetuneConfig.for_scope(args.scope)
     cfg.loop.iterations = args.iterations
     cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, args.iterations))

@@ -12,7 +12,9 @@ Two scopes of what learns:
 
 Either way the FiLM and attention layers are shared by every style, so the other styles drift. With
 ``rehearsal`` (windows of the styles the bundle was trained on, from its data), every step also
-trains on a batch of those, so the model keeps what it knew.
+trains on a batch of those. It was meant to keep what the model knew; on validation, with the final
+held-out model, it did not keep the other styles and learned the new one less, so the command leaves
+it off unless asked (``--rehearsal``).
 """
 
 from __future__ import annotations

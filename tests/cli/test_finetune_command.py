@@ -77,18 +77,23 @@ def test_clip_count_and_name_are_checked_before_training(setup, capsys):
     assert not (tmp_path / "tuned").exists() and not (tmp_path / ".finetune-bouncy").exists()
 
 
-def test_data_rehearses_the_known_styles_unless_told_not_to(setup, capsys):
+def test_rehearsal_of_the_known_styles_is_asked_for_and_needs_the_data(setup, capsys):
     tmp_path, data, bouncy = setup
-    assert main(_args(tmp_path, bouncy[:3], "--data", str(data))) == 0
+    assert main(_args(tmp_path, bouncy[:3], "--data", str(data))) == 0  # the default: --data builds styles in, no rehearsal
     notes = Bundle.load(tmp_path / "tuned").meta.notes
-    assert "rehearsing brisk, slow" in notes and "every sampler weight" in notes
+    assert "rehearsing" not in notes and "every sampler weight" in notes
     capsys.readouterr()
-    args = _args(tmp_path, bouncy[:3], "--data", str(data), "--no-rehearsal", "--scope", "style")
+    args = _args(tmp_path, bouncy[:3], "--data", str(data), "--rehearsal", "--scope", "style")
     args[args.index(str(tmp_path / "tuned"))] = str(tmp_path / "tuned2")
     assert main(args) == 0
     assert "a run with other settings (rehearsal, scope) is replaced" in capsys.readouterr().err  # the default folder
     notes = Bundle.load(tmp_path / "tuned2").meta.notes
-    assert "rehearsing" not in notes and "FiLM/attention linears only" in notes
+    assert "rehearsing brisk, slow" in notes and "FiLM/attention linears only" in notes
+    args = _args(tmp_path, bouncy[:3], "--rehearsal")
+    args[args.index(str(tmp_path / "tuned"))] = str(tmp_path / "tuned3")
+    assert main(args) == 2
+    assert "--rehearsal trains on the bundle's training data" in capsys.readouterr().err
+    assert not (tmp_path / "tuned3").exists()
 
 
 def test_a_run_folder_of_other_settings_is_refused_not_mixed_in(setup, capsys):
