@@ -88,6 +88,8 @@ def _run(args: argparse.Namespace) -> int:
     _, styles = write_builtin_styles(args.out, [*base_styles, _new_style(clips, args.clips, args.name, bundle)])
     print(json.dumps({"bundle": str(args.out), "device": str(device), "seconds": round(result.seconds, 1),
                       "history": result.history[-1:], "styles": [f"builtin:{s.name}" for s in styles]}, indent=1))
+    print(f"fine-tuning changed weights every style shares: the known styles are weaker in this bundle than in "
+          f"{args.model}; serve the two side by side (docs/service.md, built-in styles)", file=sys.stderr)
     if args.data is None:
         print(f"only builtin:{args.name} is built in: the model's other built-in styles were encoded by the weights "
               "before fine-tuning; give --data DATA to encode the data's styles with the adapted ones", file=sys.stderr)

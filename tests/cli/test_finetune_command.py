@@ -42,7 +42,9 @@ def _args(tmp_path, clips, *extra):
 def test_the_new_style_is_built_in_and_served_like_the_others(setup, capsys):
     tmp_path, data, bouncy = setup
     assert main(_args(tmp_path, bouncy[:3], "--data", str(data))) == 0
-    report = _report(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    report = _report(captured.out)
+    assert "serve the two side by side" in captured.err  # the known styles are weaker in the adapted copy
     assert sorted(report["styles"]) == ["builtin:bouncy", "builtin:brisk", "builtin:slow"]
     tuned = Bundle.load(tmp_path / "tuned")
     assert sorted(tuned.styles) == ["bouncy", "brisk", "slow"]
