@@ -60,6 +60,8 @@ def _run(args: argparse.Namespace) -> int:
     if not MIN_CLIPS <= len(args.clips) <= MAX_CLIPS:
         raise ValueError(f"--clips takes {MIN_CLIPS} to {MAX_CLIPS} clips of the new style; got {len(args.clips)}")
     check_name(args.name)
+    if args.rehearsal and args.data is None:
+        raise ValueError("--rehearsal trains on the bundle's training data: give it with --data DATA")
     device = resolve_cli_device(args.device)  # first, so a missing GPU fails before anything is loaded
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -67,17 +69,14 @@ def _run(args: argparse.Namespace) -> int:
     engine = Engine(bundle)
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
     base_styles = _data_styles(args.data, bundle, args.name) if args.data is not None else []  # before the long part
-    if args.rehearsal and args.data is None:
-        raise ValueError("--rehearsal trains on the bundle's training data: give it with --data DATA")
-    rehearse = bool(args.rehearsal)
     cfg = FinetuneConfig.for_scope(args.scope)
     cfg.loop.iterations = args.iterations
     cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, args.iterations))
     run = args.run or args.out.parent / f".finetune-{args.name}"
     claim_run_folder(run, {"model": str(args.model.resolve()), "version": bundle.version, "name": args.name,
                            "clips": [str(c.resolve()) for c in args.clips], "scope": args.scope,
-                           "iterations": args.iterations, "rehearsal": rehearse}, replace=args.run is None)
-    rehearsal = rehearsal_motion(args.data, bundle, args.model, args.name, progress=not args.quiet) if rehearse else None
+                           "iterations": args.iterations, "rehearsal": args.rehearsal}, replace=args.run is None)
+    rehearsal = rehearsal_motion(args.data, bundle, args.model, args.name, progress=not args.quiet) if args.rehearsal else None
     tuned, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device,
                                    rehearsal=rehearsal)
     if not result.finished:
