@@ -72,7 +72,9 @@ def _run(args: argparse.Namespace) -> int:
     bundle = Bundle.load(args.model, styles=args.styles is None)
     clips = _read_styles(args.styles, bundle) if args.styles is not None else None
     # Codes belong to the weights that made them: they are written after the copy's weights (float16 or not).
-    kept, bundle.styles = bundle.styles, {}
+    # Adapters (fine-tuned styles) keep their own codes; they fit the copy only if its weights are the same.
+    kept = {n: s for n, s in bundle.styles.items() if not s.weights}
+    bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
     bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
                                                  overrides["foot_lock"], overrides["steering"], overrides["floor"])
     bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
@@ -81,11 +83,14 @@ def _run(args: argparse.Namespace) -> int:
     if (args.out / "styles").is_dir():  # never leave a copy with the codes of some earlier weights
         shutil.rmtree(args.out / "styles")
     bundle.save(args.out, weights_dtype="float16" if args.float16 else "float32")
+    if bundle.adapters and not (args.out / "adapters").is_dir():
+        print(f"rsmt package: the style adapters of {args.model} ({', '.join(sorted(bundle.adapters))}) were tuned from "
+              f"its weights, not the copy's (version {bundle.version}); they are not copied: fine-tune them again "
+              "from the copy", file=sys.stderr)
     if clips is not None:
-        bundle.styles = {s.name: s for s in write_builtin_styles(args.out, clips)[1]}
+        write_builtin_styles(args.out, clips)
     elif kept and all(s.version == bundle.version for s in kept.values()):
         save_styles(args.out, kept.values(), bundle.skeleton, bundle.config.fps, bundle.version)
-        bundle.styles = kept
     elif kept:
         print(f"rsmt package: the built-in styles of {args.model} were encoded by its weights (version "
               f"{next(iter(kept.values())).version}), not by the copy's (version {bundle.version}); they are not "
@@ -96,7 +101,7 @@ def _run(args: argparse.Namespace) -> int:
         shutil.copyfile(train_config, args.out / "train_config.json")
     print(json.dumps({"bundle": str(args.out), "version": bundle.version, "name": bundle.meta.name,
                       "output": bundle.output.to_dict(), "inference": bundle.inference.to_dict(),
-                      "styles": sorted(bundle.styles)}, indent=1))
+                      "styles": sorted(Bundle.load(args.out).styles)}, indent=1))
     return 0
 
 

@@ -2,7 +2,9 @@
 to every API key as ``builtin:NAME`` wherever a ``style_id`` is accepted, listed in the model's description
 and in ``GET /v1/styles`` (``builtin: true``).
 
-Nothing is encoded at serve time: the stored code is the style. No key owns a built-in style, none counts
+Nothing is encoded at serve time: the stored code is the style. A style with an adapter (a style fine-tuned
+into the bundle, :mod:`model.inference.bundle_adapters`) runs on the adapter's weights, every other on the
+bundle's own. No key owns a built-in style, none counts
 against a key's styles, nothing evicts them, and ``DELETE /v1/styles`` refuses them. The id a response
 reports is the built-in id, not a content hash.
 """
@@ -47,5 +49,6 @@ def builtin_style(engine: Engine, model_name: str, style_id: str) -> EncodedStyl
         served = _served.setdefault(engine, {})
         encoded = served.get(name)
         if encoded is None:
-            encoded = served[name] = EncodedStyle(PREFIX + name, name, style.frames, style.context, style.nbytes)
+            encoded = served[name] = EncodedStyle(PREFIX + name, name, style.frames, style.context, style.nbytes,
+                                                     style.weights)
     return encoded

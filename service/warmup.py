@@ -5,7 +5,8 @@ Shapes warmed (per model):
 * style encoding at the shortest and longest accepted style clip (the encoder's convolutions);
 * ``prepare`` (context warm-up of the recurrent core, batch 1), seeded and deterministic;
 * ``generate`` of a short transition (the ``POST /v1/transition`` path, batch 1), JSON and BVH output;
-* the scheduler's batched ``step`` at 1, 2, 4, ... up to ``warmup_max_batch`` characters, on the step thread;
+* the scheduler's batched ``step`` at 1, 2, 4, ... up to ``warmup_max_batch`` characters, on the step thread,
+  and at 1 on each style adapter's weights (their own traced steps);
 * a stream ``start`` (style encoding and ``prepare``) on every stream-setup thread (``LoadedModel.setup``, the
   streams' own lane), so that the first ``start`` neither creates its thread nor pays that thread's first
   torch calls; every work thread is started the same way.
@@ -21,6 +22,7 @@ import asyncio
 import threading
 import time
 from concurrent.futures import Executor
+from dataclasses import replace
 from typing import Any
 
 import torch
@@ -89,8 +91,17 @@ def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict
         out[f"step_{n}_ms"] = round((time.perf_counter() - started) * 1e3, 3)
         out[f"first_step_{n}_ms"] = round(first * 1e3, 3)
         if n >= max_batch:
-            return out
+            break
         n = min(2 * n, max_batch)
+    for name in (w for w in engine.weight_sets if w):  # each style adapter's own traced step, at batch 1
+        batch = CharacterBatch(engine)
+        ch = Character(id="warm-adapter", style=replace(template.style, weights=name), frames_total=template.frames_total)
+        ch._row, ch._init, ch._frame, ch._post = template._row, template._init, template._frame, template._post
+        batch.add(ch)
+        started = time.perf_counter()
+        batch.step()
+        out[f"first_step_1_{name}_ms"] = round((time.perf_counter() - started) * 1e3, 3)
+    return out
 
 
 def _warm_start(model: LoadedModel, arrived: threading.Barrier) -> tuple[float, str]:

@@ -113,7 +113,8 @@ class BundleMethod(Method):
         d = super().describe()
         d.update(path=str(self.path), version=self.bundle.version, bundle_name=self.bundle.meta.name,
                  max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival,
-                 output=self.engine.output.to_dict(), inference=self.engine.inference.to_dict())
+                 output=self.engine.output.to_dict(), inference=self.engine.inference.to_dict(),
+                 adapters=sorted(self.bundle.adapters))
         return d
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
@@ -131,7 +132,12 @@ class BundleMethod(Method):
             for lo in range(0, len(cases), self.batch):
                 chars = []
                 for b in range(lo, min(lo + self.batch, len(cases))):
-                    style, _ = self.engine.encode_style(clips[b])
+                    # A clip of a style with an adapter in the bundle (a fine-tuned style) runs on its weights,
+                    # as builtin:NAME does in the service; every other style on the bundle's own.
+                    case = cases.cases[b]
+                    named = case.cross_style if request.cross_style else case.style
+                    weights = named if named in self.engine.weight_sets else ""
+                    style, _ = self.engine.encode_style(clips[b], weights=weights)
                     seed = None if request.seeds is None else int(request.seeds[b])
                     extra = {"exact_arrival": True} if self.exact_arrival else {}
                     target = Clip(cases.skeletons[b], target_rot[b], target_root[b], cases.fps,

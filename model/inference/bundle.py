@@ -8,13 +8,13 @@ Layout::
       skeleton.json        the rig the model was trained on
       README.md            the model card (optional for loading)
       styles/              built-in style codes, served as ``builtin:NAME`` (optional; :mod:`model.inference.bundle_styles`)
+      adapters/NAME/       weights of their own for a style fine-tuned later (optional; :mod:`model.inference.bundle_adapters`)
 
 A bundle loads from its own files alone; loading is strict (missing or unexpected tensors fail).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 from dataclasses import dataclass, field
@@ -24,9 +24,11 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
+from model.inference.bundle_adapters import AdapterError, StyleAdapter, load_adapters, save_adapters
 from model.inference.bundle_styles import BuiltinStyle, StyleFolderError, load_styles, save_styles
 from model.inference.output_settings import OutputConfig
 from model.inference.settings import InferenceConfig
+from model.inference.weights_hash import weights_hash
 from model.motion.skeleton import Skeleton
 from model.nets.manifold import ManifoldConfig, ManifoldDecoder
 from model.nets.phase import PeriodicAutoencoder, PhaseConfig
@@ -67,7 +69,9 @@ class Bundle:
     version: str = "unsaved"
     output: OutputConfig = field(default_factory=OutputConfig)  # the engine's post-processing of frames
     inference: InferenceConfig = field(default_factory=InferenceConfig)  # how the engine runs the network
-    styles: dict[str, BuiltinStyle] = field(default_factory=dict)  # built-in style codes by name (styles/)
+    # Built-in style codes by name: styles/, and each adapter's style (``BuiltinStyle.weights`` names the adapter).
+    styles: dict[str, BuiltinStyle] = field(default_factory=dict)
+    adapters: dict[str, StyleAdapter] = field(default_factory=dict)  # weights of their own per style (adapters/)
 
     @property
     def config(self) -> SamplerConfig:
@@ -117,7 +121,7 @@ class Bundle:
         if weights_dtype == "float16":
             tensors = {k: v.half() if v.is_floating_point() else v for k, v in tensors.items()}
         save_file(tensors, str(weights), metadata={"format": FORMAT, "weights_dtype": weights_dtype})
-        self.version = _weights_hash(tensors)
+        self.version = weights_hash(tensors)
         config = {
             "format": FORMAT,
             "version": self.version,
@@ -132,21 +136,50 @@ class Bundle:
         }
         (path / "config.json").write_text(json.dumps(config, indent=1))
         self.skeleton.save(path / "skeleton.json")
-        stale = sorted(n for n, s in self.styles.items() if s.version != self.version)
-        if self.styles and not stale:
-            save_styles(path, self.styles.values(), self.skeleton, self.config.fps, self.version)
+        own = {n: s for n, s in self.styles.items() if not s.weights}
+        stale = sorted(n for n, s in own.items() if s.version != self.version)
+        if own and not stale:
+            save_styles(path, own.values(), self.skeleton, self.config.fps, self.version)
         elif stale:  # codes belong to the weights that made them (fine-tuned, averaged or float16 weights: others)
             log.warning("%s: built-in styles %s were encoded by model version %s, not by these weights (%s); they are "
                         "not saved: re-encode them with `rsmt bundle add-styles %s --from DIR` (or --from-data DATA)",
-                        path, ", ".join(stale), self.styles[stale[0]].version, self.version, path)
+                        path, ", ".join(stale), own[stale[0]].version, self.version, path)
+        kept = {n: a for n, a in self.adapters.items() if a.base_version == self.version}
+        if len(kept) < len(self.adapters):  # tuned from other weights: they would not fit these
+            log.warning("%s: style adapters %s were tuned from model version %s, not from these weights (%s); they are "
+                        "not saved: fine-tune them again from this bundle", path,
+                        ", ".join(sorted(set(self.adapters) - set(kept))),
+                        next(a.base_version for n, a in self.adapters.items() if n not in kept), self.version)
+        if kept or (path / "adapters").exists():
+            try:
+                save_adapters(path, kept, self.styles, self.skeleton, self.config.fps)
+            except AdapterError as exc:
+                raise BundleError(f"{path}: {exc}") from exc
         return path
+
+    def _load_styles(self, path: Path, own: bool) -> None:
+        """The built-in styles of ``styles/`` (``own``) and of the adapters, into ``self.styles``."""
+        try:
+            self.styles = load_styles(path, self.skeleton, self.config.fps, self.version) if own else {}
+        except StyleFolderError as exc:
+            raise BundleError(f"{path}: bad built-in styles: {exc}") from exc
+        try:
+            self.adapters, adapted = load_adapters(path, self.skeleton, self.config.fps, self.version)
+        except (AdapterError, StyleFolderError) as exc:
+            raise BundleError(f"{path}: bad style adapter: {exc}") from exc
+        clash = sorted(set(adapted) & set(self.styles))
+        if clash:
+            raise BundleError(f"{path}: styles {', '.join(clash)} are built in twice, in styles/ and as adapters; "
+                              "remove one")
+        self.styles.update(adapted)
 
     @classmethod
     def load(cls, path: str | Path, styles: bool = True) -> Bundle:
         """Load strictly; any missing file, tensor or field is a :class:`BundleError`.
 
-        ``styles=False`` leaves the ``styles/`` folder unread (``bundle.styles`` empty): for the commands
-        that rewrite it, which must work on a folder that no longer loads (old format, other weights)."""
+        ``styles=False`` leaves the ``styles/`` folder unread (``bundle.styles`` holds the adapters' styles
+        alone): for the commands that rewrite it, which must work on a folder that no longer loads (old
+        format, other weights)."""
         path = Path(path)
         for name in ("config.json", "weights.safetensors", "skeleton.json"):
             if not (path / name).is_file():
@@ -184,23 +217,9 @@ class Bundle:
                 bundle.phase_model.load_state_dict(phase_sd, strict=True)
         except RuntimeError as exc:
             raise BundleError(f"{path}: weights do not match the config: {exc}") from exc
-        bundle.version = config.get("version") or _weights_hash(tensors)
-        try:
-            bundle.styles = load_styles(path, skeleton, bundle.config.fps, bundle.version) if styles else {}
-        except StyleFolderError as exc:
-            raise BundleError(f"{path}: bad built-in styles: {exc}") from exc
+        bundle.version = config.get("version") or weights_hash(tensors)
+        bundle._load_styles(path, styles)
         bundle.sampler.eval()
         if bundle.phase_model is not None:
             bundle.phase_model.eval()
         return bundle
-
-
-def _weights_hash(tensors: dict[str, torch.Tensor]) -> str:
-    """A hash of the stored tensors (names, dtypes, shapes, bytes), not of the file: safetensors
-    writes its metadata in no fixed order, so the same weights saved twice differ as files."""
-    digest = hashlib.sha256()
-    for name in sorted(tensors):
-        t = tensors[name].contiguous().reshape(-1)  # 0-d tensors (BatchNorm counters) cannot be viewed as bytes
-        digest.update(f"{name}:{t.dtype}:{tuple(t.shape)}".encode())
-        digest.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
-    return digest.hexdigest()[:16]

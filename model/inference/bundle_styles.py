@@ -67,13 +67,15 @@ class StyleClip:
 @dataclass(frozen=True, eq=False)
 class BuiltinStyle:
     """One built-in style (id ``builtin:NAME``): its encoded context, the model version that encoded it,
-    the length of the clip it came from and where that clip came from."""
+    the length of the clip it came from, where that clip came from, and the weights it runs on: the
+    bundle's own (``""``) or those of the adapter of that name (:mod:`model.inference.bundle_adapters`)."""
 
     name: str
     frames: int
     context: StyleContext
     version: str
     source: str = ""
+    weights: str = ""
 
     @property
     def nbytes(self) -> int:

@@ -11,12 +11,13 @@ from __future__ import annotations
 import itertools
 import logging
 import time
-from dataclasses import dataclass, field
 
 import torch
 
 from model.inference.arrival import ArrivalCorrector, ArrivalState
 from model.inference.bundle import Bundle
+from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
+from model.inference.character_batch import CharacterBatch, by_weights, inverse_of
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock
@@ -29,64 +30,11 @@ from model.motion.kinematics import forward_kinematics, global_to_local_rotation
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
 from model.nets.pose_state import PoseState, state_from_positions
-from model.nets.sampler import SamplerState, StyleContext
+from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class EncodedStyle:
-    """A style clip encoded once: its id (content hash), name, length and per-frame context."""
-
-    style_id: str
-    name: str
-    frames: int
-    context: StyleContext
-    nbytes: int = 0
-
-
-@dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
-class Character:
-    """One transition in progress. The engine's batch owns its tensors while it is live."""
-
-    id: str
-    style: EncodedStyle
-    frames_total: int
-    seq: int = 0  # frames emitted so far
-    cancelled: bool = False
-    slot: int = 0
-    _row: SamplerState | None = field(default=None, repr=False)
-    _frame: CanonicalFrame | None = field(default=None, repr=False)
-    # Exact arrival (see model.inference.arrival): its per-character state and the target pose in world space.
-    arrival: ArrivalState | None = None
-    _target_pose: tuple[Tensor, Tensor] | None = field(default=None, repr=False)
-    # Memory of the output steps (smoothing, foot lock) while out of a batch: named rows [1, ...].
-    _post: dict[str, Tensor] | None = field(default=None, repr=False)
-    # Inputs of the recurrent warm-up, run batched when the character joins a batch.
-    _init: tuple[PoseState, PoseState, int, Tensor, bool] | None = field(default=None, repr=False)
-
-    @property
-    def remaining(self) -> int:
-        return self.frames_total - self.seq
-
-    @property
-    def done(self) -> bool:
-        return self.cancelled or self.seq >= self.frames_total
-
-
-@dataclass
-class StepOutput:
-    """Poses of every character advanced by one :meth:`CharacterBatch.step`.
-
-    ``rotations [N, J, 4]`` local quaternions and ``root_positions [N, 3]`` in world space, row
-    ``i`` for ``characters[i]``; ``seq[i]`` is that frame's index within its transition.
-    """
-
-    characters: list[Character]
-    rotations: Tensor
-    root_positions: Tensor
-    seq: list[int]
+__all__ = ["Character", "CharacterBatch", "EncodedStyle", "Engine", "StepOutput", "WeightSet"]
 
 
 class Engine:
@@ -118,22 +66,39 @@ class Engine:
         self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
         self._offsets = self.skeleton.offsets_tensor()
         self.arrival = ArrivalCorrector(self.skeleton)
-        # The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with
-        # an int8 LSTM cell where the bundle asks for one (the float32 sampler still warms up on the context).
-        stepper = self.sampler
-        if self.inference.int8_lstm:
-            quantized = int8_lstm_sampler(self.sampler)
-            if quantized is None:  # this torch cannot: say so in self.inference
-                self.inference = self.inference.with_overrides(int8_lstm=False)
-            else:
-                stepper = quantized
-        self.step_fn = CompiledStep(stepper, self.skeleton.roles.root, self.output.steering, traced=compiled)
+        # One weight set per style adapter beside the bundle's own; a character runs on its style's.
+        self._compiled = compiled
+        self.weight_sets = {"": self._weight_set("", self.sampler, bundle.version)}
+        for name, adapter in sorted(bundle.adapters.items()):
+            self.weight_sets[name] = self._weight_set(name, adapter.apply(self.sampler), adapter.version)
+        self.step_fn = self.weight_sets[""].step_fn
         self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
         # What happens to a frame before it leaves (world space, filter, floor contact, foot lock), traced as one graph.
         self.floor = FloorContact(self.skeleton) if self.output.floor else None
         self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor),
                                              traced=compiled)
         self._ids = itertools.count()
+
+    def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
+        """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with an int8
+        LSTM cell where the bundle asks for one (the float32 sampler still warms up on the context)."""
+        stepper = sampler
+        if self.inference.int8_lstm:
+            quantized = int8_lstm_sampler(sampler)
+            if quantized is None:  # this torch cannot: say so in self.inference
+                self.inference = self.inference.with_overrides(int8_lstm=False)
+            else:
+                stepper = quantized
+        step = CompiledStep(stepper, self.skeleton.roles.root, self.output.steering, traced=self._compiled)
+        return WeightSet(name, sampler, step, version)
+
+    def weights(self, name: str = "") -> WeightSet:
+        """The weight set ``name`` (``""``: the bundle's own); an unknown name is a ValueError naming the sets."""
+        found = self.weight_sets.get(name)
+        if found is None:
+            raise ValueError(f"model {self.name!r} has no weights {name!r}; its style adapters: "
+                             f"{', '.join(n for n in self.weight_sets if n) or 'none'}")
+        return found
 
     # ------------------------------------------------------------------ description
     @property
@@ -184,31 +149,35 @@ class Engine:
         return forward_kinematics(quat_normalize(clip.rotations), clip.root_positions, self._offsets, self.skeleton.parents)
 
     # ------------------------------------------------------------------ styles
-    def style_id(self, clip: Clip) -> str:
-        return clip_content_hash(self.conform(clip, "style clip"), self.version)
+    def style_id(self, clip: Clip, weights: str = "") -> str:
+        return clip_content_hash(self.conform(clip, "style clip"), self.weights(weights).version)
 
-    def style_code(self, clip: Clip) -> Tensor:
-        """The style encoder's code ``[1, T', C]`` of a clip already on this model's rig (see :meth:`conform`)."""
+    def style_code(self, clip: Clip, weights: str = "") -> Tensor:
+        """The style encoder's code ``[1, T', C]`` of a clip already on this model's rig (see :meth:`conform`),
+        by the weight set ``weights`` (the bundle's own by default)."""
         pos, rot = self._global(clip)
         with torch.inference_mode():
-            return self.sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
+            return self.weights(weights).sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
 
-    def encode_style(self, clip: Clip, name: str = "") -> tuple[EncodedStyle, bool]:
-        """Encode a style clip, or return the cached encoding; the bool says whether it was cached."""
+    def encode_style(self, clip: Clip, name: str = "", weights: str = "") -> tuple[EncodedStyle, bool]:
+        """Encode a style clip, or return the cached encoding; the bool says whether it was cached.
+        ``weights``: the weight set that encodes it and that its transitions run on (the bundle's own by
+        default; a style adapter's name for that adapter's)."""
         clip = self.conform(clip, "style clip")
         c = self.config
         if not c.style_frames_min <= clip.num_frames <= c.style_frames_max:
             error = TooFewFrames if clip.num_frames < c.style_frames_min else TooManyFrames
             raise error(f"a style clip needs {c.style_frames_min} to {c.style_frames_max} frames at {c.fps:g} fps; "
                         f"got {clip.num_frames}")
-        sid = clip_content_hash(clip, self.version)
+        ws = self.weights(weights)
+        sid = clip_content_hash(clip, ws.version)
         cached = self.styles.get(sid)
         if cached is not None:
             return cached, True
-        code = self.style_code(clip)
+        code = self.style_code(clip, weights)
         with torch.inference_mode():
-            ctx = self.sampler.style_context(code)
-        style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, ctx.nbytes)
+            ctx = ws.sampler.style_context(code)
+        style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, ctx.nbytes, weights)
         self.styles.put(sid, style)
         return style, False
 
@@ -266,7 +235,12 @@ class Engine:
         style = StyleContext.stack([c.style.context for c in characters])
         for c in characters:
             c._init = None
-        return self.sampler.begin(ctx, tgt, frames, noise, style, velocity_known=known)
+        groups = by_weights(characters)
+        if len(groups) == 1:
+            return self.weights(groups[0][0]).sampler.begin(ctx, tgt, frames, noise, style, velocity_known=known)
+        parts = [self.weights(w).sampler.begin(ctx.index(idx), tgt.index(idx), frames[idx], noise[idx], style.index(idx),
+                                               velocity_known=known[idx]) for w, idx in groups]
+        return SamplerState.stack(parts).index(inverse_of(groups))
 
     def _target_state(self, target: Clip, frame: CanonicalFrame) -> tuple[PoseState, bool]:
         """The target's state in the transition's frame, and whether its velocity is known (a frame before it
@@ -294,9 +268,10 @@ class Engine:
             if ch.arrival is not None:
                 ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
             tstate, known = self._target_state(target, ch._frame)
+            sampler = self.weights(ch.style.weights).sampler
             with torch.inference_mode():
-                vec = self.sampler.target_input(tstate, torch.tensor([known]))
-                emb = self.sampler.target_encoder(vec)
+                vec = sampler.target_input(tstate, torch.tensor([known]))
+                emb = sampler.target_encoder(vec)
             updates = {"target_vec": vec, "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
         else:
             updates = {}
@@ -308,6 +283,19 @@ class Engine:
         else:
             for k, v in updates.items():
                 setattr(ch._row, k, v)
+
+    @torch.inference_mode()
+    def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:
+        """Switch a character's style from its next frame (``batch``: the batch it is live in, if any). A style
+        on other weights re-encodes the target by them; the recurrent state carries over."""
+        if batch is not None:
+            batch.set_style(ch, style)
+            return
+        moved = style.weights != ch.style.weights
+        self.weights(style.weights)  # an unknown weight set fails before anything changes
+        ch.style = style
+        if moved and ch._row is not None:
+            ch._row.target_emb = self.weights(style.weights).sampler.target_encoder(ch._row.target_vec)
 
     def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
         """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""
@@ -323,155 +311,3 @@ class Engine:
                 roots[ch.id].append(out.root_positions[i])
             batch.drop_finished()
         return [(torch.stack(rots[ch.id]), torch.stack(roots[ch.id])) for ch in characters]
-
-
-
-class CharacterBatch:
-    """Live characters whose states are stacked so one sampler step advances them all.
-
-    Stacking happens only when membership or a style changes, not every frame.
-    """
-
-    def __init__(self, engine: Engine) -> None:
-        self.engine = engine
-        self.members: list[Character] = []
-        self._state: SamplerState | None = None
-        self._style: StyleContext | None = None
-        self._yaw: Tensor | None = None
-        self._origin: Tensor | None = None
-        # The output steps' memory, a row per member (see Engine.prepare for the names).
-        self._post: dict[str, Tensor] | None = None
-        self._pending: list[Character] = []
-        self._style_dirty = False
-
-    def __len__(self) -> int:
-        return len(self.members) + len(self._pending)
-
-    def add(self, ch: Character) -> None:
-        if ch._row is None and ch._init is None:
-            raise ValueError("character was not prepared by Engine.prepare")
-        self._pending.append(ch)
-
-    def _sync(self) -> None:
-        if self._pending:
-            fresh = [c for c in self._pending if c._row is None]
-            resumed = [c for c in self._pending if c._row is not None]
-            rows = [self._state] if self._state is not None else []
-            if fresh:
-                rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
-            rows += [c._row for c in resumed]  # type: ignore[misc]
-            joined = fresh + resumed
-            held = [CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None and self._origin is not None else []
-            frames = held + [c._frame for c in joined]
-            self._state = SamplerState.stack(rows)
-            self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
-            self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
-            posts = ([self._post] if self._post is not None else []) + [c._post for c in joined]
-            if any(p is None for p in posts):
-                raise ValueError("character was not prepared by Engine.prepare")
-            self._post = {k: torch.cat([p[k] for p in posts]) for k in posts[0]}  # type: ignore[index, union-attr]
-            for c in joined:
-                c._row = None
-                c._post = None
-            self.members.extend(joined)
-            self._pending = []
-            self._style_dirty = True
-        if self._style_dirty and self.members:
-            self._style = StyleContext.stack([m.style.context for m in self.members])
-            self._style_dirty = False
-
-    def set_style(self, ch: Character, style: EncodedStyle) -> None:
-        ch.style = style
-        self._style_dirty = True
-
-    def row_of(self, ch: Character) -> SamplerState:
-        self._sync()
-        i = self.members.index(ch)
-        assert self._state is not None
-        return self._state.index(slice(i, i + 1))
-
-    @torch.inference_mode()
-    def update_row(self, ch: Character, updates: dict[str, Tensor]) -> None:
-        self._sync()
-        i = self.members.index(ch)
-        assert self._state is not None
-        for k, v in updates.items():
-            getattr(self._state, k)[i : i + 1] = v
-
-    def remove(self, ch: Character) -> None:
-        if ch in self._pending:
-            self._pending.remove(ch)
-            return
-        self._keep([m for m in self.members if m is not ch])
-
-    def detach(self, ch: Character) -> None:
-        """Take a live character out of the batch but keep its state on it, so :meth:`add` resumes it.
-
-        :meth:`remove` discards the state; this lets a scheduler pause one character (its client is
-        not reading, say) while the others keep stepping. Costs one restack, like ``remove``.
-        """
-        if ch in self._pending:
-            self._pending.remove(ch)
-            return
-        self._sync()
-        i = self.members.index(ch)
-        assert self._state is not None and self._yaw is not None and self._origin is not None
-        row = torch.tensor([i])
-        ch._row = self._state.index(row)  # a copy: later steps never write into it
-        ch._frame = CanonicalFrame(self._yaw[row], self._origin[row])
-        assert self._post is not None
-        ch._post = {k: v[i : i + 1].clone() for k, v in self._post.items()}
-        self._keep([m for m in self.members if m is not ch])
-
-    def drop_finished(self) -> list[Character]:
-        done = [m for m in self.members if m.done] + [p for p in self._pending if p.cancelled]
-        if done:
-            self._pending = [p for p in self._pending if not p.cancelled]
-            self._keep([m for m in self.members if not m.done])
-        return done
-
-    def _keep(self, keep: list[Character]) -> None:
-        if len(keep) == len(self.members):
-            return
-        if not keep:
-            self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
-            self._post = None
-            return
-        idx = torch.tensor([self.members.index(k) for k in keep])
-        assert self._state is not None and self._yaw is not None and self._origin is not None
-        self._state = self._state.index(idx)
-        self._yaw, self._origin = self._yaw[idx], self._origin[idx]
-        assert self._post is not None
-        self._post = {k: v[idx] for k, v in self._post.items()}
-        self.members = keep
-        self._style_dirty = True
-
-    @torch.inference_mode()
-    def step(self) -> StepOutput:
-        """Advance every member by one frame and return their world-space poses."""
-        self._sync()
-        if not self.members:
-            raise ValueError("no live characters to step")
-        assert self._state is not None and self._style is not None
-        self._state, shift = self.engine.step_fn(self._state, self._style)  # steering included
-        post = self._post
-        assert post is not None
-        remaining = torch.tensor([m.remaining - 1 for m in self.members])
-        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post,  # type: ignore[arg-type]
-                                                    shift)
-        post.update(memory)
-        exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
-        if exact:
-            idx = torch.tensor(exact)
-            chars = [self.members[i] for i in exact]
-            t_rot = torch.stack([c._target_pose[0] for c in chars])  # type: ignore[index]
-            t_root = torch.stack([c._target_pose[1] for c in chars])  # type: ignore[index]
-            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining[idx],
-                                                              [c.arrival for c in chars])  # type: ignore[misc]
-            local, root = local.clone(), root.clone()
-            local[idx], root[idx] = fixed_rot, fixed_root
-        seq = []
-        for m in self.members:
-            seq.append(m.seq)
-            m.seq += 1
-        return StepOutput(list(self.members), local, root, seq)

@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 
 from model.inference.bundle import Bundle, BundleError
+from model.inference.bundle_adapters import StyleAdapter, save_adapters
 from model.inference.bundle_styles import BuiltinStyle, StyleClip, StyleFolderError, check_name, save_styles
 from model.inference.engine import Engine
 from model.inference.errors import EngineError
@@ -38,11 +39,16 @@ def encode_styles(engine: Engine, clips: Iterable[StyleClip]) -> list[BuiltinSty
 
 
 def write_builtin_styles(bundle: str | Path, clips: Iterable[StyleClip]) -> tuple[Path, list[BuiltinStyle]]:
-    """Replace ``BUNDLE/styles/`` with the codes of ``clips`` (weights and config untouched); returns the
-    folder and the styles. The bundle is read without its old styles folder, which may be of another
+    """Replace ``BUNDLE/styles/`` with the codes of ``clips`` (weights, config and adapters untouched); returns
+    the folder and the styles. The bundle is read without its old styles folder, which may be of another
     format or other weights; what is written is loaded back before returning."""
     bundle = Path(bundle)
     loaded = Bundle.load(bundle, styles=False)
+    clips = list(clips)
+    taken = sorted({c.name for c in clips} & set(loaded.adapters))
+    if taken:
+        raise StyleFolderError(f"{bundle}: {', '.join(taken)} already built in with weights of their own (adapters/); "
+                               "name the clips otherwise")
     threads = torch.get_num_threads()
     try:  # one intra-op thread, as `rsmt serve` runs by default (RSMT_THREADS=1): the same float rounding
         styles = encode_styles(Engine(loaded, threads=ENCODE_THREADS), clips)
@@ -54,3 +60,34 @@ def write_builtin_styles(bundle: str | Path, clips: Iterable[StyleClip]) -> tupl
     except BundleError as exc:  # what was written must load
         raise StyleFolderError(str(exc)) from exc
     return folder, styles
+
+
+def write_adapter(bundle: str | Path, adapter: StyleAdapter, clip: StyleClip) -> BuiltinStyle:
+    """Add ``adapter`` to the bundle folder, with the code of ``clip`` encoded by the adapted weights as its
+    built-in style (``builtin:NAME``); the bundle's weights, styles and other adapters stay as they are.
+    What is written is loaded back before returning."""
+    bundle = Path(bundle)
+    loaded = Bundle.load(bundle)
+    if adapter.name in loaded.styles:
+        raise StyleFolderError(f"{bundle} already has a built-in style {adapter.name!r}: pick another name")
+    if adapter.base_version != loaded.version:
+        raise StyleFolderError(f"the adapter {adapter.name!r} was tuned from model version {adapter.base_version}, "
+                               f"not from {bundle} (version {loaded.version})")
+    loaded.adapters[adapter.name] = adapter
+    threads = torch.get_num_threads()
+    try:  # one intra-op thread, as the server encodes: the same float rounding
+        engine = Engine(loaded, threads=ENCODE_THREADS)
+        try:
+            encoded, _ = engine.encode_style(clip.clip, adapter.name, weights=adapter.name)
+        except EngineError as exc:
+            raise StyleFolderError(f"style {adapter.name!r} ({clip.source or 'clip'}): {exc}") from exc
+    finally:
+        torch.set_num_threads(threads)
+    style = BuiltinStyle(adapter.name, encoded.frames, encoded.context, adapter.version, clip.source,
+                         weights=adapter.name)
+    save_adapters(bundle, loaded.adapters, {**loaded.styles, adapter.name: style}, loaded.skeleton, loaded.config.fps)
+    try:
+        Bundle.load(bundle)
+    except BundleError as exc:  # what was written must load
+        raise StyleFolderError(str(exc)) from exc
+    return style

@@ -301,10 +301,7 @@ class Scheduler:
         if isinstance(request, Retarget):
             self.engine.retarget(ch, batch, target=request.target, frames=request.frames)
         elif isinstance(request, SetStyle):
-            if batch is None:
-                ch.style = request.style
-            else:
-                batch.set_style(ch, request.style)
+            self.engine.set_style(ch, request.style, batch)
         return ch.seq
 
     def _step(self, pace: str, batch: CharacterBatch, result: _Tick) -> None:

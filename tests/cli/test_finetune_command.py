@@ -1,15 +1,20 @@
-"""``rsmt finetune-style``: 1 to 5 clips, and the adapted bundle carries the new style built in."""
+"""``rsmt finetune-style``: 1 to 5 clips; the bundle gains the new style built in, on an adapter of its own, and
+keeps everything else as it was."""
 
 from __future__ import annotations
 
+import hashlib
 import json
+import shutil
 
 import pytest
 import torch
 
-from model.data.synthetic import synthetic_skeleton, write_synthetic_dataset
+from model.data.synthetic import synthetic_skeleton, synthetic_walk, write_synthetic_dataset
 from model.inference.bundle import Bundle
+from model.inference.bundle_styles import StyleClip
 from model.inference.engine import Engine
+from model.inference.style_packing import write_builtin_styles
 from model.motion.bvh_clip import load_clip
 from model.nets.manifold import ManifoldConfig
 from model.nets.phase import PhaseConfig
@@ -25,6 +30,8 @@ def setup(tmp_path, monkeypatch):
     cfg = SamplerConfig(joints=21, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=20)
     man = ManifoldConfig(joints=21, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
     Bundle.create(synthetic_skeleton(), cfg, man, PhaseConfig(channels=63, phases=4, window=15, hidden=8)).save(tmp_path / "base")
+    write_builtin_styles(tmp_path / "base", [StyleClip(n, synthetic_walk(60, speed_cm_s=v), f"{n}.bvh")
+                                             for n, v in (("brisk", 160.0), ("slow", 60.0))])
     data = tmp_path / "data"
     paths = write_synthetic_dataset(data, takes_per_pair=2, frames=200)
     return tmp_path, data, sorted(p for p in paths if "_bouncy_" in str(p))
@@ -39,36 +46,43 @@ def _args(tmp_path, clips, *extra):
             "--out", str(tmp_path / "tuned"), "--iterations", "2", "--quiet", *extra]
 
 
-def test_the_new_style_is_built_in_and_served_like_the_others(setup, capsys):
-    tmp_path, data, bouncy = setup
-    assert main(_args(tmp_path, bouncy[:3], "--data", str(data))) == 0
-    captured = capsys.readouterr()
-    report = _report(captured.out)
-    assert "serve the two side by side" in captured.err  # the known styles are weaker in the adapted copy
-    assert sorted(report["styles"]) == ["builtin:bouncy", "builtin:brisk", "builtin:slow"]
-    tuned = Bundle.load(tmp_path / "tuned")
-    assert sorted(tuned.styles) == ["bouncy", "brisk", "slow"]
-    new = tuned.styles["bouncy"]
-    assert new.version == tuned.version != Bundle.load(tmp_path / "base").version
-    assert "fine-tuning clip" in new.source
-    # The stored code is the adapted engine's encoding of the clip's middle, as the server would compute it.
-    engine = Engine(Bundle.load(tmp_path / "tuned", styles=False), threads=1)
+def _files(folder) -> dict[str, str]:
+    return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_the_new_style_is_built_in_on_its_own_weights_and_the_rest_is_kept(setup, capsys):
+    tmp_path, _, bouncy = setup
+    assert main(_args(tmp_path, bouncy[:3])) == 0
+    report = _report(capsys.readouterr().out)
+    assert report["styles"] == ["builtin:bouncy", "builtin:brisk", "builtin:slow"] and report["adapter_mb"] > 0
+    base, tuned = _files(tmp_path / "base"), _files(tmp_path / "tuned")
+    assert {k: v for k, v in tuned.items() if not k.startswith("adapters/")} == base  # weights and styles untouched
+    bundle = Bundle.load(tmp_path / "tuned")
+    new = bundle.styles["bouncy"]
+    assert new.weights == "bouncy" and new.version == bundle.adapters["bouncy"].version != bundle.version
+    assert bundle.styles["brisk"].weights == "" and "fine-tuning clip" in new.source
+    assert "2 steps" in bundle.adapters["bouncy"].notes
+    # The stored code is the adapted weights' encoding of the clip's middle, as the server would compute it.
+    engine = Engine(bundle, threads=1)
     longest = max((load_clip(p) for p in bouncy[:3]), key=lambda c: c.num_frames)
     start = (longest.num_frames - new.frames) // 2
-    fresh, _ = engine.encode_style(longest.window(start, start + new.frames))
+    fresh, _ = engine.encode_style(longest.window(start, start + new.frames), weights="bouncy")
     assert torch.allclose(fresh.context.keys1, new.context.keys1, atol=1e-5)
 
 
-def test_without_data_only_the_new_style_is_built_in(setup, capsys):
+def test_a_style_is_added_in_place_once(setup, capsys):
     tmp_path, _, bouncy = setup
-    assert main(_args(tmp_path, bouncy[:1])) == 0
-    captured = capsys.readouterr()
-    assert _report(captured.out)["styles"] == ["builtin:bouncy"]
-    assert "give --data DATA" in captured.err
-    assert sorted(Bundle.load(tmp_path / "tuned").styles) == ["bouncy"]
+    args = _args(tmp_path, bouncy[:2])
+    args[args.index(str(tmp_path / "tuned"))] = str(tmp_path / "base")
+    assert main(args) == 0
+    assert sorted(Bundle.load(tmp_path / "base").styles) == ["bouncy", "brisk", "slow"]
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "already has a built-in style 'bouncy'" in capsys.readouterr().err
 
 
-def test_clip_count_and_name_are_checked_before_training(setup, capsys):
+def test_clips_name_and_out_folder_are_checked_before_training(setup, capsys):
     tmp_path, _, bouncy = setup
     six = (bouncy * 3)[:6]
     assert main(_args(tmp_path, six)) == 2
@@ -77,33 +91,25 @@ def test_clip_count_and_name_are_checked_before_training(setup, capsys):
     args[args.index("bouncy")] = "no spaces allowed"
     assert main(args) == 2
     assert not (tmp_path / "tuned").exists() and not (tmp_path / ".finetune-bouncy").exists()
-
-
-def test_rehearsal_of_the_known_styles_is_asked_for_and_needs_the_data(setup, capsys):
-    tmp_path, data, bouncy = setup
-    assert main(_args(tmp_path, bouncy[:3], "--data", str(data))) == 0  # the default: --data builds styles in, no rehearsal
-    notes = Bundle.load(tmp_path / "tuned").meta.notes
-    assert "rehearsing" not in notes and "every sampler weight" in notes
-    capsys.readouterr()
-    args = _args(tmp_path, bouncy[:3], "--data", str(data), "--rehearsal", "--scope", "style")
-    args[args.index(str(tmp_path / "tuned"))] = str(tmp_path / "tuned2")
-    assert main(args) == 0
-    assert "a run with other settings (rehearsal, scope) is replaced" in capsys.readouterr().err  # the default folder
-    notes = Bundle.load(tmp_path / "tuned2").meta.notes
-    assert "rehearsing brisk, slow" in notes and "FiLM/attention linears only" in notes
-    args = _args(tmp_path, bouncy[:3], "--rehearsal")
-    args[args.index(str(tmp_path / "tuned"))] = str(tmp_path / "tuned3")
+    (tmp_path / "tuned").mkdir()
+    (tmp_path / "tuned" / "mine.txt").write_text("keep")
+    assert main(_args(tmp_path, bouncy[:3])) == 2
+    assert "--out" in capsys.readouterr().err and not (tmp_path / ".finetune-bouncy").exists()
+    (tmp_path / "tuned" / "mine.txt").unlink()  # an empty folder is fine
+    args = _args(tmp_path, bouncy[:3])
+    args[args.index("bouncy")] = "slow"  # a style the bundle has
     assert main(args) == 2
-    assert "--rehearsal trains on the bundle's training data" in capsys.readouterr().err
-    assert not (tmp_path / "tuned3").exists()
+    assert "already has a built-in style 'slow'" in capsys.readouterr().err
 
 
 def test_a_run_folder_of_other_settings_is_refused_not_mixed_in(setup, capsys):
     tmp_path, _, bouncy = setup
     run = tmp_path / "run"
     assert main(_args(tmp_path, bouncy[:2], "--run", str(run))) == 0
+    shutil.rmtree(tmp_path / "tuned")
     assert main(_args(tmp_path, bouncy[:2], "--run", str(run))) == 0  # the same request: resumed (already finished)
     capsys.readouterr()
+    shutil.rmtree(tmp_path / "tuned")
     assert main(_args(tmp_path, bouncy[:2], "--run", str(run), "--scope", "style")) == 2
     assert "other settings (scope)" in capsys.readouterr().err
     stray = tmp_path / "stray"

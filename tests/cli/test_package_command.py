@@ -138,3 +138,28 @@ def test_the_default_bundles_styles_are_remade_from_the_train_split(tmp_path, ca
     for s in report["styles"]:
         take_id = s["source"].split(" frames ")[0]
         assert take_id in train and "_walk_" in take_id, s
+
+
+def test_package_keeps_style_adapters_only_for_the_same_weights(tmp_path, capsys):
+    import copy
+
+    from model.data.synthetic import synthetic_walk
+    from model.inference.bundle_adapters import adapter_from
+    from model.inference.bundle_styles import StyleClip
+    from model.inference.style_packing import write_adapter
+
+    tiny_bundle(7).save(tmp_path / "trained")
+    bundle = Bundle.load(tmp_path / "trained")
+    tuned = copy.deepcopy(bundle.sampler)
+    with torch.no_grad():
+        next(tuned.film1.parameters()).add_(0.1)
+    write_adapter(tmp_path / "trained", adapter_from(bundle.sampler, tuned, "limp", bundle.version),
+                  StyleClip("limp", synthetic_walk(40), "limp.bvh"))
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "same"),
+                 "--name", "shipped"]) == 0
+    assert json.loads(capsys.readouterr().out)["styles"] == ["limp"]
+    assert sorted(Bundle.load(tmp_path / "same").adapters) == ["limp"]
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "half"), "--float16"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["styles"] == [] and "fine-tune them again" in out.err
+    assert not (tmp_path / "half" / "adapters").exists()

@@ -4,15 +4,19 @@ every key, usable by every API key wherever a style id is accepted (POST /v1/tra
 
 from __future__ import annotations
 
+import copy
+import shutil
 from pathlib import Path
 
 import httpx
 import pytest
+import torch
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
+from model.inference.bundle_adapters import adapter_from
 from model.inference.bundle_styles import StyleClip
-from model.inference.style_packing import write_builtin_styles
+from model.inference.style_packing import write_adapter, write_builtin_styles
 from tests.service.conftest import transition_body
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
@@ -21,10 +25,16 @@ KEY_A, KEY_B = "a" * 24, "b" * 24
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory):
+def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path: Path = Bundle.create(synthetic_skeleton(), seed=0).save(tmp_path_factory.mktemp("builtin") / "rsmt")
     write_builtin_styles(path, [StyleClip(n, synthetic_walk(f, speed_cm_s=v), f"{n}.bvh")
                                 for n, f, v in (("slow", 60, 60.0), ("brisk", 90, 160.0))])
+    return path
+
+
+@pytest.fixture(scope="module")
+def server(base: Path):
+    path = base
     # One registered style per key: the built-in ones must not count against it.
     srv = Server(path, env={"RSMT_API_KEYS": f"{KEY_A},{KEY_B}", "RSMT_STYLE_CACHE_ENTRIES_PER_KEY": "1"}).start()
     yield srv
@@ -116,6 +126,58 @@ def test_a_stream_starts_and_switches_with_builtin_ids(server) -> None:
         assert len(out["frames"]) == 30 and out["end"]["reason"] == "arrived"
         started = [m for m in out["messages"] if m["type"] == "started"]
         assert started and started[0].get("style_id", "builtin:brisk") == "builtin:brisk"
+
+
+@pytest.fixture(scope="module")
+def adapted(base: Path, tmp_path_factory: pytest.TempPathFactory):
+    """Servers on the bundle plus a style adapter ``limp``, and on a bundle whose own weights are limp's."""
+    folder = tmp_path_factory.mktemp("adapted")
+    bundle = Bundle.load(base)
+    tuned = copy.deepcopy(bundle.sampler)
+    gen = torch.Generator().manual_seed(5)
+    with torch.no_grad():
+        for name, p in tuned.named_parameters():
+            if name.startswith(("film1.", "lstm.", "head_out.")):
+                p.add_(0.2 * torch.randn(p.shape, generator=gen))
+    limp = StyleClip("limp", synthetic_walk(70, speed_cm_s=40.0), "limp.bvh")
+    shutil.copytree(base, folder / "rsmt")
+    write_adapter(folder / "rsmt", adapter_from(bundle.sampler, tuned, "limp", bundle.version), limp)
+    own = Bundle.load(base, styles=False)
+    own.sampler = tuned
+    own.save(folder / "own" / "rsmt")
+    write_builtin_styles(folder / "own" / "rsmt", [limp])
+    servers = [Server(folder / "rsmt").start(), Server(folder / "own" / "rsmt").start()]
+    yield servers
+    for srv in servers:
+        srv.stop()
+
+
+def test_a_fine_tuned_style_runs_on_its_adapter_and_the_others_as_before(server, adapted) -> None:
+    with_adapter, own = adapted
+    listed = [s["style_id"] for s in httpx.get(with_adapter.url + "/v1/model").json()["builtin_styles"]]
+    assert listed == ["builtin:brisk", "builtin:limp", "builtin:slow"]
+
+    def frames(srv: Server, style_id: str) -> list:
+        r = httpx.post(srv.url + "/v1/transition", json=transition_body(20, style_id=style_id), timeout=60,
+                       headers=headers(KEY_A) if srv is server else None)
+        assert r.status_code == 200, r.text
+        return r.json()["frames"]
+
+    # The known styles: the same frames as the bundle without the adapter; the new one: its own weights'.
+    assert frames(with_adapter, "builtin:slow") == frames(server, "builtin:slow")
+    assert frames(with_adapter, "builtin:limp") == frames(own, "builtin:limp")
+    # A stream switches between styles of the two weight sets and arrives.
+    with Ws(with_adapter.ws) as ws:
+        ws.send(start_message("w", 30, style_id="builtin:slow", pace="asap"))
+        switched: list[bool] = []
+
+        def switch(w: Ws, frame: dict) -> None:
+            if frame["seq"] == 5 and not switched:
+                w.send({"type": "style", "character": "w", "style_id": "builtin:limp"})
+                switched.append(True)
+
+        out = ws.run({"w"}, on_frame=switch)["w"]
+        assert switched and len(out["frames"]) == 30 and out["end"]["reason"] == "arrived"
 
 
 @pytest.mark.slow

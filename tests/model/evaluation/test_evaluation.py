@@ -306,3 +306,38 @@ def test_accuracy_by_style_groups_cases_by_another_label() -> None:
     context = torch.tensor([0, 1, 0, 2, 1])
     by_context = StyleScorer.accuracy_by_style(scorer, logits, labels, groups=context)
     assert by_context == {"a": 0.5, "b": 1.0, "c": 1.0}  # case 4's unknown label is left out of group b
+
+
+def test_a_style_with_an_adapter_is_scored_on_its_weights_the_others_on_the_bundles(
+        cache: MotionCache, bundle_dir: Path, tmp_path: Path) -> None:
+    import copy
+    import shutil
+
+    from model.evaluation.methods import Request
+    from model.inference.bundle_adapters import adapter_from
+    from model.inference.bundle_styles import StyleClip
+    from model.inference.style_packing import write_adapter
+
+    bundle = Bundle.load(bundle_dir)
+    tuned = copy.deepcopy(bundle.sampler)
+    with torch.no_grad():
+        for name, p in tuned.named_parameters():
+            if name.startswith(("film1.", "lstm.")):
+                p.add_(0.2 * torch.randn(p.shape, generator=torch.Generator().manual_seed(4)))
+    shutil.copytree(bundle_dir, tmp_path / "adapted")
+    write_adapter(tmp_path / "adapted", adapter_from(bundle.sampler, tuned, "bouncy", bundle.version),
+                  StyleClip("bouncy", cache.clip(cache.split.train[0]).window(0, 60).to(torch.float32), "x"))
+    bundle.sampler = tuned
+    bundle.save(tmp_path / "own")
+    cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=9))
+    mine = [i for i, c in enumerate(cs.cases) if c.style == "bouncy"]
+    assert mine and len(mine) < len(cs)
+    adapted = BundleMethod(tmp_path / "adapted", batch=4)
+    assert adapted.describe()["adapters"] == ["bouncy"]
+    got = adapted.generate(cs, Request(variant("gap10")))
+    base = BundleMethod(bundle_dir, batch=4).generate(cs, Request(variant("gap10")))
+    own = BundleMethod(tmp_path / "own", batch=4).generate(cs, Request(variant("gap10")))
+    for i in range(len(cs)):
+        want = own if i in mine else base
+        assert torch.allclose(got[0][i], want[0][i], atol=1e-4) and torch.allclose(got[1][i], want[1][i], atol=1e-3)
+    assert not torch.allclose(got[1][mine[0]], base[1][mine[0]], atol=1e-3)

@@ -1,19 +1,17 @@
-"""Few-shot fine-tuning: what each scope trains, and rehearsal of the known styles."""
+"""Few-shot fine-tuning: what each scope trains, kept as an adapter beside weights left as they were."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from model.data.preprocessed import load_motion_cache
-from model.data.synthetic import synthetic_skeleton, synthetic_walk, write_synthetic_dataset
+from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
 from model.nets.manifold import ManifoldConfig
 from model.nets.phase import PhaseConfig
 from model.nets.sampler import SamplerConfig
 from model.train.finetune import FROZEN_PREFIXES, STYLE_PREFIXES, FinetuneConfig, finetune_style
 from model.train.loop import LoopConfig
-from model.train.motion_tensors import MotionTensors
 
 
 @pytest.fixture()
@@ -37,47 +35,32 @@ def _config(scope: str, **extra) -> FinetuneConfig:
     return ft
 
 
-def _changed(before: Bundle, after: Bundle) -> set[str]:
-    old = dict(before.sampler.named_parameters())
-    return {n for n, p in after.sampler.named_parameters() if not torch.equal(p, old[n])}
+def _changed(bundle: Bundle, run) -> tuple[set[str], object, object]:
+    before = {k: v.clone() for k, v in bundle.sampler.state_dict().items()}
+    adapter, result = run()
+    assert all(torch.equal(v, before[k]) for k, v in bundle.sampler.state_dict().items())  # left as it was
+    return set(adapter.tensors), adapter, result
 
 
 def test_the_style_scope_touches_only_style_layers(bundle, tmp_path):
-    tuned, result = finetune_style(bundle, _clips(), "bouncy", _config("style"), tmp_path / "run", progress=False)
+    changed, adapter, result = _changed(bundle, lambda: finetune_style(bundle, _clips(), "bouncy", _config("style"),
+                                                                          tmp_path / "run", progress=False))
     assert result.finished and len(result.history) == 2
-    changed = _changed(bundle, tuned)
     assert changed and all(n.startswith(STYLE_PREFIXES) for n in changed)
     assert any(n.startswith("style_encoder.") for n in changed)
-    assert tuned.meta.name.endswith("+bouncy") and "FiLM/attention linears only" in tuned.meta.notes
-    tuned.save(tmp_path / "tuned")
-    assert Bundle.load(tmp_path / "tuned").version != "unsaved"
+    assert adapter.name == "bouncy" and adapter.base_version == bundle.version
+    assert "FiLM/attention linears only" in adapter.notes
 
 
 def test_the_network_scope_trains_the_core_but_never_the_manifold(bundle, tmp_path):
-    tuned, _ = finetune_style(bundle, _clips(), "bouncy", _config("network"), tmp_path / "run", progress=False)
-    changed = _changed(bundle, tuned)
+    changed, adapter, _ = _changed(bundle, lambda: finetune_style(bundle, _clips(), "bouncy", _config("network"),
+                                                                     tmp_path / "run", progress=False))
     assert any(n.startswith("lstm.") for n in changed) and any(n.startswith("head_out.") for n in changed)
     assert not any(n.startswith(FROZEN_PREFIXES) for n in changed)
-    assert "every sampler weight but the manifold decoder" in tuned.meta.notes
-
-
-def test_rehearsal_trains_on_the_known_styles_beside_the_clips(bundle, tmp_path):
-    data = tmp_path / "data"
-    write_synthetic_dataset(data, takes_per_pair=2, frames=120)
-    cache = load_motion_cache(data, root=tmp_path / "cache", workers=1, progress=False)
-    known = [i for i in cache.split.train if cache.takes[i].style != "bouncy"]
-    motion = MotionTensors.from_cache(cache, known, bundle.skeleton, augment=False, progress=False)
-    tuned, result = finetune_style(bundle, _clips(), "bouncy", _config("network"), tmp_path / "run", progress=False,
-                                   rehearsal=motion)
-    assert result.finished and "rehearsing brisk, slow" in tuned.meta.notes
-    # The known styles' windows change what is learned; with no rehearsal batch they are not read.
-    plain, _ = finetune_style(bundle, _clips(), "bouncy", _config("network"), tmp_path / "run2", progress=False)
-    unread, _ = finetune_style(bundle, _clips(), "bouncy", _config("network", rehearsal_batch=0), tmp_path / "run3",
-                               progress=False, rehearsal=motion)
-    weights = {name: dict(b.sampler.named_parameters())["lstm.weight_ih"] for name, b in
-               (("rehearsed", tuned), ("plain", plain), ("unread", unread))}
-    assert not torch.equal(weights["rehearsed"], weights["plain"])
-    assert torch.equal(weights["unread"], weights["plain"]) and "rehearsing" not in unread.meta.notes
+    assert "every sampler weight but the manifold decoder" in adapter.notes
+    # Resumed from its checkpoints, the same run gives the same adapter.
+    again, _ = finetune_style(bundle, _clips(), "bouncy", _config("network"), tmp_path / "run", progress=False)
+    assert again.version == adapter.version
 
 
 def test_an_unknown_scope_is_refused() -> None:

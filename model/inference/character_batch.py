@@ -1,0 +1,216 @@
+"""A batch of live characters whose states are stacked so that one step of each weight set advances them all."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import torch
+
+from model.inference.arrival import ArrivalCorrector
+from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
+from model.inference.traced_step import CompiledFrameOutput
+from model.motion.features import CanonicalFrame
+from model.nets.sampler import SamplerState, StyleContext
+
+Tensor = torch.Tensor
+
+
+class BatchEngine(Protocol):
+    """What a batch needs of its engine (:class:`model.inference.engine.Engine`)."""
+
+    output_fn: CompiledFrameOutput
+    arrival: ArrivalCorrector
+
+    def begin(self, characters: list[Character]) -> SamplerState: ...
+
+    def weights(self, name: str = "") -> WeightSet: ...
+
+
+def by_weights(characters: list[Character]) -> list[tuple[str, Tensor]]:
+    """The characters' rows grouped by the weight set of their style, in order of first appearance."""
+    rows: dict[str, list[int]] = {}
+    for i, c in enumerate(characters):
+        rows.setdefault(c.style.weights, []).append(i)
+    return [(w, torch.tensor(r)) for w, r in rows.items()]
+
+
+def inverse_of(groups: list[tuple[str, Tensor]]) -> Tensor:
+    """The index that puts rows stacked group after group back in the characters' order."""
+    order = torch.cat([idx for _, idx in groups])
+    inverse = torch.empty_like(order)
+    inverse[order] = torch.arange(len(order))
+    return inverse
+
+
+class CharacterBatch:
+    """Live characters whose states are stacked so one sampler step advances them all.
+
+    Stacking happens only when membership or a style changes, not every frame.
+    """
+
+    def __init__(self, engine: BatchEngine) -> None:
+        self.engine = engine
+        self.members: list[Character] = []
+        self._state: SamplerState | None = None
+        self._style: StyleContext | None = None
+        self._yaw: Tensor | None = None
+        self._origin: Tensor | None = None
+        # The output steps' memory, a row per member (see Engine.prepare for the names).
+        self._post: dict[str, Tensor] | None = None
+        self._pending: list[Character] = []
+        self._style_dirty = False
+        # The members by weight set: (weights, their rows, their style context); with several sets, the
+        # index that puts the rows stepped set after set back in member order.
+        self._groups: list[tuple[WeightSet, Tensor, StyleContext]] = []
+        self._inverse: Tensor | None = None
+
+    def __len__(self) -> int:
+        return len(self.members) + len(self._pending)
+
+    def add(self, ch: Character) -> None:
+        if ch._row is None and ch._init is None:
+            raise ValueError("character was not prepared by Engine.prepare")
+        self._pending.append(ch)
+
+    def _sync(self) -> None:
+        if self._pending:
+            fresh = [c for c in self._pending if c._row is None]
+            resumed = [c for c in self._pending if c._row is not None]
+            rows = [self._state] if self._state is not None else []
+            if fresh:
+                rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
+            rows += [c._row for c in resumed]  # type: ignore[misc]
+            joined = fresh + resumed
+            held = [CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None and self._origin is not None else []
+            frames = held + [c._frame for c in joined]
+            self._state = SamplerState.stack(rows)
+            self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
+            self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
+            posts = ([self._post] if self._post is not None else []) + [c._post for c in joined]
+            if any(p is None for p in posts):
+                raise ValueError("character was not prepared by Engine.prepare")
+            self._post = {k: torch.cat([p[k] for p in posts]) for k in posts[0]}  # type: ignore[index, union-attr]
+            for c in joined:
+                c._row = None
+                c._post = None
+            self.members.extend(joined)
+            self._pending = []
+            self._style_dirty = True
+        if self._style_dirty and self.members:
+            self._style = StyleContext.stack([m.style.context for m in self.members])
+            groups = by_weights(self.members)
+            whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
+            self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))
+                            for w, idx in groups]
+            self._inverse = inverse_of(groups) if len(groups) > 1 else None
+            self._style_dirty = False
+
+    @torch.inference_mode()
+    def set_style(self, ch: Character, style: EncodedStyle) -> None:
+        """Switch a member's style from the next frame; a style on other weights re-encodes its target by them."""
+        ws = self.engine.weights(style.weights)
+        if style.weights != ch.style.weights:
+            if ch in self.members:
+                self.update_row(ch, {"target_emb": ws.sampler.target_encoder(self.row_of(ch).target_vec)})
+            elif ch._row is not None:  # waiting to resume: its own row (not yet begun: begin() encodes it)
+                ch._row.target_emb = ws.sampler.target_encoder(ch._row.target_vec)
+        ch.style = style
+        self._style_dirty = True
+
+    def row_of(self, ch: Character) -> SamplerState:
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None
+        return self._state.index(slice(i, i + 1))
+
+    @torch.inference_mode()
+    def update_row(self, ch: Character, updates: dict[str, Tensor]) -> None:
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None
+        for k, v in updates.items():
+            getattr(self._state, k)[i : i + 1] = v
+
+    def remove(self, ch: Character) -> None:
+        if ch in self._pending:
+            self._pending.remove(ch)
+            return
+        self._keep([m for m in self.members if m is not ch])
+
+    def detach(self, ch: Character) -> None:
+        """Take a live character out of the batch but keep its state on it, so :meth:`add` resumes it.
+
+        :meth:`remove` discards the state; this lets a scheduler pause one character (its client is
+        not reading, say) while the others keep stepping. Costs one restack, like ``remove``.
+        """
+        if ch in self._pending:
+            self._pending.remove(ch)
+            return
+        self._sync()
+        i = self.members.index(ch)
+        assert self._state is not None and self._yaw is not None and self._origin is not None
+        row = torch.tensor([i])
+        ch._row = self._state.index(row)  # a copy: later steps never write into it
+        ch._frame = CanonicalFrame(self._yaw[row], self._origin[row])
+        assert self._post is not None
+        ch._post = {k: v[i : i + 1].clone() for k, v in self._post.items()}
+        self._keep([m for m in self.members if m is not ch])
+
+    def drop_finished(self) -> list[Character]:
+        done = [m for m in self.members if m.done] + [p for p in self._pending if p.cancelled]
+        if done:
+            self._pending = [p for p in self._pending if not p.cancelled]
+            self._keep([m for m in self.members if not m.done])
+        return done
+
+    def _keep(self, keep: list[Character]) -> None:
+        if len(keep) == len(self.members):
+            return
+        if not keep:
+            self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
+            self._post = None
+            return
+        idx = torch.tensor([self.members.index(k) for k in keep])
+        assert self._state is not None and self._yaw is not None and self._origin is not None
+        self._state = self._state.index(idx)
+        self._yaw, self._origin = self._yaw[idx], self._origin[idx]
+        assert self._post is not None
+        self._post = {k: v[idx] for k, v in self._post.items()}
+        self.members = keep
+        self._style_dirty = True
+
+    @torch.inference_mode()
+    def step(self) -> StepOutput:
+        """Advance every member by one frame and return their world-space poses."""
+        self._sync()
+        if not self.members:
+            raise ValueError("no live characters to step")
+        assert self._state is not None and self._style is not None
+        if self._inverse is None:  # one weight set: the whole batch in one step
+            self._state, shift = self._groups[0][0].step_fn(self._state, self._style)  # steering included
+        else:
+            parts = [ws.step_fn(self._state.index(idx), style) for ws, idx, style in self._groups]
+            self._state = SamplerState.stack([p[0] for p in parts]).index(self._inverse)
+            shifts = [p[1] for p in parts]
+            shift = None if shifts[0] is None else torch.cat(shifts)[self._inverse]  # type: ignore[arg-type]
+        post = self._post
+        assert post is not None
+        remaining = torch.tensor([m.remaining - 1 for m in self.members])
+        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post,  # type: ignore[arg-type]
+                                                    shift)
+        post.update(memory)
+        exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
+        if exact:
+            idx = torch.tensor(exact)
+            chars = [self.members[i] for i in exact]
+            t_rot = torch.stack([c._target_pose[0] for c in chars])  # type: ignore[index]
+            t_root = torch.stack([c._target_pose[1] for c in chars])  # type: ignore[index]
+            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining[idx],
+                                                              [c.arrival for c in chars])  # type: ignore[misc]
+            local, root = local.clone(), root.clone()
+            local[idx], root[idx] = fixed_rot, fixed_root
+        seq = []
+        for m in self.members:
+            seq.append(m.seq)
+            m.seq += 1
+        return StepOutput(list(self.members), local, root, seq)
