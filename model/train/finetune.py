@@ -59,6 +59,7 @@ class FinetuneConfig:
     w_vel: float = 1.0
     w_acc: float = 2.0
     w_spectrum: float = 0.2
+    w_foot: float = 0.05  # planted-foot sliding
 
     @classmethod
     def for_scope(cls, scope: str) -> FinetuneConfig:
@@ -119,7 +120,7 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
         return transition_losses(sampler, tensors, batch, feats, length, stage, gen, training)
 
     def objective(out: dict) -> torch.Tensor:
-        return (out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + 0.05 * out["foot"]
+        return (out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + cfg.w_foot * out["foot"]
                 + cfg.w_vel * out["vel"] + cfg.w_acc * out["acc"] + cfg.w_spectrum * out["spectrum"])
 
     def step(i: int) -> dict[str, float]:
