@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True,
                    help="folder of the bundle with the new style: a new or empty folder (the bundle is copied there), "
                         "or the --model folder itself to add the style in place")
-    p.add_argument("--iterations", type=int, default=300, help="optimiser steps (default 300)")
+    p.add_argument("--iterations", type=int, help="optimiser steps (default: 400 for --scope network, 300 for style)")
     p.add_argument("--run", type=Path, help="folder for checkpoints, resumed by the same command (default: "
                                             "OUT/../.finetune-NAME, where a run of other settings is replaced)")
     p.add_argument("--threads", type=int, default=0, help="torch threads")
@@ -53,6 +53,8 @@ def _run(args: argparse.Namespace) -> int:
     if not MIN_CLIPS <= len(args.clips) <= MAX_CLIPS:
         raise ValueError(f"--clips takes {MIN_CLIPS} to {MAX_CLIPS} clips of the new style; got {len(args.clips)}")
     check_name(args.name)
+    if args.iterations is not None and args.iterations < 1:
+        raise ValueError(f"--iterations must be at least 1; got {args.iterations}")
     in_place = args.out.resolve() == args.model.resolve()
     if not in_place and args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
         raise ValueError(f"--out {args.out} is not empty: give a new folder, or --out {args.model} to add the style to "
@@ -67,12 +69,13 @@ def _run(args: argparse.Namespace) -> int:
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
     style_clip = _new_style(clips, args.clips, args.name, bundle)  # before the long part
     cfg = FinetuneConfig.for_scope(args.scope)
-    cfg.loop.iterations = args.iterations
-    cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, args.iterations))
+    if args.iterations is not None:
+        cfg.loop.iterations = args.iterations
+    cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, cfg.loop.iterations))
     run = args.run or args.out.parent / f".finetune-{args.name}"
     claim_run_folder(run, {"model": str(args.model.resolve()), "version": bundle.version, "name": args.name,
                            "clips": [str(c.resolve()) for c in args.clips], "scope": args.scope,
-                           "iterations": args.iterations}, replace=args.run is None)
+                           "iterations": cfg.loop.iterations}, replace=args.run is None)
     adapter, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device)
     if not result.finished:
         print(f"stopped early; run again to resume from {run}")

@@ -1,5 +1,6 @@
-"""The inference engine: style encoding with a cache, transitions as explicit per-character state,
-and a batch that advances every live character in one step.
+"""The inference engine: style encoding with a cache, transitions as explicit per-character state
+(:mod:`model.inference.character`), one weight set per style adapter beside the bundle's own, and a
+batch that advances every live character in one step per weight set (:mod:`model.inference.character_batch`).
 
 Motion comes in and goes out in the caller's world frame on the model's rig: local x,y,z,w
 rotations and the root position. Inside, each transition works in its own canonical frame (the

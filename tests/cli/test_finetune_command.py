@@ -97,6 +97,10 @@ def test_clips_name_and_out_folder_are_checked_before_training(setup, capsys):
     assert "--out" in capsys.readouterr().err and not (tmp_path / ".finetune-bouncy").exists()
     (tmp_path / "tuned" / "mine.txt").unlink()  # an empty folder is fine
     args = _args(tmp_path, bouncy[:3])
+    args[args.index("2")] = "0"
+    assert main(args) == 2
+    assert "--iterations must be at least 1" in capsys.readouterr().err
+    args = _args(tmp_path, bouncy[:3])
     args[args.index("bouncy")] = "slow"  # a style the bundle has
     assert main(args) == 2
     assert "already has a built-in style 'slow'" in capsys.readouterr().err
