@@ -32,6 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="folder of the bundle with the new style: a new or empty folder (the bundle is copied there), "
                         "or the --model folder itself to add the style in place")
     p.add_argument("--iterations", type=int, help="optimiser steps (default: 400 for --scope network, 300 for style)")
+    p.add_argument("--blend", type=float, metavar="A",
+                   help="keep A x the tuned weights + (1 - A) x the bundle's, in (0, 1] (default: 0.5 for --scope "
+                        "network, chosen on validation: closer to the captured motion, less of the new style; 1 keeps "
+                        "the tuned weights as they are)")
     p.add_argument("--run", type=Path, help="folder for checkpoints, resumed by the same command (default: "
                                             "OUT/../.finetune-NAME, where a run of other settings is replaced)")
     p.add_argument("--threads", type=int, default=0, help="torch threads")
@@ -55,6 +59,8 @@ def _run(args: argparse.Namespace) -> int:
     check_name(args.name)
     if args.iterations is not None and args.iterations < 1:
         raise ValueError(f"--iterations must be at least 1; got {args.iterations}")
+    if args.blend is not None and not 0.0 < args.blend <= 1.0:
+        raise ValueError(f"--blend must be in (0, 1]; got {args.blend}")
     in_place = args.out.resolve() == args.model.resolve()
     if not in_place and args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
         raise ValueError(f"--out {args.out} is not empty: give a new folder, or --out {args.model} to add the style to "
@@ -71,6 +77,8 @@ def _run(args: argparse.Namespace) -> int:
     cfg = FinetuneConfig.for_scope(args.scope)
     if args.iterations is not None:
         cfg.loop.iterations = args.iterations
+    if args.blend is not None:  # applied to the trained weights: the run folder's checkpoints do not depend on it
+        cfg.blend = args.blend
     cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, cfg.loop.iterations))
     run = args.run or args.out.parent / f".finetune-{args.name}"
     claim_run_folder(run, {"model": str(args.model.resolve()), "version": bundle.version, "name": args.name,

@@ -79,14 +79,21 @@ class StyleAdapter:
 
 
 def adapter_from(base: TransitionSampler, tuned: TransitionSampler, name: str, base_version: str,
-                 notes: str = "") -> StyleAdapter:
-    """The adapter holding every tensor of ``tuned`` that differs from ``base`` (same architecture)."""
+                 notes: str = "", blend: float = 1.0) -> StyleAdapter:
+    """The adapter holding every tensor of ``tuned`` that differs from ``base`` (same architecture), moved
+    back toward ``base`` by ``blend``: ``blend * tuned + (1 - blend) * base`` (1: the tuned weights as they are)."""
     check_name(name)
+    if not 0.0 < blend <= 1.0:
+        raise AdapterError(f"adapter {name!r}: blend must be in (0, 1]; got {blend}")
     mine, theirs = base.state_dict(), tuned.state_dict()
     if mine.keys() != theirs.keys():
         raise AdapterError(f"adapter {name!r}: the tuned network is not of the bundle's architecture")
-    changed = {k: v.detach().cpu().clone().contiguous() for k, v in theirs.items()
-               if not torch.equal(v.detach().cpu(), mine[k].detach().cpu())}
+    changed: dict[str, torch.Tensor] = {}
+    for k, v in theirs.items():
+        old, new = mine[k].detach().cpu(), v.detach().cpu()
+        if not torch.equal(new, old):
+            mixed = blend * new + (1.0 - blend) * old if new.is_floating_point() and blend < 1.0 else new
+            changed[k] = mixed.clone().contiguous()
     if not changed:
         raise AdapterError(f"adapter {name!r}: fine-tuning changed no weight")
     return StyleAdapter(name, changed, base_version, notes)

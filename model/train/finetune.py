@@ -51,7 +51,8 @@ class FinetuneConfig:
     validation against 300 steps at 1e-4 and the feet at 0.05 (the earlier default), a higher rate
     alone and a heavier foot term alone: held-out active went from 40% to 69% of the style judge's
     reading, elderly stayed at 84-86%, foot skate fell (docs/experiments/2026-11-25-unseen-styles.md,
-    amendment 2). About 4 minutes on a 2-core CPU."""
+    amendment 2). About 4 minutes on a 2-core CPU. ``blend`` 0.5 then won against 1 and 0.75
+    (amendment 3): lower L2P and skate, less of a distant style (active 69% -> 17% on validation)."""
 
     loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=400, epoch_iterations=50, lr=3e-4, warmup=20,
                                                                 lr_final=3e-5))
@@ -66,6 +67,9 @@ class FinetuneConfig:
     w_acc: float = 2.0
     w_spectrum: float = 0.2
     w_foot: float = 1.0  # planted-foot sliding
+    # The adapter keeps ``blend * tuned + (1 - blend) * original`` weights (weight-space ensembling): on
+    # validation 0.5 kept the new style's transitions closer to the capture (amendment 3 of the record).
+    blend: float = 0.5
 
     @classmethod
     def for_scope(cls, scope: str) -> FinetuneConfig:
@@ -73,7 +77,7 @@ class FinetuneConfig:
         3e-4, the foot term at 0.05)."""
         cfg = cls(scope=_checked(scope))
         if scope == "style":
-            cfg.loop.iterations, cfg.w_foot = 300, 0.05
+            cfg.loop.iterations, cfg.w_foot, cfg.blend = 300, 0.05, 1.0
         return cfg
 
 
@@ -146,5 +150,6 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     sampler.to("cpu")
     what = ("style encoder and FiLM/attention linears only" if cfg.scope == "style"
             else "every sampler weight but the manifold decoder")
-    notes = f"Fine-tuned from {bundle.meta.name} on {len(clips)} clip(s) ({what}; {cfg.loop.iterations} steps)."
-    return adapter_from(bundle.sampler, sampler, style_name, bundle.version, notes), result
+    notes = (f"Fine-tuned from {bundle.meta.name} on {len(clips)} clip(s) ({what}; {cfg.loop.iterations} steps; "
+             f"blend {cfg.blend:g}).")
+    return adapter_from(bundle.sampler, sampler, style_name, bundle.version, notes, cfg.blend), result

@@ -62,7 +62,7 @@ def test_the_new_style_is_built_in_on_its_own_weights_and_the_rest_is_kept(setup
     new = bundle.styles["bouncy"]
     assert new.weights == "bouncy" and new.version == bundle.adapters["bouncy"].version != bundle.version
     assert bundle.styles["brisk"].weights == "" and "fine-tuning clip" in new.source
-    assert "2 steps" in bundle.adapters["bouncy"].notes
+    assert "2 steps" in bundle.adapters["bouncy"].notes and "blend 0.5" in bundle.adapters["bouncy"].notes
     # The stored code is the adapted weights' encoding of the clip's middle, as the server would compute it.
     engine = Engine(bundle, threads=1)
     longest = max((load_clip(p) for p in bouncy[:3]), key=lambda c: c.num_frames)
@@ -100,6 +100,8 @@ def test_clips_name_and_out_folder_are_checked_before_training(setup, capsys):
     args[args.index("2")] = "0"
     assert main(args) == 2
     assert "--iterations must be at least 1" in capsys.readouterr().err
+    assert main(_args(tmp_path, bouncy[:3], "--blend", "0")) == 2
+    assert "--blend must be in (0, 1]" in capsys.readouterr().err
     args = _args(tmp_path, bouncy[:3])
     args[args.index("bouncy")] = "slow"  # a style the bundle has
     assert main(args) == 2

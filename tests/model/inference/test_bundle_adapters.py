@@ -152,6 +152,22 @@ def test_adapters_that_do_not_fit_are_refused(adapted, walk, tmp_path):
         adapter_from(loaded.sampler, loaded.sampler, "same", loaded.version)
 
 
+def test_a_blended_adapter_lies_between_the_bundle_and_the_tuned_weights(adapted):
+    _, out, tuned = adapted
+    base = Bundle.load(out).sampler
+    full = adapter_from(base, tuned, "x", "v")
+    half = adapter_from(base, tuned, "x", "v", blend=0.5)
+    own = base.state_dict()
+    assert full.tensors.keys() == half.tensors.keys()
+    for k, t in half.tensors.items():
+        assert torch.equal(full.tensors[k], tuned.state_dict()[k])
+        assert torch.allclose(t, (full.tensors[k] + own[k]) / 2, atol=1e-6) and not torch.equal(t, own[k])
+    assert half.version != full.version
+    for bad in (0.0, 1.5):
+        with pytest.raises(AdapterError, match="blend must be in"):
+            adapter_from(base, tuned, "x", "v", blend=bad)
+
+
 def test_saving_keeps_adapters_of_these_weights_and_drops_others(adapted, tmp_path, caplog):
     _, out, _ = adapted
     bundle = Bundle.load(out)

@@ -65,8 +65,10 @@ def test_the_network_scope_trains_the_core_but_never_the_manifold(bundle, tmp_pa
 
 def test_each_scope_has_the_defaults_it_was_measured_with() -> None:
     network, style = FinetuneConfig.for_scope("network"), FinetuneConfig.for_scope("style")
-    assert (network.loop.iterations, network.loop.lr, network.loop.lr_final, network.w_foot) == (400, 3e-4, 3e-5, 1.0)
-    assert (style.loop.iterations, style.loop.lr, style.loop.lr_final, style.w_foot) == (300, 3e-4, 3e-5, 0.05)
+    assert (network.loop.iterations, network.loop.lr, network.loop.lr_final, network.w_foot, network.blend) == (
+        400, 3e-4, 3e-5, 1.0, 0.5)
+    assert (style.loop.iterations, style.loop.lr, style.loop.lr_final, style.w_foot, style.blend) == (
+        300, 3e-4, 3e-5, 0.05, 1.0)
 
 
 def test_an_unknown_scope_is_refused() -> None:
