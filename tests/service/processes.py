@@ -14,6 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import httpx
 import pytest
 
 from tests.service.server import free_port
@@ -50,6 +51,23 @@ def _wait_port(port: int, proc: subprocess.Popen, what: str, log: Path, timeout_
             time.sleep(0.05)
     _stop(proc)
     raise RuntimeError(f"{what} did not listen on port {port} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+
+
+def _wait_http(url: str, proc: subprocess.Popen, what: str, log: Path, timeout_s: float) -> None:
+    """Until ``url`` answers 200 from ``proc``: a port that merely accepts connections may be another
+    process's (one that took it first), and ``proc`` may still be about to exit on failing to bind it."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"{what} exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
+        try:
+            if httpx.get(url, timeout=0.5).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.05)
+    _stop(proc)
+    raise RuntimeError(f"{what} did not answer {url} within {timeout_s} s:\n{log.read_text()[-3000:]}")
 
 
 class RedisProcess:
@@ -160,6 +178,9 @@ class HaproxyProcess:
                                              stderr=subprocess.STDOUT)
             try:
                 _wait_port(self.port, self.proc, "haproxy", self.log, timeout_s)
+                # The stats page answering proves every listener is bound: haproxy binds them one by one and
+                # exits on the first it cannot take, which may come after the main port already accepts.
+                _wait_http(self.stats_url, self.proc, "haproxy", self.log, timeout_s)
                 return self
             except RuntimeError as exc:
                 if "Address already in use" not in str(exc) or attempt == attempts - 1:
