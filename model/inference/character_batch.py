@@ -15,6 +15,15 @@ from model.nets.sampler import SamplerState, StyleContext
 Tensor = torch.Tensor
 
 
+@torch.inference_mode()
+def restyle_held(ch: Character, style: EncodedStyle, ws: WeightSet) -> None:
+    """Switch the style of a character outside a batch; ``ws``: the new style's weights. A row it holds is
+    re-encoded by them when they change (one not begun yet is encoded by :meth:`Engine.begin`)."""
+    if style.weights != ch.style.weights and ch._row is not None:
+        ch._row.target_emb = ws.sampler.target_encoder(ch._row.target_vec)
+    ch.style = style
+
+
 class BatchEngine(Protocol):
     """What a batch needs of its engine (:class:`model.inference.engine.Engine`)."""
 
@@ -109,12 +118,11 @@ class CharacterBatch:
     def set_style(self, ch: Character, style: EncodedStyle) -> None:
         """Switch a member's style from the next frame; a style on other weights re-encodes its target by them."""
         ws = self.engine.weights(style.weights)
-        if style.weights != ch.style.weights:
-            if ch in self.members:
-                self.update_row(ch, {"target_emb": ws.sampler.target_encoder(self.row_of(ch).target_vec)})
-            elif ch._row is not None:  # waiting to resume: its own row (not yet begun: begin() encodes it)
-                ch._row.target_emb = ws.sampler.target_encoder(ch._row.target_vec)
-        ch.style = style
+        if ch in self.members and style.weights != ch.style.weights:
+            self.update_row(ch, {"target_emb": ws.sampler.target_encoder(self.row_of(ch).target_vec)})
+            ch.style = style
+        else:  # waiting to join or resume
+            restyle_held(ch, style, ws)
         self._style_dirty = True
 
     def row_of(self, ch: Character) -> SamplerState:

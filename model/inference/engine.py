@@ -18,7 +18,7 @@ import torch
 from model.inference.arrival import ArrivalCorrector, ArrivalState
 from model.inference.bundle import Bundle
 from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
-from model.inference.character_batch import CharacterBatch, by_weights, inverse_of
+from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restyle_held
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock
@@ -292,11 +292,7 @@ class Engine:
         if batch is not None:
             batch.set_style(ch, style)
             return
-        moved = style.weights != ch.style.weights
-        self.weights(style.weights)  # an unknown weight set fails before anything changes
-        ch.style = style
-        if moved and ch._row is not None:
-            ch._row.target_emb = self.weights(style.weights).sampler.target_encoder(ch._row.target_vec)
+        restyle_held(ch, style, self.weights(style.weights))  # an unknown weight set fails before anything changes
 
     def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
         """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""

@@ -111,18 +111,24 @@ def test_an_unknown_builtin_names_the_ones_there_are(server) -> None:
     assert err["code"] == "unknown_style" and "builtin:brisk, builtin:slow" in err["message"]
 
 
+def _switched_stream(ws: Ws, first: str, then: str) -> tuple[dict, bool]:
+    """A 30-frame stream started with style ``first`` and switched to ``then`` at frame 5; its record, and
+    whether the switch was sent."""
+    ws.send(start_message("w", 30, style_id=first, pace="asap"))
+    switched: list[bool] = []
+
+    def switch(w: Ws, frame: dict) -> None:
+        if frame["seq"] == 5 and not switched:
+            w.send({"type": "style", "character": "w", "style_id": then})
+            switched.append(True)
+
+    return ws.run({"w"}, on_frame=switch)["w"], bool(switched)
+
+
 def test_a_stream_starts_and_switches_with_builtin_ids(server) -> None:
     with Ws(server.ws, query=f"token={KEY_B}") as ws:
         assert [s["style_id"] for s in ws.hello["model"]["builtin_styles"]] == ["builtin:brisk", "builtin:slow"]
-        ws.send(start_message("w", 30, style_id="builtin:brisk", pace="asap"))
-        switched: list[bool] = []
-
-        def switch(w: Ws, frame: dict) -> None:
-            if frame["seq"] == 5 and not switched:
-                w.send({"type": "style", "character": "w", "style_id": "builtin:slow"})
-                switched.append(True)
-
-        out = ws.run({"w"}, on_frame=switch)["w"]
+        out, _ = _switched_stream(ws, "builtin:brisk", "builtin:slow")
         assert len(out["frames"]) == 30 and out["end"]["reason"] == "arrived"
         started = [m for m in out["messages"] if m["type"] == "started"]
         assert started and started[0].get("style_id", "builtin:brisk") == "builtin:brisk"
@@ -168,15 +174,7 @@ def test_a_fine_tuned_style_runs_on_its_adapter_and_the_others_as_before(server,
     assert frames(with_adapter, "builtin:limp") == frames(own, "builtin:limp")
     # A stream switches between styles of the two weight sets and arrives.
     with Ws(with_adapter.ws) as ws:
-        ws.send(start_message("w", 30, style_id="builtin:slow", pace="asap"))
-        switched: list[bool] = []
-
-        def switch(w: Ws, frame: dict) -> None:
-            if frame["seq"] == 5 and not switched:
-                w.send({"type": "style", "character": "w", "style_id": "builtin:limp"})
-                switched.append(True)
-
-        out = ws.run({"w"}, on_frame=switch)["w"]
+        out, switched = _switched_stream(ws, "builtin:slow", "builtin:limp")
         assert switched and len(out["frames"]) == 30 and out["end"]["reason"] == "arrived"
 
 
