@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from model.motion.rotations import quat_mul, quat_rotate
+from model.motion.kinematics import ChainKinematics
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -27,25 +27,17 @@ class FloorContact:
         if tolerance_cm < 0:
             raise ValueError(f"the floor tolerance must be 0 or more, got {tolerance_cm}")
         self.tolerance = tolerance_cm
-        self.parents = list(skeleton.parents)
         self.feet = list(skeleton.feet)
-        # The joints on the way from the root to every foot joint, parents first.
-        self.joints = sorted({j for foot in self.feet for j in skeleton.chain_to(foot)},
-                             key=lambda j: len(skeleton.chain_to(j)))
-        self.offsets = skeleton.offsets_tensor()
+        # Only the joints on the way to the feet; FrameOutput shares them with the foot lock.
+        self.kinematics = ChainKinematics(skeleton.parents, skeleton.offsets_tensor(), self.feet)
 
     def foot_heights(self, rotations: Tensor, roots: Tensor) -> Tensor:
         """Heights ``[N, F]`` of the foot joints of local ``rotations [N, J, 4]`` and ``roots [N, 3]``."""
-        pos: dict[int, Tensor] = {}
-        rot: dict[int, Tensor] = {}
-        for j in self.joints:
-            p = self.parents[j]
-            if p < 0:
-                pos[j], rot[j] = roots, rotations[:, j]
-            else:
-                pos[j] = pos[p] + quat_rotate(rot[p], self.offsets[j].expand_as(roots))
-                rot[j] = quat_mul(rot[p], rotations[:, j])
-        return torch.stack([pos[f][:, 1] for f in self.feet], dim=-1)
+        return self.heights_of(self.kinematics(rotations, roots)[0])
+
+    def heights_of(self, positions: Tensor) -> Tensor:
+        """Heights ``[N, F]`` of the foot joints in world ``positions [N, K, 3]`` of :attr:`kinematics`' joints."""
+        return self.kinematics.pick(positions, self.feet)[..., 1]
 
     def floor(self, rotations: Tensor, roots: Tensor) -> Tensor:
         """The floor ``[1]`` of one character's context ``[T, J, 4]``, ``[T, 3]``: its lowest foot joint."""
@@ -53,6 +45,10 @@ class FloorContact:
 
     def lift(self, rotations: Tensor, roots: Tensor, floor: Tensor) -> Tensor:
         """``roots [N, 3]`` raised so no foot joint is more than the tolerance under each row's ``floor [N]``."""
-        lowest = self.foot_heights(rotations, roots).amin(dim=-1)
-        up = (floor - self.tolerance - lowest).clamp_min(0.0)
-        return roots + torch.stack([torch.zeros_like(up), up, torch.zeros_like(up)], dim=-1)
+        return roots + self.lift_of(self.kinematics(rotations, roots)[0], floor)
+
+    def lift_of(self, positions: Tensor, floor: Tensor) -> Tensor:
+        """How far ``[N, 3]`` (up only) to raise bodies whose :attr:`kinematics` joints are at world
+        ``positions [N, K, 3]``, so no foot joint is more than the tolerance under each row's ``floor [N]``."""
+        up = (floor - self.tolerance - self.heights_of(positions).amin(dim=-1)).clamp_min(0.0)
+        return torch.stack([torch.zeros_like(up), up, torch.zeros_like(up)], dim=-1)

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import torch
 
-from model.motion.kinematics import two_bone_ik
-from model.motion.rotations import quat_conjugate, quat_mul, quat_rotate
+from model.motion.kinematics import ChainKinematics, two_bone_ik
+from model.motion.rotations import quat_conjugate, quat_mul
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -90,23 +90,21 @@ class FootLock:
         if len(chains[0]) != len(chains[1]):
             raise ValueError("foot lock needs legs of the same depth below the root")
         self.chain = torch.tensor(chains).T  # [depth, 2]: joint of each leg at each depth
-        offsets = skeleton.offsets_tensor()
-        self.chain_offsets = offsets[self.chain]  # [depth, 2, 3]
+        # The legs' joints through forward kinematics of the joints on the way to the feet (the set
+        # floor contact reads too, so FrameOutput computes it once for both).
+        self.kinematics = ChainKinematics(sk.parents, sk.offsets_tensor(), sk.feet)
+        self._depth = len(chains[0])
         self.hip, self.knee, self.ankle = self.chain[-3], self.chain[-2], self.chain[-1]
         self.leg_joints = self.chain[-3:].reshape(-1)  # hips, knees, ankles: the joints the lock rewrites
 
-    def _legs_fk(self, rotations: Tensor, roots: Tensor) -> tuple[Tensor, Tensor]:
-        """World positions ``[N, depth, 2, 3]`` and rotations ``[N, depth, 2, 4]`` along both legs' chains."""
-        local = rotations[:, self.chain]  # [N, depth, 2, 4]
-        pos = roots.unsqueeze(1).expand(-1, 2, -1)
-        rot = local[:, 0]
-        positions, rotations_w = [pos], [rot]
-        for d in range(1, self.chain.shape[0]):
-            pos = pos + quat_rotate(rot, self.chain_offsets[d].expand_as(pos))
-            rot = quat_mul(rot, local[:, d])
-            positions.append(pos)
-            rotations_w.append(rot)
-        return torch.stack(positions, 1), torch.stack(rotations_w, 1)
+    def _legs_fk(self, rotations: Tensor, roots: Tensor,
+                 chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
+        """World positions ``[N, depth, 2, 3]`` and rotations ``[N, depth, 2, 4]`` along both legs' chains;
+        ``chains``: :attr:`kinematics`' results for these rotations and roots, where already computed."""
+        pos, rot = self.kinematics(rotations, roots) if chains is None else chains
+        joints = self.chain.reshape(-1).tolist()  # depth-major: both legs' joints at each depth
+        shape = (*pos.shape[:-2], self._depth, 2)
+        return self.kinematics.pick(pos, joints).view(*shape, 3), self.kinematics.pick(rot, joints).view(*shape, 4)
 
     def ankles(self, rotations: Tensor, roots: Tensor) -> Tensor:
         """World ankle positions ``[N, 2, 3]`` of local ``rotations [N, J, 4]`` and ``roots [N, 3]``."""
@@ -123,7 +121,8 @@ class FootLock:
                              last.view(1, 2, 3).clone(), torch.zeros(1, 2, 3))
 
     def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState,
-              skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, FootLockState]:
+              skip_idle: bool = True, shift: Tensor | None = None,
+              chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, FootLockState]:
         """Lock the feet of one frame of ``N`` characters; returns new local rotations and state.
 
         Args:
@@ -135,16 +134,18 @@ class FootLock:
                 the whole body this frame. A foot the network keeps still is then still in the
                 network's motion, not in the world: planting and drift are judged without the
                 shift, so the lock holds the foot while the body is carried over it.
+            chains: world ``(positions [N, K, 3], rotations [N, K, 4])`` of :attr:`kinematics`' joints
+                for these rotations and roots, where the caller has them (FrameOutput does).
         """
         c = self.config
-        pos, grot = self._legs_fk(rotations, roots)
+        pos, grot = self._legs_fk(rotations, roots, chains)
         ank = pos[:, -1]  # [N, 2, 3]
         step = torch.zeros_like(ank) if shift is None else shift.unsqueeze(1).expand_as(ank)
         carried = state.carried + step
         height = ank[..., 1] - state.ground.unsqueeze(-1)
-        speed = (ank - step - state.previous)[..., [0, 2]].norm(dim=-1) * self.fps
+        speed = (ank - step - state.previous)[..., ::2].norm(dim=-1) * self.fps  # x, z
         open_time = (remaining >= c.fade).unsqueeze(-1)  # [N, 1]
-        drift = (ank - carried - state.anchor)[..., [0, 2]].norm(dim=-1)
+        drift = (ank - carried - state.anchor)[..., ::2].norm(dim=-1)
         keep = state.locked & (height < c.lift_cm) & (drift < c.release_cm) & open_time
         rejoined = state.offset.norm(dim=-1) < c.rejoin_cm  # no re-lock mid catch-up: the foot would hop
         begin = ~state.locked & rejoined & (height < c.contact_cm) & (speed < c.plant_speed_cm_s) & open_time
@@ -162,6 +163,6 @@ class FootLock:
         # Local rotations from the new world ones; the ankle keeps its world rotation (the foot stays flat).
         parents_w = torch.cat([grot[:, -4], new_hip, new_knee], 1)  # [N, 6, 4]: hips, knees, ankles of both legs
         local = quat_mul(quat_conjugate(parents_w), torch.cat([new_hip, new_knee, ankle_w], 1))
-        moved = torch.where(move.repeat(1, 3).unsqueeze(-1), local, rotations[:, self.leg_joints])
+        moved = torch.where(move.repeat(1, 3).unsqueeze(-1), local, rotations.index_select(1, self.leg_joints))
         # index_copy rather than indexed assignment: a traced graph keeps it generic in the batch size.
         return rotations.index_copy(1, self.leg_joints, moved), new_state

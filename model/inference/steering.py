@@ -72,8 +72,8 @@ def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Te
     a state just stepped (its ``tta`` counts the frames after the one it holds)."""
     pose = state.pose
     remaining = state.tta.float().clamp_min(0.0).unsqueeze(-1)
-    velocity = pose.vel[:, root][:, [0, 2]]
-    goal = state.target_pos[:, root][:, [0, 2]]
+    velocity = pose.vel[:, root, ::2]  # x, z
+    goal = state.target_pos[:, root, ::2]
     miss = goal - (pose.root_xz + config.momentum * remaining * velocity)
     shift = arrival_weight(state.tta, config.window).unsqueeze(-1) * miss / (remaining + 1.0)
     norm = shift.norm(dim=-1, keepdim=True)

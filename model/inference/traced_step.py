@@ -128,8 +128,14 @@ class FrameOutput:
         # Remembered before the foot lock (and the engine's exact arrival) bend the frame: the filter
         # follows the network's motion.
         new = {"prev_rot": local, "prev_root": root}
-        if self.floor is not None:  # before the lock, so the feet it holds are where the body was lifted to
-            root = self.floor.lift(local, root, memory["floor"])
+        # The legs' forward kinematics, once for floor contact and the foot lock (the same joints; a lift
+        # moves them all up alike). Floor contact comes first, so the feet the lock holds are where the
+        # body was lifted to.
+        chains = None
+        if self.floor is not None:
+            chains = self.floor.kinematics(local, root)
+            up = self.floor.lift_of(chains[0], memory["floor"])
+            root, chains = root + up, (chains[0] + up.unsqueeze(-2), chains[1])
             new["floor"] = memory["floor"]
         if self.lock is not None:
             world_shift = None
@@ -137,7 +143,7 @@ class FrameOutput:
                 frame = CanonicalFrame(yaw, torch.zeros_like(origin))
                 world_shift = frame.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], -1))
             local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle,
-                                           shift=world_shift)
+                                           shift=world_shift, chains=chains)
             new.update(state.memory())
         return local, root, new
 
@@ -158,11 +164,12 @@ class CompiledFrameOutput:
     """:class:`FrameOutput` through one graph traced on first use (eager if tracing fails or
     ``traced`` is False).
 
-    At batch 1 these steps are a few hundred small operations (world space about 40, the filter 15,
-    the foot lock about 240), bound by dispatch: eager they cost as much as the network's step
-    (0.23-0.30 ms without the lock, about 1 ms with it on the development machine). One graph also
-    pays the call overhead once. Traced, the foot lock always runs its IK (no early return when no
-    foot is held), which costs less than the dispatch it saves.
+    At batch 1 these steps are a few hundred small operations, bound by dispatch: eager they cost as
+    much as the network's step (0.23-0.30 ms without the lock, about 1 ms with it on the development
+    machine). One graph also pays the call overhead once; floor contact and the lock share the legs'
+    forward kinematics, and indexes are kept tensors (a list index costs ~10 us a call traced).
+    Traced, the foot lock always runs its IK (no early return when no foot is held), which costs less
+    than the dispatch it saves.
     """
 
     def __init__(self, fn: FrameOutput, traced: bool = True) -> None:

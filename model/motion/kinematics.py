@@ -15,6 +15,23 @@ from model.motion.rotations import quat_conjugate, quat_mul, quat_rotate
 Tensor = torch.Tensor
 
 
+def constant_index(values: Sequence[int], device: torch.device) -> Tensor:
+    """An index tensor of ``values`` on ``device``, made once and kept: ``index_select`` with it costs
+    about a tenth of indexing by a list at batch 1 (traced, a list index converts itself every call)."""
+    key = (tuple(values), device)
+    found = _indices.get(key)
+    if found is None:
+        # Made outside inference mode (an inference tensor could not be saved for a later backward
+        # pass), once, so a trace records it as a constant.
+        with torch.inference_mode(False):
+            found = torch.tensor(key[0], dtype=torch.long, device=device)
+        _indices[key] = found
+    return found
+
+
+_indices: dict[tuple[tuple[int, ...], torch.device], Tensor] = {}
+
+
 def check_parents(parents: Sequence[int]) -> None:
     """Raise ``ValueError`` unless ``parents`` is a single-root, topologically ordered hierarchy."""
     if len(parents) == 0 or parents[0] != -1:
@@ -52,10 +69,62 @@ def forward_kinematics(
     return torch.stack(pos, dim=-2), torch.stack(rots, dim=-2)
 
 
+class ChainKinematics:
+    """Forward kinematics of only the joints on the way from the root to some ``ends``, a depth level
+    at a time: every joint of a level goes through one rotation and one product, so both legs of a
+    rig cost what one did (at batch 1 the joint-by-joint form is bound by per-operation dispatch).
+
+    :attr:`joints` lists the joints computed, root first, a level after another; the results are
+    in that order and :meth:`columns` finds joints in it.
+    """
+
+    def __init__(self, parents: Sequence[int], offsets: Tensor, ends: Sequence[int]) -> None:
+        check_parents(parents)
+        depth: dict[int, int] = {}
+        for end in ends:
+            way = [end]
+            while parents[way[-1]] >= 0:
+                way.append(parents[way[-1]])
+            for j in reversed(way):
+                depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
+        levels = [sorted(j for j, d in depth.items() if d == level) for level in range(max(depth.values(), default=0) + 1)]
+        self.joints: tuple[int, ...] = tuple(j for level in levels for j in level)
+        # Per level below the root: its joints, where their parents are in the level above, their offsets.
+        self._levels = [(level, [levels[i - 1].index(parents[j]) for j in level], offsets[level].clone())
+                        for i, level in enumerate(levels) if i > 0]
+
+    def pick(self, results: Tensor, joints: Sequence[int]) -> Tensor:
+        """The rows of ``joints`` (``[..., len(joints), C]``) from results ``[..., K, C]`` of this object."""
+        return results.index_select(-2, constant_index(self.columns(joints), results.device))
+
+    def columns(self, joints: Sequence[int]) -> list[int]:
+        """Where ``joints`` are in the results (a ValueError for a joint not computed)."""
+        return [self.joints.index(j) for j in joints]
+
+    def __call__(self, local_rotations: Tensor, root_positions: Tensor) -> tuple[Tensor, Tensor]:
+        """World ``(positions [..., K, 3], rotations [..., K, 4])`` of :attr:`joints`, from local
+        rotations ``[..., J, 4]`` of the whole skeleton and ``root_positions [..., 3]``."""
+        pos, rot = root_positions.unsqueeze(-2), local_rotations[..., :1, :]
+        positions, rotations = [pos], [rot]
+        for joints, up, offsets in self._levels:
+            if up == list(range(pos.shape[-2])):  # each joint of the level above has one child here: no gather
+                pass
+            elif pos.shape[-2] == 1:  # all children of the one joint above (the root's legs): a view, not a copy
+                pos, rot = pos.expand(*pos.shape[:-2], len(up), 3), rot.expand(*rot.shape[:-2], len(up), 4)
+            else:
+                index = constant_index(up, pos.device)
+                pos, rot = pos.index_select(-2, index), rot.index_select(-2, index)
+            pos = pos + quat_rotate(rot, offsets.to(pos.dtype).expand_as(pos))
+            rot = quat_mul(rot, local_rotations.index_select(-2, constant_index(joints, local_rotations.device)))
+            positions.append(pos)
+            rotations.append(rot)
+        return torch.cat(positions, dim=-2), torch.cat(rotations, dim=-2)
+
+
 def global_to_local_rotations(global_rotations: Tensor, parents: Sequence[int]) -> Tensor:
     """Parent-relative rotations ``q_local[j] = q_global[parent]^-1 * q_global[j]`` ``[..., J, 4]``."""
-    # A list index rather than a tensor made here: traced (model.inference.traced_step), it stays a constant quietly.
-    parent_rot = global_rotations[..., [max(p, 0) for p in parents], :]
+    # A kept index tensor, not a list or a tensor made here: traced (model.inference.traced_step), it is a constant.
+    parent_rot = global_rotations.index_select(-2, constant_index([max(p, 0) for p in parents], global_rotations.device))
     local = quat_mul(quat_conjugate(parent_rot), global_rotations)
     return torch.cat([global_rotations[..., :1, :], local[..., 1:, :]], dim=-2)
 
@@ -98,27 +167,25 @@ def two_bone_ik(
         ``(root_rot', mid_rot')`` world rotations; the end joint's world rotation is unchanged
         if the caller keeps it (recompute its local rotation from ``mid_rot'``).
     """
-    from model.motion.rotations import axis_angle_to_quat, quat_mul  # local import keeps the module header small
+    from model.motion.rotations import axis_angle_to_quat  # local import keeps the module header small
 
     def unit(v: Tensor) -> Tensor:
         return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-8)
 
-    def angle(u: Tensor, v: Tensor) -> Tensor:
-        return torch.acos((unit(u) * unit(v)).sum(-1).clamp(-1.0, 1.0))
-
-    l1 = (mid_pos - root_pos).norm(dim=-1)
-    l2 = (end_pos - mid_pos).norm(dim=-1)
-    d = (target - root_pos).norm(dim=-1).clamp((l1 - l2).abs() + eps, l1 + l2 - eps)
-    ac_ab_0 = angle(end_pos - root_pos, mid_pos - root_pos)
-    ba_bc_0 = angle(root_pos - mid_pos, end_pos - mid_pos)
-    ac_at_0 = angle(end_pos - root_pos, target - root_pos)
-    ac_ab_1 = torch.acos(((l2 * l2 - l1 * l1 - d * d) / (-2 * l1 * d)).clamp(-1.0, 1.0))
-    ba_bc_1 = torch.acos(((d * d - l1 * l1 - l2 * l2) / (-2 * l1 * l2)).clamp(-1.0, 1.0))
-    bend_axis = unit(torch.linalg.cross(end_pos - root_pos, mid_pos - root_pos))
-    turn_axis = unit(torch.linalg.cross(end_pos - root_pos, target - root_pos))
-    r0 = axis_angle_to_quat(bend_axis, ac_ab_1 - ac_ab_0)
-    r1 = axis_angle_to_quat(bend_axis, ba_bc_1 - ba_bc_0)
-    r2 = axis_angle_to_quat(turn_axis, ac_at_0)
+    # Like quantities go through together (three angles, two lengths' cosines, two axes, three
+    # rotations): at batch 1 the solve is bound by per-operation dispatch, not by the arithmetic.
+    ab, bc, ac, at = mid_pos - root_pos, end_pos - mid_pos, end_pos - root_pos, target - root_pos
+    l1, l2, reach = torch.stack([ab, bc, at], dim=-2).norm(dim=-1).unbind(-1)
+    d = reach.clamp((l1 - l2).abs() + eps, l1 + l2 - eps)
+    # Now: the angles at the root (end, mid), at the mid joint (root, end) and at the root (end, target).
+    now = torch.acos((unit(torch.stack([ac, -ab, ac], dim=-2)) * unit(torch.stack([ab, bc, at], dim=-2)))
+                     .sum(-1).clamp(-1.0, 1.0))
+    # Wanted, by the law of cosines for an end at distance d: the same two bend angles.
+    cosines = torch.stack([(l2 * l2 - l1 * l1 - d * d) / (-2 * l1 * d), (d * d - l1 * l1 - l2 * l2) / (-2 * l1 * l2)], -1)
+    wanted = torch.acos(cosines.clamp(-1.0, 1.0))
+    bend_turn = unit(torch.linalg.cross(torch.stack([ac, ac], dim=-2), torch.stack([ab, at], dim=-2)))  # the two axes
+    r0, r1, r2 = axis_angle_to_quat(torch.cat([bend_turn[..., :1, :], bend_turn], dim=-2),  # bend, bend, turn
+                                    torch.cat([wanted - now[..., :2], now[..., 2:]], dim=-1)).unbind(-2)
     # A straight chain has no bend plane; it needs no bend either, so drop the NaN-free zero axis.
     turn = quat_mul(r2, r0)
     return quat_mul(turn, root_rot), quat_mul(turn, quat_mul(r1, mid_rot))

@@ -155,7 +155,8 @@ def matrix_to_quat(m: Tensor) -> Tensor:
     flat = torch.cat([m.reshape(*m.shape[:-2], 9), torch.ones_like(m[..., 0, :1])], dim=-1)
     cand = (flat @ _SHEPPERD.to(device=m.device, dtype=m.dtype)).reshape(*m.shape[:-2], 4, 4)  # [..., candidate, (x, y, z, w)]
     # Candidate k's own component (w for k=0, x, y, z for k=1..3) holds 1 + trace-like sums: pick the largest.
-    t = cand[..., [0, 1, 2, 3], [3, 0, 1, 2]]
+    # cand[..., k, (k + 3) % 4] for each k: rolled one column on, the diagonal (cheaper than a list index).
+    t = torch.diagonal(cand.roll(1, dims=-1), dim1=-2, dim2=-1)
     best = t.argmax(dim=-1, keepdim=True)
     q = torch.gather(cand, -2, best.unsqueeze(-1).expand(*best.shape[:-1], 1, 4)).squeeze(-2)
     return quat_canonical(quat_normalize(q))

@@ -296,7 +296,7 @@ class TransitionSampler(nn.Module):
         return lam.clamp(0.0, 1.0)
 
     def time_code(self, tta: Tensor) -> Tensor:
-        return self.pe[tta.clamp(0, self.pe.shape[0] - 1)]
+        return self.pe.index_select(0, tta.clamp(0, self.pe.shape[0] - 1))
 
     # ------------------------------------------------------------------ transition
     def target_input(self, target: PoseState, velocity_known: Tensor | None = None) -> Tensor:

@@ -23,13 +23,16 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _tuned(sampler: TransitionSampler, seed: int = 3) -> TransitionSampler:
-    """The sampler with its FiLM, LSTM and head weights moved, as a network-scope fine-tuning would."""
+    """The sampler with its FiLM, LSTM and head weights moved, as a network-scope fine-tuning would. Moved by
+    0.1 of a unit normal: at 0.2 the untrained recurrence is chaotic enough that float rounding (which a
+    batch's size and make-up change) grew to 0.01 in 12 frames on an AVX2 machine, and "the same frames
+    as alone" could not be told from "other frames"."""
     tuned = copy.deepcopy(sampler)
     gen = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for name, p in tuned.named_parameters():
             if name.startswith(("film1.", "lstm.", "head_out.", "style_encoder.")):
-                p.add_(0.2 * torch.randn(p.shape, generator=gen))
+                p.add_(0.1 * torch.randn(p.shape, generator=gen))
     return tuned
 
 

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
+from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock, FootLockConfig, FootLockState
 from model.inference.output_settings import OutputConfig
 from model.inference.traced_step import CompiledFrameOutput, FrameOutput
@@ -156,3 +157,31 @@ def test_a_foot_carried_by_steering_stays_locked():
     assert (carried_left[:4] < 0.05).all()  # held exactly while the leg reaches (IK), past the 10 cm drift
     assert (carried_left < 0.5 * plain_left.clamp_min(1.0)).all()  # then pulled only as far as the leg falls short
     assert bool(state.locked[0, 0])
+
+
+def test_floor_contact_and_the_lock_sharing_the_legs_kinematics_give_what_each_gives_alone():
+    # FrameOutput computes the legs' forward kinematics once for floor contact and the lock (the lift
+    # moves every leg joint up alike); run apart, each computes its own. A sinking, sliding body.
+    sk, rot, root = _sliding_pose(30, speed_cm=1.0, still=9)
+    root[10:, 1] -= torch.linspace(0.0, 8.0, 20)
+    gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
+    states = state_from_positions(gpos.unsqueeze(0), quat_to_sixd(grot).unsqueeze(0), sk.roles.root)
+    lock, floor = FootLock(sk, 30.0, MECHANICS), FloorContact(sk)
+    output = FrameOutput(sk, OutputConfig(smoothing=0.0, foot_lock=True, floor=True), lock, floor)
+    mem = {"prev_rot": rot[9:10], "prev_root": root[9:10], "floor": floor.floor(rot[:10], root[:10]),
+           **lock.start(rot[:10], root[:10]).memory()}
+    state = lock.start(rot[:10], root[:10])
+    ground = floor.floor(rot[:10], root[:10])
+    lifted_any = held_any = False
+    for t in range(10, 30):
+        remaining = torch.tensor([29 - t])
+        shared_rot, shared_root, mem = output(states.index((slice(None), t)), torch.zeros(1), torch.zeros(1, 3),
+                                              remaining, mem, skip_idle=False)
+        lifted = floor.lift(rot[t:t + 1], root[t:t + 1], ground)
+        alone_rot, state = lock.apply(rot[t:t + 1], lifted, remaining, state, skip_idle=False)
+        lifted_any |= bool(lifted[0, 1] > root[t, 1] + 1.0)
+        assert torch.allclose(shared_root, lifted, atol=1e-4)
+        assert torch.allclose(shared_rot, alone_rot, atol=1e-3)  # acos in the IK magnifies rounding near a straight leg
+        assert torch.equal(mem["lock_locked"], state.locked)
+        held_any |= bool(state.locked.any())
+    assert lifted_any and held_any  # both steps did something to compare

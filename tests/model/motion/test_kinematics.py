@@ -10,13 +10,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from model.motion.kinematics import (
+    ChainKinematics,
     bone_offsets_from_positions,
     check_parents,
     forward_kinematics,
     global_to_local_rotations,
     inverse_kinematics,
+    two_bone_ik,
 )
-from model.motion.rotations import axis_angle_to_quat, quat_angle, quat_identity, quat_normalize
+from model.motion.rotations import (
+    axis_angle_to_quat,
+    quat_angle,
+    quat_conjugate,
+    quat_identity,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+)
 
 PARENTS = (-1, 0, 1, 2, 1, 0)
 OFFSETS = torch.tensor([[0, 0, 0], [0, 10, 0], [0, 10, 0], [0, 5, 0], [5, 0, 0], [0, -10, 0]], dtype=torch.float64)
@@ -69,3 +79,57 @@ def test_per_frame_offsets_broadcast():
 def test_bad_parents(parents):
     with pytest.raises(ValueError):
         check_parents(parents)
+
+
+BIG_PARENTS = (-1, 0, 1, 2, 3, 0, 5, 6, 7, 1, 9, 10, 9)  # a root, two legs of four, a spine that forks
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.lists(st.integers(0, len(BIG_PARENTS) - 1), min_size=1, max_size=5))
+def test_chain_kinematics_gives_full_forward_kinematics_of_the_joints_on_the_way(seed, ends):
+    gen = torch.Generator().manual_seed(seed)
+    j = len(BIG_PARENTS)
+    offsets = torch.randn(j, 3, generator=gen, dtype=torch.float64) * 10
+    rot = quat_normalize(torch.randn(3, j, 4, generator=gen, dtype=torch.float64))
+    root = torch.randn(3, 3, generator=gen, dtype=torch.float64)
+    pos, grot = forward_kinematics(rot, root, offsets, BIG_PARENTS)
+    chains = ChainKinematics(BIG_PARENTS, offsets, ends)
+    on_way = set()
+    for e in ends:
+        while e >= 0:
+            on_way.add(e)
+            e = BIG_PARENTS[e]
+    assert sorted(chains.joints) == sorted(on_way) and chains.joints[0] == 0
+    p, r = chains(rot, root)
+    assert torch.allclose(p, pos[:, list(chains.joints)], atol=1e-9)
+    assert torch.allclose(r, grot[:, list(chains.joints)], atol=1e-9)
+    assert torch.equal(chains.pick(p, ends), p[:, chains.columns(ends)])
+    with pytest.raises(ValueError):
+        chains.columns([j + 1])
+
+
+def _bent(new_rot: torch.Tensor, old_rot: torch.Tensor, bone: torch.Tensor) -> torch.Tensor:
+    """A bone hanging from a joint whose world rotation went from ``old_rot`` to ``new_rot``."""
+    return quat_rotate(quat_mul(new_rot, quat_conjugate(old_rot)), bone)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.0, 1.6))
+def test_two_bone_ik_reaches_what_it_can_and_keeps_the_bones(seed, stretch):
+    gen = torch.Generator().manual_seed(seed)
+    a, b, c = (torch.randn(4, 3, generator=gen, dtype=torch.float64) * 20 for _ in range(3))
+    ra, rb = (quat_normalize(torch.randn(4, 4, generator=gen, dtype=torch.float64)) for _ in range(2))
+    l1, l2 = (b - a).norm(dim=-1), (c - b).norm(dim=-1)
+    direction = torch.nn.functional.normalize(torch.randn(4, 3, generator=gen, dtype=torch.float64), dim=-1)
+    reach = (l1 - l2).abs() + stretch * (l1 + l2 - (l1 - l2).abs())  # from fully folded to 1.6x fully stretched
+    target = a + reach.unsqueeze(-1) * direction
+    new_a, new_b = two_bone_ik(a, b, c, ra, rb, target)
+    knee = a + _bent(new_a, ra, b - a)
+    end = knee + _bent(new_b, rb, c - b)
+    assert torch.allclose((knee - a).norm(dim=-1), l1, atol=1e-6) and torch.allclose((end - knee).norm(dim=-1), l2, atol=1e-6)
+    inside = (reach > (l1 - l2).abs() + 1e-2) & (reach < l1 + l2 - 1e-2)
+    assert torch.allclose(end[inside], target[inside], atol=1e-3)
+    # Out of reach: as far as the bones go, toward the target.
+    out = reach >= l1 + l2
+    toward = torch.nn.functional.normalize(end[out] - a[out], dim=-1)
+    assert torch.allclose(toward, direction[out], atol=1e-3)
