@@ -70,6 +70,25 @@ def _wait_http(url: str, proc: subprocess.Popen, what: str, log: Path, timeout_s
     raise RuntimeError(f"{what} did not answer {url} within {timeout_s} s:\n{log.read_text()[-3000:]}")
 
 
+def _wait_redis(port: int, proc: subprocess.Popen, log: Path, timeout_s: float) -> None:
+    """Until the redis-server ``proc`` answers PING on ``port``: a port that merely accepts connections may
+    be another process's (one that took it first), and ``proc`` may still be about to exit on failing to bind."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"redis-server exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.5) as sock:
+                sock.sendall(b"PING\r\n")
+                if sock.recv(64).startswith(b"+PONG"):
+                    return
+        except OSError:
+            pass
+        time.sleep(0.05)
+    _stop(proc)
+    raise RuntimeError(f"redis-server did not answer PING on port {port} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+
+
 class RedisProcess:
     """``redis-server`` on a free port, with an append-only file in its own folder: a restart keeps the data."""
 
@@ -84,13 +103,24 @@ class RedisProcess:
     def url(self) -> str:
         return f"redis://127.0.0.1:{self.port}/0"
 
-    def start(self, timeout_s: float = 20.0) -> RedisProcess:
-        with self.log.open("a") as log:
-            self.proc = subprocess.Popen(
-                [self.binary, "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.dir),
-                 "--appendonly", "yes", "--appendfsync", "always", "--save", "", "--daemonize", "no"],
-                stdout=log, stderr=subprocess.STDOUT)
-        _wait_port(self.port, self.proc, "redis-server", self.log, timeout_s)
+    def start(self, timeout_s: float = 20.0, attempts: int = 3) -> RedisProcess:
+        """Start redis-server, or start it again on its port (its data kept). On a first start, a free port
+        taken by another process before redis bound it (the race of :func:`free_port`) is retried on a new
+        port, at most ``attempts`` times in all; a restart keeps its port, which clients already hold."""
+        first = self.proc is None
+        for attempt in range(attempts if first else 1):
+            with self.log.open("a") as log:
+                self.proc = subprocess.Popen(
+                    [self.binary, "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.dir),
+                     "--appendonly", "yes", "--appendfsync", "always", "--save", "", "--daemonize", "no"],
+                    stdout=log, stderr=subprocess.STDOUT)
+            try:
+                _wait_redis(self.port, self.proc, self.log, timeout_s)
+                return self
+            except RuntimeError as exc:
+                if not first or "Address already in use" not in str(exc) or attempt == attempts - 1:
+                    raise
+                self.port = free_port()
         return self
 
     def stop(self) -> None:
