@@ -11,7 +11,8 @@ step, never the style context.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -23,6 +24,18 @@ from model.inference.engine import Engine
 from model.inference.errors import EngineError
 
 ENCODE_THREADS = 1
+
+
+@contextmanager
+def server_threads() -> Iterator[None]:
+    """Torch set to one intra-op thread inside, as `rsmt serve` runs by default (RSMT_THREADS=1), so codes get the
+    server's float rounding; the caller's thread count comes back after."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(ENCODE_THREADS)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def encode_styles(engine: Engine, clips: Iterable[StyleClip]) -> list[BuiltinStyle]:
@@ -49,11 +62,8 @@ def write_builtin_styles(bundle: str | Path, clips: Iterable[StyleClip]) -> tupl
     if taken:
         raise StyleFolderError(f"{bundle}: {', '.join(taken)} already built in with weights of their own (adapters/); "
                                "name the clips otherwise")
-    threads = torch.get_num_threads()
-    try:  # one intra-op thread, as `rsmt serve` runs by default (RSMT_THREADS=1): the same float rounding
-        styles = encode_styles(Engine(loaded, threads=ENCODE_THREADS), clips)
-    finally:
-        torch.set_num_threads(threads)
+    with server_threads():
+        styles = encode_styles(Engine(loaded), clips)
     folder = save_styles(bundle, styles, loaded.skeleton, loaded.config.fps, loaded.version)
     try:
         Bundle.load(bundle)
@@ -74,15 +84,11 @@ def write_adapter(bundle: str | Path, adapter: StyleAdapter, clip: StyleClip) ->
         raise StyleFolderError(f"the adapter {adapter.name!r} was tuned from model version {adapter.base_version}, "
                                f"not from {bundle} (version {loaded.version})")
     loaded.adapters[adapter.name] = adapter
-    threads = torch.get_num_threads()
-    try:  # one intra-op thread, as the server encodes: the same float rounding
-        engine = Engine(loaded, threads=ENCODE_THREADS)
+    with server_threads():
         try:
-            encoded, _ = engine.encode_style(clip.clip, adapter.name, weights=adapter.name)
+            encoded, _ = Engine(loaded).encode_style(clip.clip, adapter.name, weights=adapter.name)
         except EngineError as exc:
             raise StyleFolderError(f"style {adapter.name!r} ({clip.source or 'clip'}): {exc}") from exc
-    finally:
-        torch.set_num_threads(threads)
     style = BuiltinStyle(adapter.name, encoded.frames, encoded.context, adapter.version, clip.source,
                          weights=adapter.name)
     save_adapters(bundle, loaded.adapters, {**loaded.styles, adapter.name: style}, loaded.skeleton, loaded.config.fps)
