@@ -9,13 +9,14 @@ import os
 import platform
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
 
 from model.data.synthetic import synthetic_walk
 from model.inference.bundle import Bundle
-from model.inference.engine import CharacterBatch, Engine
+from model.inference.engine import CharacterBatch, EncodedStyle, Engine
 from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
 
@@ -98,17 +99,9 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
         return batch
 
     # Latency: one character, each step timed; new transitions start when one ends.
-    step_ms: list[float] = []
-    batch = fresh(1)
-    batch.step()  # warm
-    while len(step_ms) < latency_frames:
-        if not len(batch):
-            batch = fresh(1)
-        t0 = time.perf_counter()
-        batch.step()
-        step_ms.append((time.perf_counter() - t0) * 1000)
-        batch.drop_finished()
-    step_ms.sort()
+    timer = frame_timer(engine, style)
+    timer()  # warm
+    step_ms = sorted(timer() for _ in range(latency_frames))
     res.latency_ms = {"median": round(statistics.median(step_ms), 3), "p99": round(step_ms[int(0.99 * (len(step_ms) - 1))], 3),
                       "mean": round(statistics.fmean(step_ms), 3)}
     per_point = budget_s / len(batch_sizes)
@@ -123,6 +116,67 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
         res.throughput[n] = round(n * steps / elapsed, 1) if steps else 0.0
     res.rss_mb = round(_rss_mb(), 1)
     return res
+
+
+def frame_timer(engine: Engine, style: EncodedStyle | None = None) -> Callable[[], float]:
+    """A function that steps one character by one frame and returns the milliseconds it took; a new
+    transition (of the longest trained length, on a procedural walk) is prepared, untimed, when one
+    ends, and its first frame, which also warms the recurrent core on the context, is timed."""
+    c = engine.config
+    walk = synthetic_walk(frames=160, turn_deg_s=15.0)
+    if style is None:
+        style, _ = engine.encode_style(walk.window(20, 20 + min(120, c.style_frames_max)))
+    frames = c.max_transition
+    context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
+    batch = CharacterBatch(engine)
+
+    def step() -> float:
+        nonlocal batch
+        if not len(batch):
+            batch = CharacterBatch(engine)
+            batch.add(engine.prepare(context, target, frames, style, seed=0))
+        t0 = time.perf_counter()
+        batch.step()
+        elapsed = (time.perf_counter() - t0) * 1000
+        batch.drop_finished()
+        return elapsed
+
+    return step
+
+
+@dataclass
+class PairedLatency:
+    """Batch-1 frame times of two engines measured in alternating blocks (medians, ms), and their ratio."""
+
+    first_ms: float
+    second_ms: float
+    blocks: int
+    frames: int
+
+    @property
+    def ratio(self) -> float:
+        return self.first_ms / self.second_ms
+
+    def to_dict(self) -> dict:
+        return {"first_ms": self.first_ms, "second_ms": self.second_ms, "ratio": round(self.ratio, 3),
+                "blocks": self.blocks, "frames_per_block": self.frames}
+
+
+def paired_latency(first: Engine, second: Engine, blocks: int = 8, frames: int = 40, warm: int = 5) -> PairedLatency:
+    """Batch-1 frame times of two engines, ``blocks`` blocks of ``frames`` timed frames each, the engines
+    taking turns (which goes first alternates), each block after ``warm`` untimed frames.
+
+    Measured one after the other, two engines see different moments of a shared machine: on a noisy
+    2-core container the ratio of separate runs moved from 0.19 to 0.34. Taking turns puts the drift on
+    both; the warm frames let each refill the caches the other emptied, as in a run of its own."""
+    timers = (frame_timer(first), frame_timer(second))
+    times: tuple[list[float], list[float]] = ([], [])
+    for block in range(blocks):
+        for i in ((0, 1) if block % 2 == 0 else (1, 0)):
+            for _ in range(warm):
+                timers[i]()
+            times[i].extend(timers[i]() for _ in range(frames))
+    return PairedLatency(round(statistics.median(times[0]), 3), round(statistics.median(times[1]), 3), blocks, frames)
 
 
 def paper_size_engine(reference: Bundle) -> Engine:

@@ -26,7 +26,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _run(args: argparse.Namespace) -> int:
     import torch
 
-    from model.bench import bench_engine, format_table, machine_description, machine_probe, paper_size_engine
+    from model.bench import (
+        bench_engine,
+        format_table,
+        machine_description,
+        machine_probe,
+        paired_latency,
+        paper_size_engine,
+    )
     from model.inference.bundle import DEFAULT_BUNDLE, Bundle
     from model.inference.engine import Engine
 
@@ -44,10 +51,17 @@ def _run(args: argparse.Namespace) -> int:
              f"{f', steering {out.steering.window}' if out.steering.on else ''}{', floor contact' if out.floor else ''}"
              f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
+    paired = None
     if not args.no_paper:
-        results.append(bench_engine(paper_size_engine(bundle), "paper-size, random weights", sizes, budget_s=args.budget))
+        paper = paper_size_engine(bundle)
+        results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget))
+        paired = paired_latency(engine, paper)
     print(format_table(results, probe))
+    if paired is not None:
+        print(f"Batch 1, the two taking turns ({paired.blocks} blocks of {paired.frames} frames each): "
+              f"{paired.first_ms:.3f} ms against {paired.second_ms:.3f} ms, {paired.ratio:.3f}x the paper-size network's time.")
     report = {"machine": machine_description(), "probe": probe, "results": [r.to_dict() for r in results],
+              "paired_batch1": paired.to_dict() if paired is not None else None,
               "seconds": round(time.monotonic() - began, 1)}
     print(f"\nfinished in {report['seconds']} s")
     if args.json:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from model.bench import BenchResult, bench_engine, format_table, machine_probe, per_frame_parameters
+from model.bench import BenchResult, bench_engine, format_table, machine_probe, paired_latency, per_frame_parameters
 from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
@@ -30,3 +30,26 @@ def test_bench_refuses_an_output_strength_out_of_range_naming_the_flag(capsys):
 
     assert main(["bench", "--no-paper", "--root-smoothing", "1.0"]) == 2
     assert "--root-smoothing must be in [0, 1)" in capsys.readouterr().err
+
+
+def test_paired_latency_takes_turns_and_reports_both_medians_and_their_ratio():
+    cfg = SamplerConfig(joints=21, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=20)
+    man = ManifoldConfig(joints=21, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    small = Engine(Bundle.create(synthetic_skeleton(), cfg, man))
+    big_cfg = SamplerConfig(joints=21, phases=4, latent=8, width=256, rnn=512, head=256, style_channels=32, max_transition=20)
+    big = Engine(Bundle.create(synthetic_skeleton(), big_cfg, man))
+    calls: list[str] = []
+    for name, engine in (("small", small), ("big", big)):
+        step = engine.weight_sets[""].step_fn
+
+        def counted(*args, _step=step, _name=name):
+            calls.append(_name)
+            return _step(*args)
+
+        engine.weight_sets[""].step_fn = counted
+    paired = paired_latency(small, big, blocks=4, frames=6, warm=1)
+    assert paired.first_ms > 0 and paired.second_ms > 0 and paired.ratio == paired.first_ms / paired.second_ms
+    # One step a timed or warm frame; the engines take turns a block at a time, the first alternating.
+    s, b = ["small"] * 7, ["big"] * 7
+    assert calls == s + b + b + s + s + b + b + s
+    assert paired.to_dict()["blocks"] == 4 and paired.to_dict()["frames_per_block"] == 6
