@@ -89,9 +89,11 @@ class ChainKinematics:
                 depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
         levels = [sorted(j for j, d in depth.items() if d == level) for level in range(max(depth.values(), default=0) + 1)]
         self.joints: tuple[int, ...] = tuple(j for level in levels for j in level)
-        # Per level below the root: its joints, where their parents are in the level above, their offsets.
-        self._levels = [(level, [levels[i - 1].index(parents[j]) for j in level], offsets[level].clone())
-                        for i, level in enumerate(levels) if i > 0]
+        # Per level below the root: its joints, where their parents are in the level above, their offsets
+        # (copied outside inference mode, so autograd may use them whatever mode this object was made in).
+        with torch.inference_mode(False):
+            self._levels = [(level, [levels[i - 1].index(parents[j]) for j in level], offsets[level].clone())
+                            for i, level in enumerate(levels) if i > 0]
 
     def pick(self, results: Tensor, joints: Sequence[int]) -> Tensor:
         """The rows of ``joints`` (``[..., len(joints), C]``) from results ``[..., K, C]`` of this object."""

@@ -133,3 +133,16 @@ def test_two_bone_ik_reaches_what_it_can_and_keeps_the_bones(seed, stretch):
     out = reach >= l1 + l2
     toward = torch.nn.functional.normalize(end[out] - a[out], dim=-1)
     assert torch.allclose(toward, direction[out], atol=1e-3)
+
+
+def test_kept_index_tensors_made_in_inference_mode_still_serve_autograd():
+    # The engine first uses these functions under inference mode; training later backpropagates through
+    # the same kept index tensors, which must not be inference tensors.
+    parents = (-1, 0, 1, 1, 3, 0, 5)  # a hierarchy no other test uses, so its index is made here
+    with torch.inference_mode():
+        global_to_local_rotations(quat_normalize(torch.randn(2, 7, 4)), parents)
+        chains = ChainKinematics(parents, torch.randn(7, 3), [4, 6])
+        chains(quat_normalize(torch.randn(2, 7, 4)), torch.randn(2, 3))
+    q = quat_normalize(torch.randn(2, 7, 4)).requires_grad_()
+    (global_to_local_rotations(q, parents).sum() + chains(q, torch.zeros(2, 3))[0].sum()).backward()
+    assert q.grad is not None and torch.isfinite(q.grad).all()
