@@ -80,7 +80,7 @@ def state_from_positions(positions: Tensor, rotations_6d: Tensor, root: int = 0)
     """
     vel = positions[..., 1:, :, :] - positions[..., :-1, :, :]
     vel = torch.cat([vel[..., :1, :, :], vel], dim=-3)
-    root_xz = positions[..., root, ::2]  # x, z
+    root_xz = positions[..., root, ::2].clone()  # x, z; a copy, not a view of the caller's positions
     ground = torch.stack([root_xz[..., 0], torch.zeros_like(root_xz[..., 0]), root_xz[..., 1]], dim=-1)
     return PoseState(positions - ground.unsqueeze(-2), vel, rotations_6d, root_xz)
 
@@ -93,6 +93,6 @@ def integrate(state: PoseState, velocity: Tensor, rotation_delta: Tensor, root: 
     """
     pos = state.positions() + velocity
     rot = sixd_normalize(state.rot + rotation_delta)
-    root_xz = pos[..., root, ::2]  # x, z
+    root_xz = pos[..., root, ::2]  # x, z (a view of pos, which nothing else holds)
     ground = torch.stack([root_xz[..., 0], torch.zeros_like(root_xz[..., 0]), root_xz[..., 1]], dim=-1)
     return PoseState(pos - ground.unsqueeze(-2), velocity, rot, root_xz)
