@@ -167,7 +167,7 @@ def paired_latency(first: Engine, second: Engine, blocks: int = 8, frames: int =
     taking turns (which goes first alternates), each block after ``warm`` untimed frames.
 
     Measured one after the other, two engines see different moments of a shared machine: on a noisy
-    2-core container the ratio of separate runs moved from 0.19 to 0.34. Taking turns puts the drift on
+    2-core container the ratio of separate runs moved from 0.20 to 0.51 in an hour. Taking turns puts the drift on
     both; the warm frames let each refill the caches the other emptied, as in a run of its own."""
     timers = (frame_timer(first), frame_timer(second))
     times: tuple[list[float], list[float]] = ([], [])
