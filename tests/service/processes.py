@@ -12,6 +12,7 @@ import socket
 import subprocess
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import httpx
@@ -39,54 +40,48 @@ def _stop(proc: subprocess.Popen | None, timeout_s: float = 10.0) -> None:
         proc.wait(5)
 
 
-def _wait_port(port: int, proc: subprocess.Popen, what: str, log: Path, timeout_s: float) -> None:
+def _wait_ready(ready: Callable[[], bool], proc: subprocess.Popen, what: str, waiting_for: str, log: Path,
+                timeout_s: float) -> None:
+    """Poll ``ready`` until it is true; a ``proc`` that exits, or ``timeout_s`` passing, is a RuntimeError
+    with the end of its log (``waiting_for`` says what was awaited). ``ready`` may raise OSError or
+    httpx.HTTPError for "not yet"."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             raise RuntimeError(f"{what} exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
         try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            if ready():
                 return
-        except OSError:
-            time.sleep(0.05)
+        except (OSError, httpx.HTTPError):
+            pass
+        time.sleep(0.05)
     _stop(proc)
-    raise RuntimeError(f"{what} did not listen on port {port} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+    raise RuntimeError(f"{what} did not {waiting_for} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+
+
+def _wait_port(port: int, proc: subprocess.Popen, what: str, log: Path, timeout_s: float) -> None:
+    def accepts() -> bool:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return True
+
+    _wait_ready(accepts, proc, what, f"listen on port {port}", log, timeout_s)
 
 
 def _wait_http(url: str, proc: subprocess.Popen, what: str, log: Path, timeout_s: float) -> None:
     """Until ``url`` answers 200 from ``proc``: a port that merely accepts connections may be another
     process's (one that took it first), and ``proc`` may still be about to exit on failing to bind it."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"{what} exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
-        try:
-            if httpx.get(url, timeout=0.5).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.05)
-    _stop(proc)
-    raise RuntimeError(f"{what} did not answer {url} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+    _wait_ready(lambda: httpx.get(url, timeout=0.5).status_code == 200, proc, what, f"answer {url}", log, timeout_s)
 
 
 def _wait_redis(port: int, proc: subprocess.Popen, log: Path, timeout_s: float) -> None:
     """Until the redis-server ``proc`` answers PING on ``port``: a port that merely accepts connections may
     be another process's (one that took it first), and ``proc`` may still be about to exit on failing to bind."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"redis-server exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.5) as sock:
-                sock.sendall(b"PING\r\n")
-                if sock.recv(64).startswith(b"+PONG"):
-                    return
-        except OSError:
-            pass
-        time.sleep(0.05)
-    _stop(proc)
-    raise RuntimeError(f"redis-server did not answer PING on port {port} within {timeout_s} s:\n{log.read_text()[-3000:]}")
+    def pong() -> bool:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5) as sock:
+            sock.sendall(b"PING\r\n")
+            return sock.recv(64).startswith(b"+PONG")
+
+    _wait_ready(pong, proc, "redis-server", f"answer PING on port {port}", log, timeout_s)
 
 
 class RedisProcess:
