@@ -17,6 +17,7 @@ import torch
 from model.data.synthetic import synthetic_walk
 from model.inference.bundle import Bundle
 from model.inference.engine import CharacterBatch, EncodedStyle, Engine
+from model.motion.clip import Clip
 from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
 
@@ -78,38 +79,28 @@ def per_frame_parameters(bundle: Bundle) -> int:
 def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8, 32, 128, 512),
                  latency_frames: int = 300, budget_s: float = 6.0) -> BenchResult:
     """Measure one engine; each throughput point runs for at most ``budget_s / len(batch_sizes)``."""
-    c = engine.config
-    walk = synthetic_walk(frames=160, turn_deg_s=15.0)
-    style_clip = walk.window(20, 20 + min(120, c.style_frames_max))
+    request = WalkRequest.of(engine)
     res = BenchResult(name, per_frame_parameters(engine.bundle))
     times = []
     for _ in range(5):
-        engine.styles.delete(engine.style_id(style_clip))
+        engine.styles.delete(engine.style_id(request.style_clip))
         t0 = time.perf_counter()
-        style, _ = engine.encode_style(style_clip)
+        style, _ = engine.encode_style(request.style_clip)
         times.append((time.perf_counter() - t0) * 1000)
     res.style_encode_ms = round(statistics.median(times), 3)
-    frames = c.max_transition
-    context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
-
-    def fresh(n: int) -> CharacterBatch:
-        batch = CharacterBatch(engine)
-        for i in range(n):
-            batch.add(engine.prepare(context, target, frames, style, seed=i))
-        return batch
 
     # Latency: one character, each step timed; new transitions start when one ends.
-    timer = frame_timer(engine, style)
+    timer = frame_timer(engine, style, request)
     timer()  # warm
     step_ms = sorted(timer() for _ in range(latency_frames))
     res.latency_ms = {"median": round(statistics.median(step_ms), 3), "p99": round(step_ms[int(0.99 * (len(step_ms) - 1))], 3),
                       "mean": round(statistics.fmean(step_ms), 3)}
     per_point = budget_s / len(batch_sizes)
     for n in batch_sizes:
-        batch = fresh(n)
+        batch = request.batch(engine, style, n)
         batch.step()
         steps, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < per_point and steps < frames - 1:
+        while time.perf_counter() - t0 < per_point and steps < request.frames - 1:
             batch.step()
             steps += 1
         elapsed = time.perf_counter() - t0
@@ -118,23 +109,45 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
     return res
 
 
-def frame_timer(engine: Engine, style: EncodedStyle | None = None) -> Callable[[], float]:
+@dataclass(frozen=True)
+class WalkRequest:
+    """The bench's transition, on a procedural walk: a style clip, the context, a two-frame target and the
+    longest trained length."""
+
+    style_clip: Clip
+    context: Clip
+    target: Clip
+    frames: int
+
+    @classmethod
+    def of(cls, engine: Engine) -> WalkRequest:
+        c = engine.config
+        walk = synthetic_walk(frames=160, turn_deg_s=15.0)
+        frames = c.max_transition
+        return cls(walk.window(20, 20 + min(120, c.style_frames_max)), walk.window(0, c.context),
+                   walk.window(c.context + frames - 2, c.context + frames), frames)
+
+    def batch(self, engine: Engine, style: EncodedStyle, n: int) -> CharacterBatch:
+        """``n`` characters of this transition, prepared (seeds 0 to n - 1), not begun."""
+        batch = CharacterBatch(engine)
+        for i in range(n):
+            batch.add(engine.prepare(self.context, self.target, self.frames, style, seed=i))
+        return batch
+
+
+def frame_timer(engine: Engine, style: EncodedStyle | None = None, request: WalkRequest | None = None) -> Callable[[], float]:
     """A function that steps one character by one frame and returns the milliseconds it took; a new
     transition (of the longest trained length, on a procedural walk) is prepared, untimed, when one
     ends, and its first frame, which also warms the recurrent core on the context, is timed."""
-    c = engine.config
-    walk = synthetic_walk(frames=160, turn_deg_s=15.0)
+    request = request or WalkRequest.of(engine)
     if style is None:
-        style, _ = engine.encode_style(walk.window(20, 20 + min(120, c.style_frames_max)))
-    frames = c.max_transition
-    context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
+        style, _ = engine.encode_style(request.style_clip)
     batch = CharacterBatch(engine)
 
     def step() -> float:
         nonlocal batch
         if not len(batch):
-            batch = CharacterBatch(engine)
-            batch.add(engine.prepare(context, target, frames, style, seed=0))
+            batch = request.batch(engine, style, 1)
         t0 = time.perf_counter()
         batch.step()
         elapsed = (time.perf_counter() - t0) * 1000

@@ -94,6 +94,7 @@ class FootLock:
         # floor contact reads too, so FrameOutput computes it once for both).
         self.kinematics = ChainKinematics(sk.parents, sk.offsets_tensor(), sk.feet)
         self._depth = len(chains[0])
+        self._chain_joints = self.chain.reshape(-1).tolist()  # depth-major: both legs' joints at each depth
         self.hip, self.knee, self.ankle = self.chain[-3], self.chain[-2], self.chain[-1]
         self.leg_joints = self.chain[-3:].reshape(-1)  # hips, knees, ankles: the joints the lock rewrites
 
@@ -102,9 +103,9 @@ class FootLock:
         """World positions ``[N, depth, 2, 3]`` and rotations ``[N, depth, 2, 4]`` along both legs' chains;
         ``chains``: :attr:`kinematics`' results for these rotations and roots, where already computed."""
         pos, rot = self.kinematics(rotations, roots) if chains is None else chains
-        joints = self.chain.reshape(-1).tolist()  # depth-major: both legs' joints at each depth
         shape = (*pos.shape[:-2], self._depth, 2)
-        return self.kinematics.pick(pos, joints).view(*shape, 3), self.kinematics.pick(rot, joints).view(*shape, 4)
+        return (self.kinematics.pick(pos, self._chain_joints).view(*shape, 3),
+                self.kinematics.pick(rot, self._chain_joints).view(*shape, 4))
 
     def ankles(self, rotations: Tensor, roots: Tensor) -> Tensor:
         """World ankle positions ``[N, 2, 3]`` of local ``rotations [N, J, 4]`` and ``roots [N, 3]``."""
