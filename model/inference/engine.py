@@ -27,7 +27,7 @@ from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.motion.clip import Clip
 from model.motion.features import CanonicalFrame, local_frame_features
-from model.motion.kinematics import forward_kinematics, global_to_local_rotations
+from model.motion.kinematics import feet_kinematics, forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
 from model.nets.pose_state import PoseState, state_from_positions
@@ -73,9 +73,11 @@ class Engine:
         for name, adapter in sorted(bundle.adapters.items()):
             self.weight_sets[name] = self._weight_set(name, adapter.apply(self.sampler), adapter.version)
         self.step_fn = self.weight_sets[""].step_fn
-        self.foot_lock = FootLock(self.skeleton, self.config.fps) if self.output.foot_lock else None
-        # What happens to a frame before it leaves (world space, filter, floor contact, foot lock), traced as one graph.
-        self.floor = FloorContact(self.skeleton) if self.output.floor else None
+        # What happens to a frame before it leaves (world space, filter, floor contact, foot lock), traced as one
+        # graph; floor contact and the lock read the legs through one kinematics object, computed once a frame.
+        legs = feet_kinematics(self.skeleton)
+        self.foot_lock = FootLock(self.skeleton, self.config.fps, kinematics=legs) if self.output.foot_lock else None
+        self.floor = FloorContact(self.skeleton, kinematics=legs) if self.output.floor else None
         self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor),
                                              traced=compiled)
         self._ids = itertools.count()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from model.motion.kinematics import ChainKinematics
+from model.motion.kinematics import ChainKinematics, feet_kinematics
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -23,13 +23,16 @@ TOLERANCE_CM = 1.0  # real feet dip a little under their resting height; only mo
 class FloorContact:
     """Batched, for one skeleton: the floor of a context and the lift of a frame (foot joints only)."""
 
-    def __init__(self, skeleton: Skeleton, tolerance_cm: float = TOLERANCE_CM) -> None:
+    def __init__(self, skeleton: Skeleton, tolerance_cm: float = TOLERANCE_CM,
+                 kinematics: ChainKinematics | None = None) -> None:
+        """``kinematics``: the feet's chains (:func:`feet_kinematics`) to use, e.g. one the foot lock uses
+        too, so that FrameOutput computes them once for both; by default its own."""
         if tolerance_cm < 0:
             raise ValueError(f"the floor tolerance must be 0 or more, got {tolerance_cm}")
         self.tolerance = tolerance_cm
         self.feet = list(skeleton.feet)
-        # Only the joints on the way to the feet; FrameOutput shares them with the foot lock.
-        self.kinematics = ChainKinematics(skeleton.parents, skeleton.offsets_tensor(), self.feet)
+        self.kinematics = feet_kinematics(skeleton) if kinematics is None else kinematics
+        self.kinematics.columns(self.feet)  # a ValueError when it does not reach every foot joint
 
     def foot_heights(self, rotations: Tensor, roots: Tensor) -> Tensor:
         """Heights ``[N, F]`` of the foot joints of local ``rotations [N, J, 4]`` and ``roots [N, 3]``."""

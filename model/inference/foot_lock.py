@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from model.motion.kinematics import ChainKinematics, two_bone_ik
+from model.motion.kinematics import ChainKinematics, feet_kinematics, two_bone_ik
 from model.motion.rotations import quat_conjugate, quat_mul
 from model.motion.skeleton import Skeleton
 
@@ -79,7 +79,10 @@ class FootLockState:
 class FootLock:
     """Batched foot locking for one skeleton (Y up, cm) at ``fps``: both legs in one pass, no per-row branches."""
 
-    def __init__(self, skeleton: Skeleton, fps: float, config: FootLockConfig | None = None) -> None:
+    def __init__(self, skeleton: Skeleton, fps: float, config: FootLockConfig | None = None,
+                 kinematics: ChainKinematics | None = None) -> None:
+        """``kinematics``: the feet's chains (:func:`model.motion.kinematics.feet_kinematics`) to
+        use, e.g. the one floor contact uses, so that FrameOutput computes them once for both."""
         self.config = config or FootLockConfig()
         self.fps = fps
         sk = skeleton
@@ -90,11 +93,10 @@ class FootLock:
         if len(chains[0]) != len(chains[1]):
             raise ValueError("foot lock needs legs of the same depth below the root")
         self.chain = torch.tensor(chains).T  # [depth, 2]: joint of each leg at each depth
-        # The legs' joints through forward kinematics of the joints on the way to the feet (the set
-        # floor contact reads too, so FrameOutput computes it once for both).
-        self.kinematics = ChainKinematics(sk.parents, sk.offsets_tensor(), sk.feet)
+        self.kinematics = feet_kinematics(sk) if kinematics is None else kinematics
         self._depth = len(chains[0])
         self._chain_joints = self.chain.reshape(-1).tolist()  # depth-major: both legs' joints at each depth
+        self.kinematics.columns(self._chain_joints)  # a ValueError when it does not reach both legs
         self.hip, self.knee, self.ankle = self.chain[-3], self.chain[-2], self.chain[-1]
         self.leg_joints = self.chain[-3:].reshape(-1)  # hips, knees, ankles: the joints the lock rewrites
 

@@ -128,14 +128,16 @@ class FrameOutput:
         # Remembered before the foot lock (and the engine's exact arrival) bend the frame: the filter
         # follows the network's motion.
         new = {"prev_rot": local, "prev_root": root}
-        # The legs' forward kinematics, once for floor contact and the foot lock (the same joints; a lift
-        # moves them all up alike). Floor contact comes first, so the feet the lock holds are where the
-        # body was lifted to.
+        # Floor contact comes first, so the feet the lock holds are where the body was lifted to. Given
+        # one kinematics object (the engine does), the legs' forward kinematics runs once for both: a lift
+        # moves every joint up alike.
         chains = None
         if self.floor is not None:
-            chains = self.floor.kinematics(local, root)
-            up = self.floor.lift_of(chains[0], memory["floor"])
-            root, chains = root + up, (chains[0] + up.unsqueeze(-2), chains[1])
+            legs = self.floor.kinematics(local, root)
+            up = self.floor.lift_of(legs[0], memory["floor"])
+            root = root + up
+            if self.lock is not None and self.lock.kinematics is self.floor.kinematics:
+                chains = (legs[0] + up.unsqueeze(-2), legs[1])
             new["floor"] = memory["floor"]
         if self.lock is not None:
             world_shift = None

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import torch
 
 from model.motion.rotations import quat_conjugate, quat_mul, quat_rotate
+from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
 
@@ -101,6 +102,9 @@ class ChainKinematics:
 
     def columns(self, joints: Sequence[int]) -> list[int]:
         """Where ``joints`` are in the results (a ValueError for a joint not computed)."""
+        missing = [j for j in joints if j not in self.joints]
+        if missing:
+            raise ValueError(f"joints {missing} are not on the way to this kinematics' end joints")
         return [self.joints.index(j) for j in joints]
 
     def __call__(self, local_rotations: Tensor, root_positions: Tensor) -> tuple[Tensor, Tensor]:
@@ -121,6 +125,12 @@ class ChainKinematics:
             positions.append(pos)
             rotations.append(rot)
         return torch.cat(positions, dim=-2), torch.cat(rotations, dim=-2)
+
+
+def feet_kinematics(skeleton: Skeleton) -> ChainKinematics:
+    """:class:`ChainKinematics` of the joints on the way to the skeleton's feet: all that floor contact
+    and the foot lock read (one object given to both lets the frame output compute it once)."""
+    return ChainKinematics(skeleton.parents, skeleton.offsets_tensor(), skeleton.feet)
 
 
 def global_to_local_rotations(global_rotations: Tensor, parents: Sequence[int]) -> Tensor:

@@ -9,9 +9,10 @@ from hypothesis import strategies as st
 
 from model.data.synthetic import synthetic_walk
 from model.inference.floor_contact import FloorContact
+from model.inference.foot_lock import FootLock
 from model.inference.output_settings import OutputConfig
 from model.inference.traced_step import CompiledFrameOutput, FrameOutput
-from model.motion.kinematics import forward_kinematics
+from model.motion.kinematics import ChainKinematics, feet_kinematics, forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
 
@@ -83,3 +84,16 @@ def test_the_setting_round_trips_and_is_off_by_default() -> None:
     assert on.with_overrides(floor=False).floor is False and OutputConfig().with_overrides(floor=True).floor
     with pytest.raises(ValueError, match="tolerance"):
         FloorContact(synthetic_walk(frames=5).skeleton, tolerance_cm=-1.0)
+
+
+def test_a_kinematics_object_that_does_not_reach_the_feet_is_refused() -> None:
+    # Floor contact and the foot lock may be given one kinematics object to share; one built for
+    # other end joints (here the head's chain) would give them the wrong joints' heights.
+    sk = synthetic_walk(frames=5).skeleton
+    head = ChainKinematics(sk.parents, sk.offsets_tensor(), [sk.roles.head])
+    with pytest.raises(ValueError, match="not on the way"):
+        FloorContact(sk, kinematics=head)
+    with pytest.raises(ValueError, match="not on the way"):
+        FootLock(sk, 30.0, kinematics=head)
+    legs = feet_kinematics(sk)
+    assert FloorContact(sk, kinematics=legs).kinematics is FootLock(sk, 30.0, kinematics=legs).kinematics

@@ -11,7 +11,7 @@ from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock, FootLockConfig, FootLockState
 from model.inference.output_settings import OutputConfig
 from model.inference.traced_step import CompiledFrameOutput, FrameOutput
-from model.motion.kinematics import forward_kinematics
+from model.motion.kinematics import feet_kinematics, forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
 
@@ -159,14 +159,18 @@ def test_a_foot_carried_by_steering_stays_locked():
     assert bool(state.locked[0, 0])
 
 
-def test_floor_contact_and_the_lock_sharing_the_legs_kinematics_give_what_each_gives_alone():
-    # FrameOutput computes the legs' forward kinematics once for floor contact and the lock (the lift
-    # moves every leg joint up alike); run apart, each computes its own. A sinking, sliding body.
+@pytest.mark.parametrize("shared", [True, False])
+def test_floor_contact_and_the_lock_in_the_frame_output_give_what_each_gives_alone(shared: bool):
+    # Given one kinematics object, FrameOutput computes the legs' forward kinematics once for floor
+    # contact and the lock (the lift moves every leg joint up alike); given two, each computes its own.
+    # Run apart, each computes its own. A sinking, sliding body.
     sk, rot, root = _sliding_pose(30, speed_cm=1.0, still=9)
     root[10:, 1] -= torch.linspace(0.0, 8.0, 20)
     gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
     states = state_from_positions(gpos.unsqueeze(0), quat_to_sixd(grot).unsqueeze(0), sk.roles.root)
-    lock, floor = FootLock(sk, 30.0, MECHANICS), FloorContact(sk)
+    legs = feet_kinematics(sk) if shared else None
+    lock, floor = FootLock(sk, 30.0, MECHANICS, kinematics=legs), FloorContact(sk, kinematics=legs)
+    assert (lock.kinematics is floor.kinematics) == shared
     output = FrameOutput(sk, OutputConfig(smoothing=0.0, foot_lock=True, floor=True), lock, floor)
     mem = {"prev_rot": rot[9:10], "prev_root": root[9:10], "floor": floor.floor(rot[:10], root[:10]),
            **lock.start(rot[:10], root[:10]).memory()}
