@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+from collections.abc import Callable
 
 import torch
 
@@ -67,23 +68,43 @@ def _flat(state: SamplerState, style: StyleContext) -> tuple[Tensor, ...]:
             style.values1, style.gamma2, style.beta2, style.keys2, style.values2, style.mask)
 
 
-class CompiledStep:
+class _TracedOnFirstUse:
+    """A graph traced on the first call, unless ``traced`` is False (eager by choice) or tracing fails
+    (eager from then on: :attr:`trace_failed`)."""
+
+    def __init__(self, traced: bool) -> None:
+        self.traced = traced
+        self.trace_failed = False
+        self._graph: torch.jit.ScriptModule | None = None
+
+    @property
+    def eager(self) -> bool:
+        """Whether calls run eagerly: by choice, or because tracing failed."""
+        return not self.traced or self.trace_failed
+
+    def _graph_for(self, make: Callable[[], torch.nn.Module], args: tuple[Tensor, ...]) -> torch.jit.ScriptModule | None:
+        """The traced graph (the first time, ``make()`` traced on ``args``), or None when eager."""
+        if self._graph is None and not self.eager:
+            self._graph = _trace(make(), args)
+            self.trace_failed = self._graph is None
+        return self._graph
+
+
+class CompiledStep(_TracedOnFirstUse):
     """``step(state, style) -> (state, shift)``: :func:`step_and_steer` through a traced graph, built on
     first use (eager if tracing fails or ``traced`` is False). Steering is inside the graph: eager,
     its few dozen small operations cost about a quarter of the traced network step at batch 1."""
 
     def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig, traced: bool = True) -> None:
+        super().__init__(traced)
         self.sampler, self.root, self.steering = sampler, root, steering
-        self._graph: torch.jit.ScriptModule | None = None
-        self.failed = not traced
 
     def __call__(self, state: SamplerState, style: StyleContext) -> tuple[SamplerState, Tensor | None]:
-        if self._graph is None and not self.failed:
-            self._graph = _trace(_FlatStep(self.sampler, self.root, self.steering), _flat(state, style))
-            self.failed = self._graph is None
-        if self._graph is None:
+        args = _flat(state, style)
+        graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, self.steering), args)
+        if graph is None:
             return step_and_steer(self.sampler, state, style, self.root, self.steering)
-        h, c, rel, vel, rot, root_xz, phase, tta, *shift = self._graph(*_flat(state, style))
+        h, c, rel, vel, rot, root_xz, phase, tta, *shift = graph(*args)
         return (SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
                              state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)
 
@@ -162,7 +183,7 @@ class _FlatFrameOutput(torch.nn.Module):
         return (local, root, *(new[k] for k in self.fn.keys))
 
 
-class CompiledFrameOutput:
+class CompiledFrameOutput(_TracedOnFirstUse):
     """:class:`FrameOutput` through one graph traced on first use (eager if tracing fails or
     ``traced`` is False).
 
@@ -175,9 +196,8 @@ class CompiledFrameOutput:
     """
 
     def __init__(self, fn: FrameOutput, traced: bool = True) -> None:
+        super().__init__(traced)
         self.fn = fn
-        self._graph: torch.jit.ScriptModule | None = None
-        self.failed = not traced
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor,
                  memory: dict[str, Tensor], shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
@@ -185,12 +205,10 @@ class CompiledFrameOutput:
             shift = torch.zeros(pose.root_xz.shape)
         args = (pose.rel, pose.vel, pose.rot, pose.root_xz, yaw, origin, remaining, shift,
                 *(memory[k] for k in self.fn.keys))
-        if self._graph is None and not self.failed:
-            self._graph = _trace(_FlatFrameOutput(self.fn), args)
-            self.failed = self._graph is None
-        if self._graph is None:
+        graph = self._graph_for(lambda: _FlatFrameOutput(self.fn), args)
+        if graph is None:
             return self.fn(pose, yaw, origin, remaining, memory, shift=shift)
-        local, root, *rest = self._graph(*args)
+        local, root, *rest = graph(*args)
         return local, root, dict(zip(self.fn.keys, rest))
 
 

@@ -84,11 +84,12 @@ def test_eager_reaches_the_engines(monkeypatch):
     from service.registry import load_registry
 
     monkeypatch.delenv("RSMT_EAGER", raising=False)
-    assert not _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).step_fn.failed
+    assert not _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).step_fn.eager
     monkeypatch.setenv("RSMT_EAGER", "1")
     assert Settings().eager
     eager = _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE)))
-    assert eager.step_fn.failed and eager.output_fn.failed  # neither way is traced
+    assert eager.step_fn.eager and eager.output_fn.eager  # neither way is traced
+    assert not eager.step_fn.trace_failed  # by choice, not because tracing failed
 
 
 def _engine_of(registry):

@@ -180,11 +180,35 @@ def test_traced_step_matches_eager(walk):
                  for i, s in enumerate((short, long, short))]
         results.append((first, eng.generate(chars)))
         if compiled:
-            assert not eng.step_fn.failed and eng.step_fn._graph is not None
+            assert not eng.step_fn.eager and eng.step_fn._graph is not None
             # The frame's way out (world space, filter, floor contact, foot lock) too.
-            assert not eng.output_fn.failed and eng.output_fn._graph is not None and eng.foot_lock is not None
+            assert not eng.output_fn.eager and eng.output_fn._graph is not None and eng.foot_lock is not None
         else:
             assert eng.output_fn._graph is None and eng.foot_lock is not None
     (e1, e3), (c1, c3) = results
     for a, b in zip(e1 + e3, c1 + c3):
         assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)
+
+
+def test_a_failed_trace_falls_back_to_eager_and_says_why(walk, monkeypatch, caplog):
+    import model.inference.traced_step as traced_step
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("no tracing here")
+
+    monkeypatch.setattr(traced_step.torch.jit, "trace", refuse)
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
+    eng = Engine(bundle, compiled=True, foot_lock=True)
+    assert not eng.step_fn.eager  # wanted traced, not tried yet
+    with caplog.at_level("WARNING"):
+        rot, root = _run(eng, walk, frames=6)
+    assert rot.shape[0] == 6 and torch.isfinite(rot).all() and torch.isfinite(root).all()
+    for fn in (eng.step_fn, eng.output_fn):
+        assert fn.traced and fn.trace_failed and fn.eager and fn._graph is None
+    assert "no tracing here" in caplog.text
+    eager = Engine(bundle, compiled=False, foot_lock=True)
+    e_rot, e_root = _run(eager, walk, frames=6)
+    assert torch.equal(rot, e_rot) and torch.equal(root, e_root)
+    assert eager.step_fn.eager and not eager.step_fn.trace_failed
