@@ -84,6 +84,19 @@ def _wait_redis(port: int, proc: subprocess.Popen, log: Path, timeout_s: float) 
     _wait_ready(pong, proc, "redis-server", f"answer PING on port {port}", log, timeout_s)
 
 
+def _on_free_ports(start_once: Callable[[], None], new_ports: Callable[[], None], attempts: int) -> None:
+    """``start_once()``; when it fails because a port was taken by another process before the server bound
+    it (the race of :func:`free_port`), ``new_ports()`` and again, at most ``attempts`` times in all."""
+    for attempt in range(attempts):
+        try:
+            start_once()
+            return
+        except RuntimeError as exc:
+            if "Address already in use" not in str(exc) or attempt == attempts - 1:
+                raise
+            new_ports()
+
+
 class RedisProcess:
     """``redis-server`` on a free port, with an append-only file in its own folder: a restart keeps the data."""
 
@@ -102,21 +115,19 @@ class RedisProcess:
         """Start redis-server, or start it again on its port (its data kept). On a first start, a free port
         taken by another process before redis bound it (the race of :func:`free_port`) is retried on a new
         port, at most ``attempts`` times in all; a restart keeps its port, which clients already hold."""
-        first = self.proc is None
-        for attempt in range(attempts if first else 1):
-            with self.log.open("a") as log:
-                self.proc = subprocess.Popen(
-                    [self.binary, "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.dir),
-                     "--appendonly", "yes", "--appendfsync", "always", "--save", "", "--daemonize", "no"],
-                    stdout=log, stderr=subprocess.STDOUT)
-            try:
-                _wait_redis(self.port, self.proc, self.log, timeout_s)
-                return self
-            except RuntimeError as exc:
-                if not first or "Address already in use" not in str(exc) or attempt == attempts - 1:
-                    raise
-                self.port = free_port()
+        _on_free_ports(lambda: self._start_once(timeout_s), self._new_port, attempts if self.proc is None else 1)
         return self
+
+    def _start_once(self, timeout_s: float) -> None:
+        with self.log.open("a") as log:
+            self.proc = subprocess.Popen(
+                [self.binary, "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.dir),
+                 "--appendonly", "yes", "--appendfsync", "always", "--save", "", "--daemonize", "no"],
+                stdout=log, stderr=subprocess.STDOUT)
+        _wait_redis(self.port, self.proc, self.log, timeout_s)
+
+    def _new_port(self) -> None:
+        self.port = free_port()
 
     def stop(self) -> None:
         _stop(self.proc)
@@ -197,22 +208,21 @@ class HaproxyProcess:
     def start(self, timeout_s: float = 20.0, attempts: int = 3) -> HaproxyProcess:
         """Start haproxy; a free port taken by another process before haproxy bound it (the race of
         :func:`free_port`) is retried on new ports, at most ``attempts`` times in all."""
-        for attempt in range(attempts):
-            with self.log.open("a") as log:
-                self.proc = subprocess.Popen([self.binary, "-db", "-f", str(self.config)], stdout=log,
-                                             stderr=subprocess.STDOUT)
-            try:
-                _wait_port(self.port, self.proc, "haproxy", self.log, timeout_s)
-                # The stats page answering proves every listener is bound: haproxy binds them one by one and
-                # exits on the first it cannot take, which may come after the main port already accepts.
-                _wait_http(self.stats_url, self.proc, "haproxy", self.log, timeout_s)
-                return self
-            except RuntimeError as exc:
-                if "Address already in use" not in str(exc) or attempt == attempts - 1:
-                    raise
-                self.log.write_text("")
-                self._pick_ports()
+        _on_free_ports(lambda: self._start_once(timeout_s), self._new_ports, attempts)
         return self
+
+    def _start_once(self, timeout_s: float) -> None:
+        with self.log.open("a") as log:
+            self.proc = subprocess.Popen([self.binary, "-db", "-f", str(self.config)], stdout=log,
+                                         stderr=subprocess.STDOUT)
+        _wait_port(self.port, self.proc, "haproxy", self.log, timeout_s)
+        # The stats page answering proves every listener is bound: haproxy binds them one by one and
+        # exits on the first it cannot take, which may come after the main port already accepts.
+        _wait_http(self.stats_url, self.proc, "haproxy", self.log, timeout_s)
+
+    def _new_ports(self) -> None:
+        self.log.write_text("")
+        self._pick_ports()
 
     def cleanup(self) -> None:
         _stop(self.proc)
