@@ -90,6 +90,7 @@ class ChainKinematics:
                 depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
         levels = [sorted(j for j, d in depth.items() if d == level) for level in range(max(depth.values(), default=0) + 1)]
         self.joints: tuple[int, ...] = tuple(j for level in levels for j in level)
+        self._column = {j: i for i, j in enumerate(self.joints)}  # where each joint is in the results
         # Per level below the root: its joints, where their parents are in the level above, their offsets
         # (copied outside inference mode, so autograd may use them whatever mode this object was made in).
         with torch.inference_mode(False):
@@ -102,10 +103,10 @@ class ChainKinematics:
 
     def columns(self, joints: Sequence[int]) -> list[int]:
         """Where ``joints`` are in the results (a ValueError for a joint not computed)."""
-        missing = [j for j in joints if j not in self.joints]
+        missing = [j for j in joints if j not in self._column]
         if missing:
             raise ValueError(f"joints {missing} are not on the way to this kinematics' end joints")
-        return [self.joints.index(j) for j in joints]
+        return [self._column[j] for j in joints]
 
     def __call__(self, local_rotations: Tensor, root_positions: Tensor) -> tuple[Tensor, Tensor]:
         """World ``(positions [..., K, 3], rotations [..., K, 4])`` of :attr:`joints`, from local

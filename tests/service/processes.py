@@ -127,6 +127,7 @@ class RedisProcess:
         _wait_redis(self.port, self.proc, self.log, timeout_s)
 
     def _new_port(self) -> None:
+        self.log.write_text("")  # the next attempt's failure is judged by its own output (a first start: no data yet)
         self.port = free_port()
 
     def stop(self) -> None:
