@@ -22,9 +22,12 @@ import json
 import shutil
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
+
+if TYPE_CHECKING:
+    from model.inference.steering import SteeringConfig
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -42,6 +45,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "or one folder per style (its first BVH); the copy stores their codes, served as style ids "
                         "builtin:NAME")
     add_output_arguments(p, "the bundle")
+    p.add_argument("--steer-facing", type=int, default=None, metavar="FRAMES",
+                   help="turn the body toward the target's facing over the last FRAMES frames (0: off; default: the "
+                        "bundle's own setting)")
+    p.add_argument("--steer-height", type=int, default=None, metavar="FRAMES",
+                   help="bring the root to the target's height over the last FRAMES frames (0: off; default: the "
+                        "bundle's own setting)")
     p.set_defaults(func=_run)
 
     b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles in place (weights untouched)")
@@ -69,6 +78,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.out.resolve() == args.model.resolve():
         raise ValueError("--out must not be the --model folder")
     overrides = output_overrides(args)  # checked before anything is read or written
+    _check_finishing(args)
     bundle = Bundle.load(args.model, styles=args.styles is None)
     clips = _read_styles(args.styles, bundle) if args.styles is not None else None
     # Codes belong to the weights that made them: they are written after the copy's weights (float16 or not).
@@ -77,6 +87,7 @@ def _run(args: argparse.Namespace) -> int:
     bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
     bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
                                                  overrides["foot_lock"], overrides["steering"], overrides["floor"])
+    bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
     bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
@@ -103,6 +114,21 @@ def _run(args: argparse.Namespace) -> int:
                       "output": bundle.output.to_dict(), "inference": bundle.inference.to_dict(),
                       "styles": sorted(Bundle.load(args.out).styles)}, indent=1))
     return 0
+
+
+def _check_finishing(args: argparse.Namespace) -> None:
+    for flag, frames in (("--steer-facing", args.steer_facing), ("--steer-height", args.steer_height)):
+        if frames is not None and frames < 0:
+            raise ValueError(f"{flag} must be 0 (off) or more frames")
+
+
+def _finishing_steering(args: argparse.Namespace, steering: SteeringConfig) -> SteeringConfig:
+    """``steering`` with the facing and height windows of ``--steer-facing`` / ``--steer-height`` (unset: kept)."""
+    if args.steer_facing is not None:
+        steering = dataclasses.replace(steering, turn_window=args.steer_facing)
+    if args.steer_height is not None:
+        steering = dataclasses.replace(steering, height_window=args.steer_height)
+    return steering
 
 
 def _read_styles(folder: Path, bundle: Any) -> list[Any]:

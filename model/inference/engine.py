@@ -26,7 +26,7 @@ from model.inference.int8_step import int8_lstm_sampler
 from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.motion.clip import Clip
-from model.motion.features import CanonicalFrame, local_frame_features
+from model.motion.features import CanonicalFrame, FacingChains, local_frame_features
 from model.motion.kinematics import feet_kinematics, forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
@@ -69,6 +69,7 @@ class Engine:
         self.arrival = ArrivalCorrector(self.skeleton)
         # One weight set per style adapter beside the bundle's own; a character runs on its style's.
         self._compiled = compiled
+        self._facing = FacingChains.of(self.skeleton)
         self.weight_sets = {"": self._weight_set("", self.sampler, bundle.version)}
         for name, adapter in sorted(bundle.adapters.items()):
             self.weight_sets[name] = self._weight_set(name, adapter.apply(self.sampler), adapter.version)
@@ -92,7 +93,8 @@ class Engine:
                 self.inference = self.inference.with_overrides(int8_lstm=False)
             else:
                 stepper = quantized
-        step = CompiledStep(stepper, self.skeleton.roles.root, self.output.steering, traced=self._compiled)
+        step = CompiledStep(stepper, self.skeleton.roles.root, self.output.steering, traced=self._compiled,
+                            facing=self._facing)
         return WeightSet(name, sampler, step, version)
 
     def weights(self, name: str = "") -> WeightSet:

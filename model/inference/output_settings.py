@@ -9,7 +9,6 @@ network's frames as they are.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import asdict, dataclass, field
 
 from model.inference.steering import SteeringConfig
@@ -47,13 +46,13 @@ class OutputConfig:
                        floor: bool | None = None) -> OutputConfig:
         """These settings with a caller's overrides (None keeps a setting). Once either strength is
         given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value.
-        ``steering`` is the steering window in frames (0: off)."""
+        ``steering`` is the ground steering window in frames (0: every part of steering off)."""
         if smoothing is not None or root_smoothing is not None:
             rot = self.smoothing if smoothing is None else float(smoothing)
             root = None if root_smoothing is None else float(root_smoothing)
         else:
             rot, root = self.smoothing, self.root_smoothing
-        steer = self.steering if steering is None else dataclasses.replace(self.steering, window=int(steering))
+        steer = self.steering if steering is None else self.steering.with_window(int(steering))
         return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer,
                             self.floor if floor is None else bool(floor))
 

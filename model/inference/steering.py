@@ -13,9 +13,17 @@ inside the recurrent loop, in the transition's canonical frame, frame by frame:
 * the shift is written into the sampler's own state (root position and every joint's velocity), so
   the next step sees where the character now is and how fast it went, and its gait follows.
 
-Steering the facing the same way was tried and dropped: the pelvis sways with every step, so its
-turning rate is a poor predictor, and on validation it cost more at the plain 40-frame gap than it
-won on turned targets (docs/experiments/2026-11-25-steering.md).
+Over the last few frames the root's other two free settings are brought home the same way, with
+no prediction (what is left of the miss spread over the frames left, smoothstep-weighted):
+
+* its **facing** (``turn_window``): the whole body turns about the root's vertical toward the
+  target's facing, measured from the hips and shoulders the frame's global rotations place
+  (:class:`model.motion.features.FacingChains`), at most ``max_turn_deg`` a frame. A long window,
+  or one that extrapolates the turning rate, was tried and lost: the pelvis sways with every step,
+  and the network turns part of it back (docs/experiments/2026-11-25-steering.md and
+  docs/experiments/2026-11-26-facing-height.md);
+* its **height** (``height_window``): the whole body moves up or down toward the target root's
+  height, at most ``max_rise_cm`` a frame.
 
 A body moved under planted feet would slide them; the engine's foot lock holds them. Each frame's
 shift is capped (``max_step_cm``) so a correction never reads as a teleport.
@@ -23,11 +31,13 @@ shift is capped (``max_step_cm``) so a correction never reads as a teleport.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import math
+from dataclasses import asdict, dataclass, replace
 
 import torch
 
 from model.inference.arrival import arrival_weight
+from model.motion.features import FacingChains
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerState
 
@@ -36,32 +46,47 @@ Tensor = torch.Tensor
 
 @dataclass(frozen=True)
 class SteeringConfig:
-    """``window``: frames before arrival over which steering fades in (0: off); ``momentum``: the share of
-    its current velocity the character is predicted to keep to the end; ``max_step_cm``: the largest
-    shift of one frame."""
+    """``window``: frames before arrival over which the root's ground position is steered (0: off);
+    ``momentum``: the share of its current velocity the character is predicted to keep to the end;
+    ``max_step_cm``: the largest ground shift of one frame. ``turn_window`` / ``max_turn_deg``: the
+    same for the facing (0: off; degrees a frame); ``height_window`` / ``max_rise_cm``: for the root's
+    height (0: off; cm a frame). Settings saved before the facing and height existed load with them off."""
 
     window: int = 0
     momentum: float = 1.0
     max_step_cm: float = 10.0
+    turn_window: int = 0
+    max_turn_deg: float = 10.0
+    height_window: int = 0
+    max_rise_cm: float = 2.0
 
     def __post_init__(self) -> None:
-        if self.window < 0:
-            raise ValueError(f"the steering window must be 0 (off) or more frames, got {self.window}")
+        for name in ("window", "turn_window", "height_window"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"the steering {name.replace('_', ' ')} must be 0 (off) or more frames, "
+                                 f"got {getattr(self, name)}")
         if not 0.0 <= self.momentum <= 1.0:
             raise ValueError(f"steering momentum must be in [0, 1], got {self.momentum}")
-        if self.max_step_cm <= 0:
-            raise ValueError(f"the steering step cap must be positive, got {self.max_step_cm}")
+        for name in ("max_step_cm", "max_turn_deg", "max_rise_cm"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"the steering cap {name} must be positive, got {getattr(self, name)}")
 
     @property
     def on(self) -> bool:
-        return self.window > 0
+        return self.window > 0 or self.turn_window > 0 or self.height_window > 0
+
+    def with_window(self, window: int) -> SteeringConfig:
+        """These settings with the ground window ``window``; 0 switches every part off (the network alone)."""
+        if window == 0:
+            return replace(self, window=0, turn_window=0, height_window=0)
+        return replace(self, window=int(window))
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> SteeringConfig:
-        unknown = set(data) - {"window", "momentum", "max_step_cm"}
+        unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"unknown steering settings: {', '.join(sorted(unknown))}")
         return cls(**data)
@@ -89,8 +114,66 @@ def shifted(state: SamplerState, shift: Tensor) -> SamplerState:
                         state.target_emb, state.tta, state.noise)
 
 
-def steer(state: SamplerState, root: int, config: SteeringConfig) -> tuple[SamplerState, Tensor]:
-    """``state`` with every row's body moved by :func:`steering_shift` (positions and velocities), and
-    that shift ``[N, 2]``."""
-    shift = steering_shift(state, root, config)
-    return shifted(state, shift), shift
+def _spread(miss: Tensor, tta: Tensor, window: int, cap: float) -> Tensor:
+    """What is left of ``miss [N]`` spread over the frames left, smoothstep-weighted, capped at ``cap``."""
+    remaining = tta.float().clamp_min(0.0)
+    return (arrival_weight(tta, window) * miss / (remaining + 1.0)).clamp(-cap, cap)
+
+
+def _turned(v: Tensor, cos: Tensor, sin: Tensor) -> Tensor:
+    """Vectors ``[N, J, 3]`` turned about +Y by the angle of ``cos``/``sin`` ``[N, 1]`` (as facing yaw counts)."""
+    x, y, z = v.unbind(-1)
+    return torch.stack([x * cos + z * sin, y, z * cos - x * sin], dim=-1)
+
+
+def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingChains) -> Tensor:
+    """The turn ``[N]`` (radians about +Y) steering gives each row's facing this frame."""
+    miss = facing.yaw(state.target_rot) - facing.yaw(state.pose.rot)
+    miss = torch.atan2(torch.sin(miss), torch.cos(miss))  # the short way round
+    return _spread(miss, state.tta, config.turn_window, math.radians(config.max_turn_deg))
+
+
+def finishing_rise(state: SamplerState, root: int, config: SteeringConfig) -> Tensor:
+    """The vertical shift ``[N]`` (cm) steering gives each row's body this frame."""
+    miss = state.target_pos[:, root, 1] - state.pose.rel[:, root, 1]
+    return _spread(miss, state.tta, config.height_window, config.max_rise_cm)
+
+
+def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | None) -> SamplerState:
+    """``state`` with every row's body turned about its root's vertical by ``turn [N]`` (positions,
+    velocities and rotations turn together, as if it had always faced that way) and moved up by
+    ``rise [N]`` (a displacement: the velocities take it)."""
+    pose = state.pose
+    rel, vel, rot = pose.rel, pose.vel, pose.rot
+    if turn is not None:
+        cos, sin = torch.cos(turn).unsqueeze(-1), torch.sin(turn).unsqueeze(-1)
+        rel, vel = _turned(rel, cos, sin), _turned(vel, cos, sin)
+        rot = torch.cat([_turned(rot[..., :3], cos, sin), _turned(rot[..., 3:], cos, sin)], dim=-1)
+    if rise is not None:
+        up = torch.stack([torch.zeros_like(rise), rise, torch.zeros_like(rise)], dim=-1).unsqueeze(1)
+        rel, vel = rel + up, vel + up
+    moved = PoseState(rel, vel, rot, pose.root_xz)
+    return SamplerState(state.h, state.c, moved, state.phase, state.target_vec, state.target_pos, state.target_rot,
+                        state.target_emb, state.tta, state.noise)
+
+
+def steer(state: SamplerState, root: int, config: SteeringConfig,
+          facing: FacingChains | None = None) -> tuple[SamplerState, Tensor]:
+    """``state`` with every row's body moved by :func:`steering_shift` (positions and velocities), then
+    turned and raised where those parts are on, and the ground shift ``[N, 2]`` (zero where the ground
+    part is off). Turning needs ``facing``."""
+    if config.window > 0:
+        shift = steering_shift(state, root, config)
+        state = shifted(state, shift)
+    else:
+        shift = torch.zeros_like(state.pose.root_xz)
+    turn = rise = None
+    if config.turn_window > 0:
+        if facing is None:
+            raise ValueError("steering the facing needs the skeleton's facing chains")
+        turn = finishing_turn(state, config, facing)
+    if config.height_window > 0:
+        rise = finishing_rise(state, root, config)
+    if turn is not None or rise is not None:
+        state = turned_and_raised(state, turn, rise)
+    return state, shift

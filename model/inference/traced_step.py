@@ -23,7 +23,7 @@ from model.inference.foot_lock import FootLock, FootLockState
 from model.inference.output_filter import smooth_frame, smoothing_weight
 from model.inference.output_settings import OutputConfig
 from model.inference.steering import SteeringConfig, steer
-from model.motion.features import CanonicalFrame
+from model.motion.features import CanonicalFrame, FacingChains
 from model.motion.kinematics import global_to_local_rotations
 from model.motion.rotations import sixd_to_quat
 from model.motion.skeleton import Skeleton
@@ -35,19 +35,21 @@ Tensor = torch.Tensor
 
 
 def step_and_steer(sampler: TransitionSampler, state: SamplerState, style: StyleContext, root: int,
-                   steering: SteeringConfig) -> tuple[SamplerState, Tensor | None]:
-    """One frame of the sampler, then root steering where it is on (:mod:`model.inference.steering`):
-    the new state and the ground shift steering gave each row (None when off)."""
+                   steering: SteeringConfig, facing: FacingChains | None = None) -> tuple[SamplerState, Tensor | None]:
+    """One frame of the sampler, then root steering where it is on (:mod:`model.inference.steering`;
+    ``facing``: the skeleton's, for steering the facing): the new state and the ground shift steering
+    gave each row (None when off)."""
     new, _ = sampler.step(state, style)
     if not steering.on:
         return new, None
-    return steer(new, root, steering)
+    return steer(new, root, steering, facing)
 
 
 class _FlatStep(torch.nn.Module):
-    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig) -> None:
+    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig,
+                 facing: FacingChains | None) -> None:
         super().__init__()
-        self.sampler, self.root, self.steering = sampler, root, steering
+        self.sampler, self.root, self.steering, self.facing = sampler, root, steering, facing
 
     def forward(self, h: Tensor, c: Tensor, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, phase: Tensor,
                 target_vec: Tensor, target_pos: Tensor, target_rot: Tensor, target_emb: Tensor, tta: Tensor,
@@ -56,7 +58,7 @@ class _FlatStep(torch.nn.Module):
         state = SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, target_vec, target_pos, target_rot,
                              target_emb, tta, noise)
         style = StyleContext(g1, b1, k1, v1, g2, b2, k2, v2, mask)
-        new, shift = step_and_steer(self.sampler, state, style, self.root, self.steering)
+        new, shift = step_and_steer(self.sampler, state, style, self.root, self.steering, self.facing)
         out = (new.h, new.c, new.pose.rel, new.pose.vel, new.pose.rot, new.pose.root_xz, new.phase, new.tta)
         return out if shift is None else (*out, shift)
 
@@ -93,17 +95,21 @@ class _TracedOnFirstUse:
 class CompiledStep(_TracedOnFirstUse):
     """``step(state, style) -> (state, shift)``: :func:`step_and_steer` through a traced graph, built on
     first use (eager if tracing fails or ``traced`` is False). Steering is inside the graph: eager,
-    its few dozen small operations cost about a quarter of the traced network step at batch 1."""
+    its few dozen small operations cost about a quarter of the traced network step at batch 1.
+    ``facing`` (the skeleton's :class:`FacingChains`) is needed where the steering turns the facing."""
 
-    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig, traced: bool = True) -> None:
+    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig, traced: bool = True,
+                 facing: FacingChains | None = None) -> None:
         super().__init__(traced)
-        self.sampler, self.root, self.steering = sampler, root, steering
+        if steering.turn_window > 0 and facing is None:
+            raise ValueError("steering the facing needs the skeleton's facing chains")
+        self.sampler, self.root, self.steering, self.facing = sampler, root, steering, facing
 
     def __call__(self, state: SamplerState, style: StyleContext) -> tuple[SamplerState, Tensor | None]:
         args = _flat(state, style)
-        graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, self.steering), args)
+        graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, self.steering, self.facing), args)
         if graph is None:
-            return step_and_steer(self.sampler, state, style, self.root, self.steering)
+            return step_and_steer(self.sampler, state, style, self.root, self.steering, self.facing)
         h, c, rel, vel, rot, root_xz, phase, tta, *shift = graph(*args)
         return (SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
                              state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)

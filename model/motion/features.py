@@ -14,7 +14,7 @@ import torch
 
 from model.motion.clip import Clip
 from model.motion.kinematics import global_to_local_rotations
-from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_quat, yaw_quat
+from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_matrix, sixd_to_quat, yaw_quat
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -40,6 +40,45 @@ def facing_yaw(global_positions: Tensor, skeleton: Skeleton) -> Tensor:
     """Facing angle ``[...]`` in radians about +Y; 0 faces +Z, pi/2 faces +X."""
     f = facing_directions(global_positions, skeleton)
     return torch.atan2(f[..., 0], f[..., 2])
+
+
+@dataclass(frozen=True)
+class FacingChains:
+    """What the facing of a pose needs when only its global rotations are known (a generated frame's
+    rotations are what leaves the engine): the four facing joints (left hip, right hip, left
+    shoulder, right shoulder) placed relative to the root by summing each joint's offset turned by
+    its parent's global rotation along the chain from the root.
+
+    Attributes:
+        parents: ``[J]`` each joint's parent (the root its own).
+        offsets: ``[J, 3]`` rest offsets, the root's row zero.
+        chains: ``[4, J]`` 1 where a joint lies on the chain from the root to a facing joint.
+    """
+
+    parents: Tensor
+    offsets: Tensor
+    chains: Tensor
+
+    @classmethod
+    def of(cls, skeleton: Skeleton) -> FacingChains:
+        r = skeleton.roles
+        chains = torch.zeros(4, skeleton.num_joints)
+        for row, joint in enumerate((r.left_hip, r.right_hip, r.left_shoulder, r.right_shoulder)):
+            while joint != r.root and joint >= 0:
+                chains[row, joint] = 1.0
+                joint = skeleton.parents[joint]
+        offsets = skeleton.offsets_tensor().clone()
+        offsets[r.root] = 0.0
+        parents = torch.tensor([p if p >= 0 else r.root for p in skeleton.parents])
+        return cls(parents, offsets, chains)
+
+    def yaw(self, rotations_6d: Tensor) -> Tensor:
+        """Facing angle ``[...]`` (radians, as :func:`facing_yaw`) of global rotations ``[..., J, 6]``."""
+        m = sixd_to_matrix(rotations_6d[..., self.parents, :])  # each joint's parent's rotation
+        bones = (m @ self.offsets.unsqueeze(-1)).squeeze(-1)  # [..., J, 3] offsets turned into place
+        p = torch.einsum("kj,...jc->...kc", self.chains, bones)  # [..., 4, 3] from the root
+        across = (p[..., 1, :] - p[..., 0, :]) + (p[..., 3, :] - p[..., 2, :])
+        return torch.atan2(across[..., 2], -across[..., 0])
 
 
 def _expand(t: Tensor, target_dim: int) -> Tensor:

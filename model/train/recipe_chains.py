@@ -52,6 +52,8 @@ class PackageSettings:
     foot_lock: bool | None = None
     int8_lstm: bool | None = None
     steering: int | None = None
+    steer_facing: int | None = None
+    steer_height: int | None = None
     floor: bool | None = None
 
     def arguments(self) -> list[str]:
@@ -64,8 +66,10 @@ class PackageSettings:
         for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm), ("--floor", self.floor)):
             if value is not None:
                 args += [flag, "on" if value else "off"]
-        if self.steering is not None:
-            args += ["--steering", str(self.steering)]
+        for flag, frames in (("--steering", self.steering), ("--steer-facing", self.steer_facing),
+                             ("--steer-height", self.steer_height)):
+            if frames is not None:
+                args += [flag, str(frames)]
         return args
 
 

@@ -46,6 +46,21 @@ def test_package_keeps_unset_settings_and_refuses_bad_ones(tmp_path, capsys):
     assert "--smoothing must be in [0, 1)" in capsys.readouterr().err and not (tmp_path / "x").exists()
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "trained")]) == 2
     assert "must not be the --model folder" in capsys.readouterr().err
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "x"), "--steer-facing", "-1"]) == 2
+    assert "--steer-facing must be 0 (off) or more frames" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_package_sets_the_facing_and_height_steering(tmp_path, capsys):
+    tiny_bundle(5).save(tmp_path / "trained")
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "a"), "--steering", "40",
+                 "--steer-facing", "10", "--steer-height", "8"]) == 0
+    steering = Bundle.load(tmp_path / "a").output.steering
+    assert (steering.window, steering.turn_window, steering.height_window) == (40, 10, 8)
+    # Unset flags keep the copied bundle's own; 0 switches a part off.
+    assert main(["package", "--model", str(tmp_path / "a"), "--out", str(tmp_path / "b"), "--steer-height", "0"]) == 0
+    steering = Bundle.load(tmp_path / "b").output.steering
+    assert (steering.window, steering.turn_window, steering.height_window) == (40, 10, 0)
+    capsys.readouterr()
 
 
 def test_package_stores_builtin_styles_and_add_styles_changes_only_the_styles(tmp_path, capsys):

@@ -1,4 +1,5 @@
-"""Root steering: the shift's math, the state it writes, its settings, and an engine that arrives."""
+"""Root steering: the shift's math, the facing and height it finishes, the state it writes, its settings, and an
+engine that arrives."""
 
 from __future__ import annotations
 
@@ -12,8 +13,19 @@ from model.inference.arrival import arrival_weight
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
 from model.inference.output_settings import OutputConfig
-from model.inference.steering import SteeringConfig, steer, steering_shift
+from model.inference.steering import (
+    SteeringConfig,
+    finishing_rise,
+    finishing_turn,
+    steer,
+    steering_shift,
+    turned_and_raised,
+)
+from model.inference.traced_step import CompiledStep
 from model.motion.clip import Clip
+from model.motion.features import FacingChains, facing_yaw
+from model.motion.kinematics import forward_kinematics
+from model.motion.rotations import quat_mul, quat_normalize, quat_to_sixd, yaw_quat
 from model.nets.manifold import ManifoldConfig
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerConfig, SamplerState
@@ -88,6 +100,16 @@ def test_settings_are_checked_and_saved_with_the_output_settings():
     assert OutputConfig.from_dict(out.to_dict()) == out
     assert OutputConfig.from_dict({"smoothing": 0.3}).steering.on is False  # bundles saved before steering
     assert out.with_overrides(steering=0).steering.on is False
+    for bad in ({"turn_window": -2}, {"height_window": -1}, {"max_turn_deg": 0.0}, {"max_rise_cm": -1.0}):
+        with pytest.raises(ValueError):
+            SteeringConfig(**bad)
+    # Saved before the facing and height parts existed: they load off.
+    old = SteeringConfig.from_dict({"window": 40, "momentum": 1.0, "max_step_cm": 10.0})
+    assert old.turn_window == 0 and old.height_window == 0
+    full = SteeringConfig(window=40, turn_window=10, height_window=10)
+    assert full.with_window(25) == SteeringConfig(window=25, turn_window=10, height_window=10)
+    assert full.with_window(0).on is False  # 0: the network alone, every part off
+    assert SteeringConfig(turn_window=5).on and SteeringConfig(height_window=5).on
 
 
 def _far_arrival(engine: Engine, walk: Clip, frames: int) -> float:
@@ -117,3 +139,111 @@ def test_the_default_model_steers_by_its_own_settings():
     off = _far_arrival(Engine(bundle, steering=0, threads=1), walk, 40)
     on = _far_arrival(Engine(bundle, threads=1), walk, 40)
     assert on < 0.25 * off
+
+
+def _skeleton_rotations(seed: int, n: int = 6):
+    sk = synthetic_skeleton()
+    g = torch.Generator().manual_seed(seed)
+    local = quat_normalize(torch.randn(n, sk.num_joints, 4, generator=g))
+    pos, glob = forward_kinematics(local, torch.zeros(n, 3), sk.offsets_tensor(), sk.parents)
+    return sk, pos, quat_to_sixd(glob)
+
+
+def _posed_state(seed: int, tta: list[int]) -> tuple[SamplerState, FacingChains]:
+    sk, pos, rot6 = _skeleton_rotations(seed, 2 * len(tta))
+    n = len(tta)
+    g = torch.Generator().manual_seed(seed + 1)
+    here, there = pos[:n], pos[n:]
+    rel = here.clone()
+    rel[..., 0] -= here[:, :1, 0]
+    rel[..., 2] -= here[:, :1, 2]
+    rel[..., 1] += 90.0
+    pose = PoseState(rel, torch.randn(n, sk.num_joints, 3, generator=g), rot6[:n], here[:, 0, ::2])
+    target = there + torch.tensor([0.0, 95.0, 0.0])
+    z = torch.zeros(n, 4)
+    state = SamplerState(z, z, pose, torch.zeros(n, 2, 2), z, target, rot6[n:], z, torch.tensor(tta), z)
+    return state, FacingChains.of(sk)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), r=st.integers(0, 30), window=st.integers(1, 20))
+def test_the_turn_and_rise_are_capped_zero_outside_their_window_and_finish_on_arrival(seed, r, window):
+    state, facing = _posed_state(seed, [r])
+    config = SteeringConfig(turn_window=window, max_turn_deg=180.0, height_window=window, max_rise_cm=1000.0)
+    turn, rise = finishing_turn(state, config, facing), finishing_rise(state, 0, config)
+    assert float(turn.abs().max()) <= torch.pi + 1e-5
+    capped = SteeringConfig(turn_window=window, max_turn_deg=3.0, height_window=window, max_rise_cm=0.5)
+    assert float(finishing_turn(state, capped, facing).abs().max()) <= 3.0 * torch.pi / 180 + 1e-6
+    assert float(finishing_rise(state, 0, capped).abs().max()) <= 0.5 + 1e-6
+    if r >= window:
+        assert torch.all(turn == 0) and torch.all(rise == 0)
+    if r == 0:  # the arrival frame: the whole facing and height miss taken up
+        done = turned_and_raised(state, turn, rise)
+        miss = facing.yaw(done.target_rot) - facing.yaw(done.pose.rot)
+        assert torch.allclose(torch.atan2(torch.sin(miss), torch.cos(miss)), torch.zeros(1), atol=1e-4)
+        assert torch.allclose(done.pose.rel[:, 0, 1], done.target_pos[:, 0, 1], atol=1e-4)
+
+
+def test_turning_keeps_the_body_rigid_about_its_root():
+    state, facing = _posed_state(3, [4, 9])
+    turn, rise = torch.tensor([0.4, -1.1]), torch.tensor([2.0, -1.5])
+    done = turned_and_raised(state, turn, rise)
+    before, after = state.pose.rel, done.pose.rel
+    assert torch.allclose(torch.cdist(before, before), torch.cdist(after, after), atol=1e-3)  # a rigid motion
+    assert torch.allclose(after[:, 0, ::2], before[:, 0, ::2], atol=1e-5)  # about the root's vertical
+    assert torch.allclose(after[..., 1] - before[..., 1], rise.unsqueeze(-1).expand_as(after[..., 1]), atol=1e-4)
+    gained = facing.yaw(done.pose.rot) - facing.yaw(state.pose.rot)
+    assert torch.allclose(torch.atan2(torch.sin(gained), torch.cos(gained)), turn, atol=1e-4)
+    assert torch.equal(done.pose.root_xz, state.pose.root_xz)
+
+
+def test_steer_with_only_the_finishing_parts_gives_no_ground_shift():
+    state, facing = _posed_state(5, [0, 2])
+    moved, shift = steer(state, 0, SteeringConfig(turn_window=5, height_window=5), facing)
+    assert torch.equal(shift, torch.zeros(2, 2)) and torch.equal(moved.pose.root_xz, state.pose.root_xz)
+    assert not torch.equal(moved.pose.rot, state.pose.rot)
+    with pytest.raises(ValueError, match="facing chains"):
+        steer(state, 0, SteeringConfig(turn_window=5))
+
+
+def test_a_step_that_turns_the_facing_needs_the_skeleton():
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=1)
+    with pytest.raises(ValueError, match="facing chains"):
+        CompiledStep(bundle.sampler, 0, SteeringConfig(turn_window=10))
+
+
+def _turned_arrival(engine: Engine, walk: Clip, frames: int) -> tuple[float, float]:
+    """Facing (degrees) and root height (cm) missed on arrival at a target turned 90 degrees and lowered 6 cm."""
+    style, _ = engine.encode_style(walk.window(30, 150))
+    target = walk.window(20, 21)
+    turn = yaw_quat(torch.tensor(torch.pi / 2))  # 90 degrees about +Y
+    rotations = target.rotations.clone()
+    rotations[:, 0] = quat_mul(turn, rotations[:, 0])
+    roots = target.root_positions - torch.tensor([0.0, 6.0, 0.0])
+    turned = Clip(walk.skeleton, rotations, roots, walk.fps)
+    ch = engine.prepare(walk.window(0, 10), turned, frames, style, deterministic=True)
+    rot, root = engine.generate([ch])[0]
+    sk = walk.skeleton
+    pos, _ = forward_kinematics(rot[-1:], root[-1:], sk.offsets_tensor(), sk.parents)
+    want, _ = forward_kinematics(turned.rotations, turned.root_positions, sk.offsets_tensor(), sk.parents)
+    miss = facing_yaw(pos, sk) - facing_yaw(want, sk)
+    angle = float(torch.atan2(torch.sin(miss), torch.cos(miss)).abs()) * 180 / torch.pi
+    return angle, float((root[-1, 1] - turned.root_positions[-1, 1]).abs())
+
+
+def test_a_random_network_arrives_facing_the_target_at_its_height():
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)  # untrained: it drifts to face about +35°
+    walk = synthetic_walk(frames=160)
+    finish = OutputConfig(0.0, False, steering=SteeringConfig(window=30, turn_window=10, max_turn_deg=45.0,
+                                                              height_window=10, max_rise_cm=5.0))
+    bundle.output = finish
+    plain = Engine(bundle, steering=0, threads=1)
+    for compiled in (True, False):
+        angle, height = _turned_arrival(Engine(bundle, threads=1, compiled=compiled), walk, 30)
+        assert angle < 1.0 and height < 0.5, (compiled, angle, height)
+    angle_off, _ = _turned_arrival(plain, walk, 30)
+    assert angle_off > 20.0

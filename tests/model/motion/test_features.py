@@ -7,13 +7,17 @@ from dataclasses import replace
 
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from model.data.synthetic import synthetic_walk
+from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.motion.clip import Clip
 from model.motion.features import (
     CanonicalFrame,
+    FacingChains,
     clip_features,
     facing_directions,
+    facing_yaw,
     features_to_clip,
     features_to_local,
     soft_contacts,
@@ -21,7 +25,7 @@ from model.motion.features import (
     velocities,
 )
 from model.motion.kinematics import forward_kinematics
-from model.motion.rotations import quat_angle, quat_normalize
+from model.motion.rotations import quat_angle, quat_normalize, quat_to_sixd
 
 
 def test_facing_follows_walking_direction():
@@ -115,3 +119,13 @@ def test_clip_validation():
         clip.window(3, 9)
     with pytest.raises(ValueError, match="fps"):
         replace(clip, fps=0.0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_facing_from_rotations_is_the_facing_of_the_posed_joints(seed):
+    sk = synthetic_skeleton()
+    local = quat_normalize(torch.randn(6, sk.num_joints, 4, generator=torch.Generator().manual_seed(seed)))
+    pos, glob = forward_kinematics(local, torch.randn(6, 3), sk.offsets_tensor(), sk.parents)
+    diff = FacingChains.of(sk).yaw(quat_to_sixd(glob)) - facing_yaw(pos, sk)
+    assert torch.allclose(torch.atan2(torch.sin(diff), torch.cos(diff)), torch.zeros_like(diff), atol=1e-4)

@@ -64,15 +64,15 @@ def test_recipe_files_are_checked():
 
 def test_package_settings_are_the_package_command_options():
     settings = PackageSettings(name="shipped", float16=True, smoothing=0.3, foot_lock=True, int8_lstm=False, steering=40,
-                               floor=True)
+                               steer_facing=10, steer_height=0, floor=True)
     options = settings.arguments()
     assert options == ["--float16", "--name", "shipped", "--smoothing", "0.3", "--foot-lock", "on", "--int8-lstm", "off",
-                       "--floor", "on", "--steering", "40"]
+                       "--floor", "on", "--steering", "40", "--steer-facing", "10", "--steer-height", "0"]
     parser = argparse.ArgumentParser()
     package_commands.register(parser.add_subparsers())
     args = parser.parse_args(["package", "--model", "m", "--out", "o", *options])
-    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm, args.steering, args.floor) == (
-        "shipped", True, 0.3, "on", "off", 40, "on")
+    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm, args.steering, args.steer_facing,
+            args.steer_height, args.floor) == ("shipped", True, 0.3, "on", "off", 40, 10, 0, "on")
     assert PackageSettings().arguments() == []
 
 
