@@ -56,7 +56,7 @@ class SteeringConfig:
     momentum: float = 1.0
     max_step_cm: float = 10.0
     turn_window: int = 0
-    max_turn_deg: float = 10.0
+    max_turn_deg: float = 4.0
     height_window: int = 0
     max_rise_cm: float = 2.0
 

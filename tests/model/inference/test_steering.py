@@ -134,7 +134,8 @@ def test_a_random_network_is_steered_onto_a_far_target():
 
 def test_the_default_model_steers_by_its_own_settings():
     bundle = Bundle.load(DEFAULT_BUNDLE)
-    assert bundle.output.steering.window == 40
+    steering = bundle.output.steering
+    assert (steering.window, steering.turn_window, steering.height_window) == (40, 5, 5)
     walk = synthetic_walk(frames=160)
     off = _far_arrival(Engine(bundle, steering=0, threads=1), walk, 40)
     on = _far_arrival(Engine(bundle, threads=1), walk, 40)

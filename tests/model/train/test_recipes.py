@@ -43,7 +43,7 @@ def test_every_recipe_loads_and_names_presets_that_exist():
         ("E1", "sampler", "cross-style-1-critics"), ("E2", "sampler", "cross-style-2-arrival"),
         ("E3", "sampler", "cross-style-3-accuracy"), ("F", "sampler", "control-1-one-frame")]
     assert shipped.package == PackageSettings(name="rsmt-default", float16=True, smoothing=0.3, foot_lock=True,
-                                              int8_lstm=True, steering=40, floor=True)
+                                              int8_lstm=True, steering=40, steer_facing=5, steer_height=5, floor=True)
 
 
 def test_recipe_files_are_checked():
