@@ -128,7 +128,9 @@ def _turned(v: Tensor, cos: Tensor, sin: Tensor) -> Tensor:
 
 def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingChains) -> Tensor:
     """The turn ``[N]`` (radians about +Y) steering gives each row's facing this frame."""
-    miss = facing.yaw(state.target_rot) - facing.yaw(state.pose.rot)
+    yaw = facing.yaw(torch.cat([state.target_rot, state.pose.rot]))  # both in one pass
+    n = state.pose.rot.shape[0]
+    miss = yaw[:n] - yaw[n:]
     miss = torch.atan2(torch.sin(miss), torch.cos(miss))  # the short way round
     return _spread(miss, state.tta, config.turn_window, math.radians(config.max_turn_deg))
 
@@ -145,10 +147,10 @@ def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | N
     ``rise [N]`` (a displacement: the velocities take it)."""
     pose = state.pose
     rel, vel, rot = pose.rel, pose.vel, pose.rot
-    if turn is not None:
+    if turn is not None:  # one turn of every 3-vector of the pose: positions, velocities, both rotation columns
         cos, sin = torch.cos(turn).unsqueeze(-1), torch.sin(turn).unsqueeze(-1)
-        rel, vel = _turned(rel, cos, sin), _turned(vel, cos, sin)
-        rot = torch.cat([_turned(rot[..., :3], cos, sin), _turned(rot[..., 3:], cos, sin)], dim=-1)
+        rel, vel, c1, c2 = _turned(torch.cat([rel, vel, rot[..., :3], rot[..., 3:]], dim=-2), cos, sin).chunk(4, dim=-2)
+        rot = torch.cat([c1, c2], dim=-1)
     if rise is not None:
         up = torch.stack([torch.zeros_like(rise), rise, torch.zeros_like(rise)], dim=-1).unsqueeze(1)
         rel, vel = rel + up, vel + up

@@ -12,6 +12,7 @@ shape-generic in the batch and in the style-code length (verified against eager 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import warnings
 from collections.abc import Callable
@@ -71,25 +72,34 @@ def _flat(state: SamplerState, style: StyleContext) -> tuple[Tensor, ...]:
 
 
 class _TracedOnFirstUse:
-    """A graph traced on the first call, unless ``traced`` is False (eager by choice) or tracing fails
-    (eager from then on: :attr:`trace_failed`)."""
+    """Graphs traced on first use, one per key, unless ``traced`` is False (eager by choice) or a
+    trace fails (eager from then on: :attr:`trace_failed`)."""
 
     def __init__(self, traced: bool) -> None:
         self.traced = traced
         self.trace_failed = False
-        self._graph: torch.jit.ScriptModule | None = None
+        self._graphs: dict[str, torch.jit.ScriptModule] = {}
 
     @property
     def eager(self) -> bool:
         """Whether calls run eagerly: by choice, or because tracing failed."""
         return not self.traced or self.trace_failed
 
-    def _graph_for(self, make: Callable[[], torch.nn.Module], args: tuple[Tensor, ...]) -> torch.jit.ScriptModule | None:
-        """The traced graph (the first time, ``make()`` traced on ``args``), or None when eager."""
-        if self._graph is None and not self.eager:
-            self._graph = _trace(make(), args)
-            self.trace_failed = self._graph is None
-        return self._graph
+    @property
+    def _graph(self) -> torch.jit.ScriptModule | None:
+        """The main graph, once traced."""
+        return self._graphs.get("")
+
+    def _graph_for(self, make: Callable[[], torch.nn.Module], args: tuple[Tensor, ...],
+                   key: str = "") -> torch.jit.ScriptModule | None:
+        """The traced graph ``key`` (the first time, ``make()`` traced on ``args``), or None when eager."""
+        if key not in self._graphs and not self.eager:
+            graph = _trace(make(), args)
+            if graph is None:
+                self.trace_failed = True
+            else:
+                self._graphs[key] = graph
+        return None if self.eager else self._graphs.get(key)
 
 
 class CompiledStep(_TracedOnFirstUse):
@@ -104,12 +114,18 @@ class CompiledStep(_TracedOnFirstUse):
         if steering.turn_window > 0 and facing is None:
             raise ValueError("steering the facing needs the skeleton's facing chains")
         self.sampler, self.root, self.steering, self.facing = sampler, root, steering, facing
+        # Before the facing and height windows open, their parts move nothing: a second graph leaves them out.
+        self._finish_from = max(steering.turn_window, steering.height_window)
+        self._cruise = dataclasses.replace(steering, turn_window=0, height_window=0) if self._finish_from else None
 
     def __call__(self, state: SamplerState, style: StyleContext) -> tuple[SamplerState, Tensor | None]:
+        steering, key = self.steering, ""
+        if self._cruise is not None and int(state.tta.min()) > self._finish_from:
+            steering, key = self._cruise, "cruise"
         args = _flat(state, style)
-        graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, self.steering, self.facing), args)
+        graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, steering, self.facing), args, key)
         if graph is None:
-            return step_and_steer(self.sampler, state, style, self.root, self.steering, self.facing)
+            return step_and_steer(self.sampler, state, style, self.root, steering, self.facing)
         h, c, rel, vel, rot, root_xz, phase, tta, *shift = graph(*args)
         return (SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
                              state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)

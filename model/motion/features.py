@@ -14,7 +14,7 @@ import torch
 
 from model.motion.clip import Clip
 from model.motion.kinematics import global_to_local_rotations
-from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_matrix, sixd_to_quat, yaw_quat
+from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_quat, yaw_quat
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -45,39 +45,42 @@ def facing_yaw(global_positions: Tensor, skeleton: Skeleton) -> Tensor:
 @dataclass(frozen=True)
 class FacingChains:
     """What the facing of a pose needs when only its global rotations are known (a generated frame's
-    rotations are what leaves the engine): the four facing joints (left hip, right hip, left
-    shoulder, right shoulder) placed relative to the root by summing each joint's offset turned by
-    its parent's global rotation along the chain from the root.
+    rotations are what leaves the engine).
+
+    The facing is ``up x across``, with ``across = (right hip - left hip) + (right shoulder - left
+    shoulder)``. Each facing joint sits at the root plus its chain's offsets, each turned by its
+    parent's global rotation, so ``across`` is a sum over joints ``k`` of ``R_k w_k``: ``w_k`` adds the
+    offsets of ``k``'s children on the right chains and takes away those on the left ones. The chain
+    shared by both shoulders cancels; only the few joints with ``w_k != 0`` are kept.
 
     Attributes:
-        parents: ``[J]`` each joint's parent (the root its own).
-        offsets: ``[J, 3]`` rest offsets, the root's row zero.
-        chains: ``[4, J]`` 1 where a joint lies on the chain from the root to a facing joint.
+        joints: ``[K]`` the joints whose rotation moves ``across``.
+        weights: ``[K, 3]`` their ``w_k`` (cm, in the joint's own frame).
     """
 
-    parents: Tensor
-    offsets: Tensor
-    chains: Tensor
+    joints: Tensor
+    weights: Tensor
 
     @classmethod
     def of(cls, skeleton: Skeleton) -> FacingChains:
         r = skeleton.roles
-        chains = torch.zeros(4, skeleton.num_joints)
-        for row, joint in enumerate((r.left_hip, r.right_hip, r.left_shoulder, r.right_shoulder)):
+        offsets = skeleton.offsets_tensor()
+        w = torch.zeros(skeleton.num_joints, 3)
+        for sign, joint in ((-1.0, r.left_hip), (1.0, r.right_hip), (-1.0, r.left_shoulder), (1.0, r.right_shoulder)):
             while joint != r.root and joint >= 0:
-                chains[row, joint] = 1.0
+                w[skeleton.parents[joint]] += sign * offsets[joint]
                 joint = skeleton.parents[joint]
-        offsets = skeleton.offsets_tensor().clone()
-        offsets[r.root] = 0.0
-        parents = torch.tensor([p if p >= 0 else r.root for p in skeleton.parents])
-        return cls(parents, offsets, chains)
+        keep = (w.abs() > 1e-9).any(-1).nonzero().flatten()
+        return cls(keep, w[keep].clone())
 
     def yaw(self, rotations_6d: Tensor) -> Tensor:
-        """Facing angle ``[...]`` (radians, as :func:`facing_yaw`) of global rotations ``[..., J, 6]``."""
-        m = sixd_to_matrix(rotations_6d[..., self.parents, :])  # each joint's parent's rotation
-        bones = (m @ self.offsets.unsqueeze(-1)).squeeze(-1)  # [..., J, 3] offsets turned into place
-        p = torch.einsum("kj,...jc->...kc", self.chains, bones)  # [..., 4, 3] from the root
-        across = (p[..., 1, :] - p[..., 0, :]) + (p[..., 3, :] - p[..., 2, :])
+        """Facing angle ``[...]`` (radians, as :func:`facing_yaw`) of global rotations ``[..., J, 6]``
+        whose two columns are orthonormal (as the sampler keeps them)."""
+        a = rotations_6d[..., self.joints, :]
+        c1, c2 = a[..., :3], a[..., 3:]
+        c3 = torch.linalg.cross(c1, c2)
+        w = self.weights
+        across = (c1 * w[:, :1] + c2 * w[:, 1:2] + c3 * w[:, 2:]).sum(-2)
         return torch.atan2(across[..., 2], -across[..., 0])
 
 

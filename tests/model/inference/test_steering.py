@@ -248,3 +248,24 @@ def test_a_random_network_arrives_facing_the_target_at_its_height():
         assert angle < 1.0 and height < 0.5, (compiled, angle, height)
     angle_off, _ = _turned_arrival(plain, walk, 30)
     assert angle_off > 20.0
+
+
+def test_frames_before_the_finishing_windows_skip_their_parts_and_change_nothing():
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
+    bundle.output = OutputConfig(0.0, False, steering=SteeringConfig(window=20, turn_window=4, height_window=3))
+    walk = synthetic_walk(frames=160)
+    frames = []
+    for shortcut in (True, False):
+        engine = Engine(bundle, threads=1)
+        if not shortcut:  # every frame through the full steering
+            for weights in engine.weight_sets.values():
+                weights.step_fn._cruise = None
+        style, _ = engine.encode_style(walk.window(30, 150))
+        ch = engine.prepare(walk.window(0, 10), walk.window(20, 21), 16, style, deterministic=True)
+        frames.append(engine.generate([ch])[0])
+        keys = set(engine.weights().step_fn._graphs)
+        assert keys == ({"", "cruise"} if shortcut else {""})
+    (rot_a, root_a), (rot_b, root_b) = frames
+    assert torch.allclose(rot_a, rot_b, atol=1e-6) and torch.allclose(root_a, root_b, atol=1e-5)
