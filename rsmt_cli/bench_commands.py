@@ -6,6 +6,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 
@@ -45,11 +46,7 @@ def _run(args: argparse.Namespace) -> int:
     bundle = Bundle.load(path)
     probe = machine_probe()
     engine = Engine(bundle, **output_overrides(args))
-    out = engine.output
-    label = (f"{bundle.meta.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
-             f"foot lock {'on' if out.foot_lock else 'off'}"
-             f"{f', steering {out.steering.window}' if out.steering.on else ''}{', floor contact' if out.floor else ''}"
-             f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")
+    label = engine_label(engine, path)
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     paired = None
     if not args.no_paper:
@@ -67,3 +64,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         args.json.write_text(json.dumps(report, indent=1))
     return 0
+
+
+def engine_label(engine: Any, path: Path) -> str:
+    """The bench table's name for ``engine`` (loaded from ``path``): its model and the settings it runs with."""
+    out = engine.output
+    steer = out.steering
+    finish = ", ".join(f"{part} {frames}" for part, frames in (("facing", steer.turn_window),
+                                                               ("height", steer.height_window)) if frames)
+    steering = f", steering {steer.window}{f' ({finish})' if finish else ''}" if steer.on else ""
+    return (f"{engine.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
+            f"foot lock {'on' if out.foot_lock else 'off'}{steering}{', floor contact' if out.floor else ''}"
+            f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")

@@ -1,0 +1,17 @@
+"""``rsmt bench``: the table names each model with the settings it runs with."""
+
+from __future__ import annotations
+
+from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+from model.inference.engine import Engine
+from rsmt_cli.bench_commands import engine_label
+
+
+def test_the_label_names_every_output_step_the_engine_runs():
+    bundle = Bundle.load(DEFAULT_BUNDLE)
+    label = engine_label(Engine(bundle, threads=1), DEFAULT_BUNDLE)
+    assert label == (f"{bundle.meta.name} (default_bundle; smoothing 0.3/0.3, foot lock on, steering 40 (facing 5, "
+                     "height 5), floor contact, int8 LSTM)")
+    plain = engine_label(Engine(bundle, threads=1, steering=0, smoothing=0.0, foot_lock=False, floor=False,
+                                int8_lstm=False), DEFAULT_BUNDLE)
+    assert plain == f"{bundle.meta.name} (default_bundle; smoothing 0/0, foot lock off)"
