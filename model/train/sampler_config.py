@@ -69,6 +69,9 @@ class SamplerStageConfig:
     # The warped windows' own foot-slide loss (feet that the replay keeps planted), added with this weight on
     # top of the batch's mean: without it a sampler reaches further by gliding (docs/experiments/2026-11-26-time-warp.md).
     w_warp_foot: float = 0.0
+    # Train the manifold's decoder with the sampler (the paper freezes it after its own stage): whether a
+    # decoder fitted to natural speeds is what keeps warped windows sliding (docs/experiments/2026-11-26-time-warp.md).
+    train_decoder: bool = False
     # The fraction of training windows whose target comes without its velocity (the sampler's
     # target_velocity_flag tells it so): a game usually sends the target frame alone.
     target_velocity_drop: float = 0.0

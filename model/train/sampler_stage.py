@@ -316,15 +316,17 @@ class SamplerSteps:
         return {k: sums[k] for k in SHOWN_VALIDATION if k in sums}
 
 
-def trained_parameters(model: TransitionSampler) -> list[tuple[str, torch.nn.Parameter]]:
-    """The parameters the sampler stage trains, in the optimiser's input order: all but the frozen decoder's."""
-    return [(n, p) for n, p in model.named_parameters() if not n.startswith("decoder.")]
+def trained_parameters(model: TransitionSampler, decoder: bool = False) -> list[tuple[str, torch.nn.Parameter]]:
+    """The parameters the sampler stage trains, in the optimiser's input order: all but the frozen decoder's
+    (with ``decoder``, the decoder's too: ``SamplerStageConfig.train_decoder``)."""
+    return [(n, p) for n, p in model.named_parameters() if decoder or not n.startswith("decoder.")]
 
 
 def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSampler, stage: SamplerStageConfig,
                   folder: Path, progress: bool = True, device: torch.device | str = "auto",
                   critics: Sequence[StyleClassifier] = (), compile: bool = False) -> tuple[TransitionSampler, LoopResult]:
-    """Train every sampler module except the decoder, which stays frozen (gradients flow through it).
+    """Train every sampler module except the decoder, which stays frozen (gradients flow through it)
+    unless ``stage.train_decoder``.
 
     ``model`` is moved to ``device`` (in place) and stays there. With ``stage.w_style`` above 0,
     ``critics`` (style classifiers trained on the training split, frozen) add a style loss on the
@@ -341,8 +343,8 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     model.style_mean.copy_(mean)
     model.style_std.copy_(std)
     for p in model.decoder.parameters():
-        p.requires_grad_(False)
-    params = trained_parameters(model)
+        p.requires_grad_(stage.train_decoder)
+    params = trained_parameters(model, stage.train_decoder)
     steps = SamplerSteps(model, train, val, stage, frozen_critics(critics, stage, dev), dev)
     with compiled_steps(model, compile):
         result = train_loop("sampler", folder, model, params, stage.loop, steps.train_step, steps.validate, progress)

@@ -129,3 +129,25 @@ def test_a_sampler_run_trains_on_warped_windows(tmp_path, monkeypatch):
     assert saved["sampler_stage"]["warp_batch"] == 3
     history = json.loads((tmp_path / "run" / "sampler" / "checkpoint.json").read_text())["history"]
     assert history[-1]["train_warp_fk_cm"] > 0 and history[-1]["train_warp_foot"] >= 0
+
+
+def test_the_decoder_trains_with_the_sampler_only_when_asked(tmp_path, monkeypatch):
+    from model.inference.bundle import Bundle
+    from model.nets.manifold import ManifoldDecoder
+    from model.train.pipeline import TrainConfig, load_stage_weights
+
+    monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
+    data = tmp_path / "data"
+    write_synthetic_dataset(data)
+    moved = {}
+    for train_decoder in (False, True):
+        run, out = tmp_path / f"run-{train_decoder}", tmp_path / f"out-{train_decoder}"
+        path = tmp_path / f"cfg-{train_decoder}.json"
+        path.write_text(json.dumps(smoke_config(warp_batch=2, train_decoder=train_decoder)))
+        assert main(["train", "all", "--config", str(path), "--data", str(data), "--out", str(out), "--run", str(run),
+                     "--quiet"]) == 0
+        manifold = ManifoldDecoder(TrainConfig.load(run / "train_config.json").manifold)
+        load_stage_weights(manifold, run / "manifold", "manifold")  # the decoder its own stage trained
+        shipped = Bundle.load(out).sampler.decoder.state_dict()
+        moved[train_decoder] = max(float((shipped[k] - v).abs().max()) for k, v in manifold.state_dict().items())
+    assert moved[False] == 0.0 and moved[True] > 0.0
