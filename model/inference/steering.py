@@ -38,6 +38,7 @@ import torch
 
 from model.inference.arrival import arrival_weight
 from model.motion.features import FacingChains
+from model.motion.rotations import quat_rotate, yaw_quat
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerState
 
@@ -109,21 +110,13 @@ def shifted(state: SamplerState, shift: Tensor) -> SamplerState:
     """``state`` with every row's body moved on the ground by ``shift [N, 2]`` (positions and velocities)."""
     pose = state.pose
     ground = torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], dim=-1)
-    moved = PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift)
-    return SamplerState(state.h, state.c, moved, state.phase, state.target_vec, state.target_pos, state.target_rot,
-                        state.target_emb, state.tta, state.noise)
+    return replace(state, pose=PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift))
 
 
 def _spread(miss: Tensor, tta: Tensor, window: int, cap: float) -> Tensor:
     """What is left of ``miss [N]`` spread over the frames left, smoothstep-weighted, capped at ``cap``."""
     remaining = tta.float().clamp_min(0.0)
     return (arrival_weight(tta, window) * miss / (remaining + 1.0)).clamp(-cap, cap)
-
-
-def _turned(v: Tensor, cos: Tensor, sin: Tensor) -> Tensor:
-    """Vectors ``[N, J, 3]`` turned about +Y by the angle of ``cos``/``sin`` ``[N, 1]`` (as facing yaw counts)."""
-    x, y, z = v.unbind(-1)
-    return torch.stack([x * cos + z * sin, y, z * cos - x * sin], dim=-1)
 
 
 def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingChains) -> Tensor:
@@ -148,15 +141,13 @@ def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | N
     pose = state.pose
     rel, vel, rot = pose.rel, pose.vel, pose.rot
     if turn is not None:  # one turn of every 3-vector of the pose: positions, velocities, both rotation columns
-        cos, sin = torch.cos(turn).unsqueeze(-1), torch.sin(turn).unsqueeze(-1)
-        rel, vel, c1, c2 = _turned(torch.cat([rel, vel, rot[..., :3], rot[..., 3:]], dim=-2), cos, sin).chunk(4, dim=-2)
+        vectors = torch.cat([rel, vel, rot[..., :3], rot[..., 3:]], dim=-2)
+        rel, vel, c1, c2 = quat_rotate(yaw_quat(turn).unsqueeze(-2), vectors).chunk(4, dim=-2)
         rot = torch.cat([c1, c2], dim=-1)
     if rise is not None:
         up = torch.stack([torch.zeros_like(rise), rise, torch.zeros_like(rise)], dim=-1).unsqueeze(1)
         rel, vel = rel + up, vel + up
-    moved = PoseState(rel, vel, rot, pose.root_xz)
-    return SamplerState(state.h, state.c, moved, state.phase, state.target_vec, state.target_pos, state.target_rot,
-                        state.target_emb, state.tta, state.noise)
+    return replace(state, pose=PoseState(rel, vel, rot, pose.root_xz))
 
 
 def steer(state: SamplerState, root: int, config: SteeringConfig,
