@@ -53,7 +53,8 @@ def seed_run(bundle_dir: Path, cfg: TrainConfig, run_dir: Path, step: int) -> bo
     sampler = sampler_from_bundle(bundle, cfg)
     save_stage_weights(bundle.phase_model.float(), run_dir / "phase", cfg.phase.to_dict())
     save_stage_weights(sampler.decoder, run_dir / "manifold", cfg.manifold.to_dict())
-    optimizer = make_optimizer(trained_parameters(sampler, cfg.sampler_stage.train_decoder), cfg.sampler_stage.loop)
+    optimizer = make_optimizer(trained_parameters(sampler, cfg.sampler_stage.train_decoder), cfg.sampler_stage.loop,
+                               cfg.sampler_stage.lr_scales)
     save_checkpoint(run_dir / "sampler", sampler, optimizer, step, [],
                     {"seeded_from": str(bundle_dir), "bundle_version": bundle.version})
     return True

@@ -13,9 +13,10 @@ import logging
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 from safetensors.torch import load_file, save_file
@@ -125,11 +126,23 @@ def step_generator(seed: int, step: int) -> torch.Generator:
     return torch.Generator().manual_seed(distributed.step_seed(seed, step))
 
 
-def make_optimizer(params: list[tuple[str, nn.Parameter]], cfg: LoopConfig) -> torch.optim.Optimizer:
-    """AdamW with decay on matrices only (biases, norms and gains stay undecayed)."""
-    decay = [p for n, p in params if p.dim() >= 2]
-    plain = [p for n, p in params if p.dim() < 2]
-    groups = [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": plain, "weight_decay": 0.0}]
+def make_optimizer(params: list[tuple[str, nn.Parameter]], cfg: LoopConfig,
+                   lr_scales: Mapping[str, float] | None = None) -> torch.optim.Optimizer:
+    """AdamW with decay on matrices only (biases, norms and gains stay undecayed).
+
+    ``lr_scales`` maps a parameter-name prefix to a multiplier of the schedule's rate for those
+    parameters (their own groups, each carrying ``lr_scale``); without it, two groups as always."""
+    scales = {k: float(v) for k, v in (lr_scales or {}).items() if float(v) != 1.0}
+
+    def scale_of(name: str) -> float:
+        return next((v for k, v in scales.items() if name.startswith(k)), 1.0)
+
+    groups: list[dict[str, Any]] = []
+    for scale in [1.0, *sorted(set(scales.values()))]:
+        mine = [(n, p) for n, p in params if scale_of(n) == scale]
+        extra = {} if scale == 1.0 else {"lr_scale": scale}
+        groups += [{"params": [p for _, p in mine if p.dim() >= 2], "weight_decay": cfg.weight_decay} | extra,
+                   {"params": [p for _, p in mine if p.dim() < 2], "weight_decay": 0.0} | extra]
     return torch.optim.AdamW(groups, lr=cfg.lr, betas=(0.9, 0.99))
 
 
@@ -206,10 +219,12 @@ def train_loop(
     train_step: Callable[[int], dict[str, float]],
     validate: Callable[[], dict[str, float]],
     progress: bool = True,
+    lr_scales: Mapping[str, float] | None = None,
 ) -> LoopResult:
     """Run (or resume) a stage. ``train_step(step)`` returns its losses after ``loss.backward()``.
 
-    The loop owns zeroing, clipping, the learning-rate schedule and the optimiser step.
+    The loop owns zeroing, clipping, the learning-rate schedule and the optimiser step; ``lr_scales``
+    (name prefix -> multiplier) gives some parameters a fraction of the schedule's rate.
 
     Under ``torchrun`` (:mod:`model.train.distributed`) every rank runs this loop on its own batches
     and the gradients are averaged over the ranks before clipping; rank 0 alone validates, writes
@@ -218,7 +233,7 @@ def train_loop(
     torch.manual_seed(cfg.seed)
     first = next(iter(p for _, p in params), None)
     log.info("%s: training on %s", name, first.device if first is not None else "cpu")
-    optimizer = make_optimizer(params, cfg)
+    optimizer = make_optimizer(params, cfg, lr_scales)
     start = 0
     history: list[dict] = []
     restored = load_checkpoint(folder, model, optimizer)
@@ -238,7 +253,7 @@ def train_loop(
             model.train()
             lr = learning_rate(step, cfg)
             for g in optimizer.param_groups:
-                g["lr"] = lr
+                g["lr"] = lr * g.get("lr_scale", 1.0)
             optimizer.zero_grad(set_to_none=True)
             distributed.reseed_global(cfg.seed, step)  # several processes: each rank its own noise
             losses = train_step(step)

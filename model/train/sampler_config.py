@@ -72,6 +72,9 @@ class SamplerStageConfig:
     # Train the manifold's decoder with the sampler (the paper freezes it after its own stage): whether a
     # decoder fitted to natural speeds is what keeps warped windows sliding (docs/experiments/2026-11-26-time-warp.md).
     train_decoder: bool = False
+    # The decoder's learning rate as a fraction of the stage's (with train_decoder): trained at the full rate from
+    # stage F it cost pose accuracy and style (G6); a gentler rate keeps it near the manifold it was fitted as.
+    decoder_lr_scale: float = 1.0
     # The fraction of training windows whose target comes without its velocity (the sampler's
     # target_velocity_flag tells it so): a game usually sends the target frame alone.
     target_velocity_drop: float = 0.0
@@ -105,6 +108,13 @@ class SamplerStageConfig:
             raise ValueError(f"steering_window must be 0 (off) or more frames, got {self.steering_window}")
         if not 0.0 <= self.target_velocity_drop <= 1.0:
             raise ValueError(f"target_velocity_drop must be in [0, 1], got {self.target_velocity_drop}")
+        if not 0.0 < self.decoder_lr_scale <= 1.0:
+            raise ValueError(f"decoder_lr_scale must be in (0, 1], got {self.decoder_lr_scale}")
+
+    @property
+    def lr_scales(self) -> dict[str, float]:
+        """The optimiser's rate multipliers by parameter-name prefix (the decoder's, when it trains)."""
+        return {"decoder.": self.decoder_lr_scale} if self.train_decoder else {}
 
 
 def cross_style_weights(weights: dict[str, float], stage: SamplerStageConfig) -> dict[str, float]:

@@ -347,6 +347,7 @@ def train_sampler(train: MotionTensors, val: MotionTensors, model: TransitionSam
     params = trained_parameters(model, stage.train_decoder)
     steps = SamplerSteps(model, train, val, stage, frozen_critics(critics, stage, dev), dev)
     with compiled_steps(model, compile):
-        result = train_loop("sampler", folder, model, params, stage.loop, steps.train_step, steps.validate, progress)
+        result = train_loop("sampler", folder, model, params, stage.loop, steps.train_step, steps.validate, progress,
+                            stage.lr_scales)
     model.eval()
     return model, result

@@ -177,3 +177,14 @@ def test_continuations_change_only_the_sampler_stage_and_extend_its_schedule(cha
         # The schedule up to the earlier preset's end is unchanged; the new part starts with a restart there.
         assert _restarts(la)[: len(_restarts(lb))] == _restarts(lb)
         assert lb.iterations in [step for step, _ in _restarts(la)]
+
+
+def test_the_decoder_rate_applies_only_when_the_decoder_trains():
+    from model.train.sampler_config import SamplerStageConfig
+
+    gentle = load_preset("control-7-warped-decoder-gentle").sampler_stage
+    assert gentle.train_decoder and gentle.lr_scales == {"decoder.": 0.25}
+    assert SamplerStageConfig(decoder_lr_scale=0.25).lr_scales == {}  # a frozen decoder has no rate
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match="decoder_lr_scale"):
+            SamplerStageConfig(train_decoder=True, decoder_lr_scale=bad)

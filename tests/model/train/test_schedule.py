@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
+import torch
 
 from model.train.loop import LoopConfig, learning_rate
 
@@ -44,3 +45,31 @@ def test_several_warm_restarts_extend_the_previous_schedule():
 def test_restart_lists_must_pair_up():
     with pytest.raises(ValueError, match="restart_lr"):
         learning_rate(900, LoopConfig(iterations=1500, restart_at=(800, 1200), restart_lr=3e-4))
+
+
+def test_a_rate_multiplier_slows_only_the_named_parameters(tmp_path):
+    """``lr_scales`` gives the named parameters their own groups at a fraction of the schedule's rate;
+    without it the optimiser keeps its two groups (checkpoints written before it resume)."""
+    from torch import nn
+
+    from model.train.loop import make_optimizer, train_loop
+
+    model = nn.Sequential(nn.Linear(3, 3), nn.Linear(3, 3))
+    params = list(model.named_parameters())
+    assert len(make_optimizer(params, LoopConfig()).param_groups) == 2
+    assert len(make_optimizer(params, LoopConfig(), {"1.": 1.0}).param_groups) == 2
+    groups = make_optimizer(params, LoopConfig(), {"1.": 0.25}).param_groups
+    assert [g.get("lr_scale", 1.0) for g in groups] == [1.0, 1.0, 0.25, 0.25]
+    assert sum(len(g["params"]) for g in groups) == 4 and {id(p) for p in groups[2]["params"]} == {id(model[1].weight)}
+
+    before = {n: p.detach().clone() for n, p in params}
+
+    def step(_: int) -> dict[str, float]:
+        for p in model.parameters():
+            p.grad = torch.ones_like(p)  # the same gradient everywhere: AdamW's first step moves each by its rate
+        return {}
+
+    cfg = LoopConfig(iterations=1, epoch_iterations=1, lr=1e-2, lr_final=1e-2, warmup=0, weight_decay=0.0)
+    train_loop("toy", tmp_path / "run", model, params, cfg, step, lambda: {}, progress=False, lr_scales={"1.": 0.25})
+    moved = {n: float((p.detach() - before[n]).abs().max()) for n, p in model.named_parameters()}
+    assert moved["0.weight"] == pytest.approx(1e-2, rel=1e-3) and moved["1.weight"] == pytest.approx(2.5e-3, rel=1e-3)
