@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     import torch
 
     from model.train.pipeline import TrainConfig
-    from model.train.recipe_chains import StageReport
+    from model.train.recipe_chains import Recipe, StageReport
 
 log = logging.getLogger(__name__)
 
@@ -201,7 +201,7 @@ def _run_recipe(args: argparse.Namespace) -> int:
     command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
     held = tuple(sorted(set(args.holdout_style)))
     last = run_recipe(recipe, Path(data), run_dir, threads=args.threads, compile=args.compile, device=device,
-                      progress=not args.quiet, command=command, report=_print_stage(len(recipe.stages)),
+                      progress=not args.quiet, command=command, report=_print_stage(recipe),
                       holdout_styles=held)
     if last is None:
         print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
@@ -216,9 +216,11 @@ def _run_recipe(args: argparse.Namespace) -> int:
     return status
 
 
-def _print_stage(count: int) -> Callable[[StageReport], None]:
+def _print_stage(recipe: Recipe) -> Callable[[StageReport], None]:
+    count, changed = len(recipe.stages), " with the recipe's changes" if recipe.changes else ""
+
     def report(r: StageReport) -> None:
-        what = f"stage {r.index + 1}/{count} {r.stage.label} (rsmt train {r.stage.command} --preset {r.stage.preset})"
+        what = f"stage {r.index + 1}/{count} {r.stage.label} (rsmt train {r.stage.command} --preset {r.stage.preset}{changed})"
         done = "done before, skipped" if r.seconds is None else _duration(r.seconds)
         print(f"{what}: {done}; bundle {r.folder}", flush=True)
 

@@ -2,7 +2,9 @@
 
 A recipe ``recipes/chains/NAME.json`` lists its stages in order, each an ``rsmt train all`` or
 ``rsmt train sampler`` with a preset (each later preset continues the sampler of the one before
-from its checkpoint), and the settings of the ``rsmt package`` step that ends it. Each stage
+from its checkpoint), and the settings of the ``rsmt package`` step that ends it. Its ``changes``
+(settings, as in a preset) apply on top of every stage's preset; a recipe that ``extends`` another
+takes that one's stages, package settings and changes, and adds its own. Each stage
 writes its bundle to ``RUN/stages/LABEL``. A stage whose bundle is already there is skipped, so a
 stopped recipe, run again, goes on where it stopped (a stage cut short resumes from its checkpoint
 in the run folder).
@@ -13,14 +15,14 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from model.train.pipeline import STAGES, TrainConfig, run
-from model.train.presets import RECIPE_DIR, load_preset, training_differences
+from model.train.presets import BASE, RECIPE_DIR, deep_merge, load_preset, preset_dict, training_differences
 
 CHAIN_DIR = RECIPE_DIR / "chains"
 # The train commands a stage may run, and the pipeline stages each trains.
@@ -81,10 +83,11 @@ class Recipe:
     about: str
     stages: tuple[ChainStage, ...]
     package: PackageSettings
+    changes: dict[str, Any] = field(default_factory=dict)  # on top of every stage's preset
 
     @classmethod
     def from_dict(cls, name: str, data: dict[str, Any]) -> Recipe:
-        _check_keys("recipe", data, {"about", "stages", "package"})
+        _check_keys("recipe", data, {"about", "stages", "package", "changes"})
         stages = []
         for entry in data.get("stages", []):
             _check_keys("stage", entry, {f.name for f in fields(ChainStage)})
@@ -98,10 +101,21 @@ class Recipe:
             raise ValueError(f"recipe {name!r}: stage labels must differ, got {labels}")
         package = data.get("package", {})
         _check_keys("package", package, {f.name for f in fields(PackageSettings)})
-        return cls(name, str(data.get("about", "")), tuple(stages), PackageSettings(**package))
+        changes = data.get("changes", {})
+        if not isinstance(changes, dict):
+            raise ValueError(f"recipe {name!r}: changes are a JSON object of settings, got {changes!r}")
+        deep_merge(json.loads((RECIPE_DIR / f"{BASE}.json").read_text()), changes, "changes")  # names real settings
+        return cls(name, str(data.get("about", "")), tuple(stages), PackageSettings(**package), changes)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"about": self.about, "stages": [asdict(s) for s in self.stages], "package": asdict(self.package)}
+        out = {"about": self.about, "stages": [asdict(s) for s in self.stages], "package": asdict(self.package)}
+        return out | ({"changes": self.changes} if self.changes else {})
+
+    def stage_config(self, stage: ChainStage) -> TrainConfig:
+        """The training config of ``stage``: its preset with the recipe's changes."""
+        if not self.changes:
+            return load_preset(stage.preset)
+        return TrainConfig.from_dict(deep_merge(preset_dict(stage.preset), self.changes))
 
 
 def _check_keys(what: str, data: Any, known: set[str]) -> None:
@@ -117,15 +131,40 @@ def recipe_names(folder: Path = CHAIN_DIR) -> list[str]:
     return sorted(p.stem for p in folder.glob("*.json"))
 
 
-def load_recipe(name: str, folder: Path = CHAIN_DIR) -> Recipe:
-    """The recipe ``folder/NAME.json``, checked."""
+def _overlay(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``changes`` on top, nested objects merged key by key (new keys allowed)."""
+    out = dict(base)
+    for key, value in changes.items():
+        out[key] = _overlay(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def _recipe_dict(name: str, folder: Path, seen: tuple[str, ...] = ()) -> dict[str, Any]:
     path = folder / f"{name}.json"
     if not path.is_file():
         raise FileNotFoundError(f"no training recipe {name!r} in {folder}; recipes: {', '.join(recipe_names(folder))}")
+    if name in seen:
+        raise ValueError(f"recipes extend each other in a circle: {' -> '.join((*seen, name))}")
     try:
-        return Recipe.from_dict(name, json.loads(path.read_text()))
-    except (json.JSONDecodeError, TypeError, ValueError) as exc:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: {exc}") from exc
+    if not isinstance(data, dict) or "extends" not in data:
+        return data
+    own = {k: v for k, v in data.items() if k != "extends"}
+    parent = _recipe_dict(str(data["extends"]), folder, (*seen, name))
+    return {**parent, **{k: v for k, v in own.items() if k not in ("package", "changes")},
+            "package": {**parent.get("package", {}), **own.get("package", {})},
+            "changes": _overlay(parent.get("changes", {}), own.get("changes", {}))}
+
+
+def load_recipe(name: str, folder: Path = CHAIN_DIR) -> Recipe:
+    """The recipe ``folder/NAME.json`` (with the recipe it extends, if any), checked."""
+    data = _recipe_dict(name, folder)
+    try:
+        return Recipe.from_dict(name, data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{folder / f'{name}.json'}: {exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -153,7 +192,7 @@ def stage_done(run_dir: Path, stage: ChainStage, cfg: TrainConfig) -> bool:
         return False
     differences = training_differences(TrainConfig.load(saved), cfg)
     if differences:
-        raise ValueError(f"{saved.parent} holds a bundle trained with other settings than preset {stage.preset!r} "
+        raise ValueError(f"{saved.parent} holds a bundle trained with other settings than stage {stage.label}'s "
                          f"({', '.join(differences[:4])}{', ...' if len(differences) > 4 else ''}): remove that "
                          "folder or use another run folder")
     return True
@@ -171,7 +210,7 @@ def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, 
     Every stage's preset is resolved and checked against the run folder before anything trains.
     Returns the last stage's bundle folder, or None when a stage stopped before its end.
     """
-    configs = [load_preset(stage.preset) for stage in recipe.stages]
+    configs = [recipe.stage_config(stage) for stage in recipe.stages]
     if holdout_styles:
         held = tuple(sorted(set(holdout_styles)))
         for cfg in configs:
@@ -193,7 +232,8 @@ def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, 
         if threads:
             cfg.threads = threads
         began = time.monotonic()
-        what = f"stage {stage.label}: rsmt train {stage.command} --preset {stage.preset}"
+        what = f"stage {stage.label}: rsmt train {stage.command} --preset {stage.preset}" + (
+            f" with recipe {recipe.name}'s changes" if recipe.changes else "")
         bundle = run(cfg, data_dir, run_dir, STAGE_COMMANDS[stage.command], folder, progress=progress,
                      command=f"{command or f'rsmt train recipe {recipe.name}'} ({what})", device=device, compile=compile)
         if bundle is None:

@@ -154,7 +154,7 @@ def test_a_run_folder_with_a_gap_or_other_settings_is_refused_before_training(tm
     with pytest.raises(ValueError, match="stage A has no bundle .* but later stages do \\(B\\)"):
         run_recipe(recipe, tmp_path / "no-data", tmp_path / "gap")
     _finished(tmp_path / "other", "A", "smoke-critics")
-    with pytest.raises(ValueError, match="trained with other settings than preset 'smoke' \\(sampler_stage"):
+    with pytest.raises(ValueError, match="trained with other settings than stage A's \\(sampler_stage"):
         run_recipe(recipe, tmp_path / "no-data", tmp_path / "other")
     assert not (tmp_path / "gap" / "recipe.json").exists()
     stage = ChainStage("A", "all", "smoke")
@@ -177,3 +177,43 @@ def test_held_out_styles_reach_every_stage_and_the_bundle_name(tmp_path, monkeyp
     # The same run folder without the holdout trains other settings: refused, not overwritten.
     with pytest.raises(ValueError, match="holdout_styles"):
         run_recipe(load_recipe("smoke"), data, run_dir)
+
+
+def test_a_recipe_may_extend_another_and_change_every_stage(tmp_path):
+    base = {"about": "parent", "stages": [{"label": "A", "command": "all", "preset": "smoke"},
+                                          {"label": "B", "command": "sampler", "preset": "smoke-critics"}],
+            "package": {"name": "p", "float16": True}, "changes": {"sampler_stage": {"warp_batch": 2}}}
+    (tmp_path / "parent.json").write_text(json.dumps(base))
+    child = {"extends": "parent", "about": "child", "package": {"name": "c"},
+             "changes": {"sampler_stage": {"w_warp_foot": 0.5}}}
+    (tmp_path / "child.json").write_text(json.dumps(child))
+    recipe = load_recipe("child", tmp_path)
+    assert recipe.about == "child" and [s.preset for s in recipe.stages] == ["smoke", "smoke-critics"]
+    assert recipe.package == PackageSettings(name="c", float16=True)
+    assert recipe.changes == {"sampler_stage": {"warp_batch": 2, "w_warp_foot": 0.5}}
+    for stage in recipe.stages:
+        cfg, plain = recipe.stage_config(stage), load_preset(stage.preset)
+        assert (cfg.sampler_stage.warp_batch, cfg.sampler_stage.w_warp_foot) == (2, 0.5)
+        assert cfg.to_dict()["sampler_stage"] | {"warp_batch": 0, "w_warp_foot": 0.0} == \
+               plain.to_dict()["sampler_stage"] | {"warp_batch": 0, "w_warp_foot": 0.0}
+    # A run folder holding the plain preset's stage is not this recipe's: refused before anything trains.
+    _finished(tmp_path / "plain", "A", "smoke")
+    with pytest.raises(ValueError, match="other settings than stage A's .*warp_batch"):
+        run_recipe(recipe, tmp_path / "no-data", tmp_path / "plain")
+    for name, bad, message in (
+        ("typo", {**child, "changes": {"sampler_stage": {"warp_batches": 8}}},
+         "unknown setting 'changes.sampler_stage.warp_batches'"),
+        ("loop", {**child, "extends": "loop"}, "in a circle: loop -> loop"),
+        ("orphan", {**child, "extends": "missing"}, "no training recipe 'missing'"),
+    ):
+        (tmp_path / f"{name}.json").write_text(json.dumps(bad))
+        with pytest.raises((ValueError, FileNotFoundError), match=message):
+            load_recipe(name, tmp_path)
+
+
+def test_the_warped_recipe_is_the_shipped_one_with_warped_windows_in_every_stage():
+    shipped, warped = load_recipe("default-model"), load_recipe("default-model-warped")
+    assert warped.stages == shipped.stages and warped.package == shipped.package and not shipped.changes
+    for stage in warped.stages:
+        cfg = warped.stage_config(stage).sampler_stage
+        assert (cfg.warp_batch, cfg.w_warp_foot, cfg.train_decoder) == (8, 0.5, False)
