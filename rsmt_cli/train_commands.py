@@ -217,10 +217,8 @@ def _run_recipe(args: argparse.Namespace) -> int:
 
 
 def _print_stage(recipe: Recipe) -> Callable[[StageReport], None]:
-    count, changed = len(recipe.stages), " with the recipe's changes" if recipe.changes else ""
-
     def report(r: StageReport) -> None:
-        what = f"stage {r.index + 1}/{count} {r.stage.label} (rsmt train {r.stage.command} --preset {r.stage.preset}{changed})"
+        what = f"stage {r.index + 1}/{len(recipe.stages)} {r.stage.label} ({recipe.stage_command(r.stage)})"
         done = "done before, skipped" if r.seconds is None else _duration(r.seconds)
         print(f"{what}: {done}; bundle {r.folder}", flush=True)
 

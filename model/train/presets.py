@@ -24,21 +24,25 @@ BASE = "base"
 EXTENDS = "extends"  # the preset a preset changes (default: the base)
 
 
-def deep_merge(base: dict[str, Any], changes: dict[str, Any], where: str = "") -> dict[str, Any]:
+def deep_merge(base: dict[str, Any], changes: dict[str, Any], where: str = "", new_keys: bool = False) -> dict[str, Any]:
     """A copy of ``base`` with ``changes`` applied: nested objects are merged key by key, other values replaced.
 
     Raises ValueError naming the key (dotted, after ``where``) when ``changes`` has a key ``base``
-    lacks, or gives an object where ``base`` has a plain value or the other way round.
+    lacks (unless ``new_keys``: two sets of changes merged), or gives an object where ``base`` has a
+    plain value or the other way round.
     """
     merged = copy.deepcopy(base)
     for key, value in changes.items():
         path = f"{where}.{key}" if where else key
         if key not in base:
-            raise ValueError(f"unknown setting {path!r}: the base config has no such key")
+            if not new_keys:
+                raise ValueError(f"unknown setting {path!r}: the base config has no such key")
+            merged[key] = copy.deepcopy(value)
+            continue
         if isinstance(base[key], dict) != isinstance(value, dict):
             kind = "an object of settings" if isinstance(base[key], dict) else "a single value"
             raise ValueError(f"setting {path!r} must be {kind}, as in the base config")
-        merged[key] = deep_merge(base[key], value, path) if isinstance(value, dict) else copy.deepcopy(value)
+        merged[key] = deep_merge(base[key], value, path, new_keys) if isinstance(value, dict) else copy.deepcopy(value)
     return merged
 
 
@@ -71,17 +75,22 @@ def preset_dict(name: str, folder: Path = RECIPE_DIR, _seen: tuple[str, ...] = (
         raise ValueError(f"presets extend each other in a circle: {' -> '.join((*_seen, name))}")
     changes = preset_changes(name, folder)
     parent = changes.pop(EXTENDS, None)
-    start = _read(folder / f"{BASE}.json") if parent is None else preset_dict(parent, folder, (*_seen, name))
+    start = base_dict(folder) if parent is None else preset_dict(parent, folder, (*_seen, name))
     try:
         return deep_merge(start, changes)
     except ValueError as exc:
         raise ValueError(f"{folder / f'{name}.json'}: {exc}") from exc
 
 
-def load_preset(name: str, folder: Path = RECIPE_DIR) -> TrainConfig:
-    """The typed training config of a preset."""
+def base_dict(folder: Path = RECIPE_DIR) -> dict[str, Any]:
+    """The base config every preset changes, as a JSON object."""
+    return _read(folder / f"{BASE}.json")
+
+
+def load_preset(name: str, folder: Path = RECIPE_DIR, changes: dict[str, Any] | None = None) -> TrainConfig:
+    """The typed training config of a preset, with ``changes`` (settings, as in a preset) on top."""
     try:
-        return TrainConfig.from_dict(preset_dict(name, folder))
+        return TrainConfig.from_dict(deep_merge(preset_dict(name, folder), changes or {}))
     except TypeError as exc:
         raise ValueError(f"preset {name!r}: not a valid training config: {exc}") from exc
 

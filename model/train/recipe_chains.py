@@ -22,7 +22,7 @@ from typing import Any
 import torch
 
 from model.train.pipeline import STAGES, TrainConfig, run
-from model.train.presets import BASE, RECIPE_DIR, deep_merge, load_preset, preset_dict, training_differences
+from model.train.presets import RECIPE_DIR, base_dict, deep_merge, load_preset, training_differences
 
 CHAIN_DIR = RECIPE_DIR / "chains"
 # The train commands a stage may run, and the pipeline stages each trains.
@@ -104,7 +104,7 @@ class Recipe:
         changes = data.get("changes", {})
         if not isinstance(changes, dict):
             raise ValueError(f"recipe {name!r}: changes are a JSON object of settings, got {changes!r}")
-        deep_merge(json.loads((RECIPE_DIR / f"{BASE}.json").read_text()), changes, "changes")  # names real settings
+        deep_merge(base_dict(), changes, "changes")  # names real settings
         return cls(name, str(data.get("about", "")), tuple(stages), PackageSettings(**package), changes)
 
     def to_dict(self) -> dict[str, Any]:
@@ -113,9 +113,12 @@ class Recipe:
 
     def stage_config(self, stage: ChainStage) -> TrainConfig:
         """The training config of ``stage``: its preset with the recipe's changes."""
-        if not self.changes:
-            return load_preset(stage.preset)
-        return TrainConfig.from_dict(deep_merge(preset_dict(stage.preset), self.changes))
+        return load_preset(stage.preset, changes=self.changes)
+
+    def stage_command(self, stage: ChainStage) -> str:
+        """What ``stage`` runs, as the command that would run it by hand (and whether the recipe changes it)."""
+        changed = " with the recipe's changes" if self.changes else ""
+        return f"rsmt train {stage.command} --preset {stage.preset}{changed}"
 
 
 def _check_keys(what: str, data: Any, known: set[str]) -> None:
@@ -129,14 +132,6 @@ def _check_keys(what: str, data: Any, known: set[str]) -> None:
 def recipe_names(folder: Path = CHAIN_DIR) -> list[str]:
     """The recipes in ``folder``, by name."""
     return sorted(p.stem for p in folder.glob("*.json"))
-
-
-def _overlay(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
-    """``base`` with ``changes`` on top, nested objects merged key by key (new keys allowed)."""
-    out = dict(base)
-    for key, value in changes.items():
-        out[key] = _overlay(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
-    return out
 
 
 def _recipe_dict(name: str, folder: Path, seen: tuple[str, ...] = ()) -> dict[str, Any]:
@@ -155,7 +150,7 @@ def _recipe_dict(name: str, folder: Path, seen: tuple[str, ...] = ()) -> dict[st
     parent = _recipe_dict(str(data["extends"]), folder, (*seen, name))
     return {**parent, **{k: v for k, v in own.items() if k not in ("package", "changes")},
             "package": {**parent.get("package", {}), **own.get("package", {})},
-            "changes": _overlay(parent.get("changes", {}), own.get("changes", {}))}
+            "changes": deep_merge(parent.get("changes", {}), own.get("changes", {}), new_keys=True)}
 
 
 def load_recipe(name: str, folder: Path = CHAIN_DIR) -> Recipe:
@@ -232,8 +227,7 @@ def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, 
         if threads:
             cfg.threads = threads
         began = time.monotonic()
-        what = f"stage {stage.label}: rsmt train {stage.command} --preset {stage.preset}" + (
-            f" with recipe {recipe.name}'s changes" if recipe.changes else "")
+        what = f"stage {stage.label}: {recipe.stage_command(stage)}"
         bundle = run(cfg, data_dir, run_dir, STAGE_COMMANDS[stage.command], folder, progress=progress,
                      command=f"{command or f'rsmt train recipe {recipe.name}'} ({what})", device=device, compile=compile)
         if bundle is None:
