@@ -51,6 +51,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--steer-height", type=int, default=None, metavar="FRAMES",
                    help="bring the root to the target's height over the last FRAMES frames (0: off; default: the "
                         "bundle's own setting)")
+    p.add_argument("--retarget-facing", type=int, default=None, metavar="FRAMES",
+                   help="for a character retargeted mid-stream, turn the body toward the new target's facing over "
+                        "the last FRAMES frames instead (0: as the others; default: the bundle's own setting)")
+    p.add_argument("--retarget-turn-cap", type=float, default=None, metavar="DEG",
+                   help="the most a retargeted character's facing turns in one frame, degrees (default: the "
+                        "bundle's own setting)")
     p.set_defaults(func=_run)
 
     b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles in place (weights untouched)")
@@ -117,18 +123,22 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _check_finishing(args: argparse.Namespace) -> None:
-    for flag, frames in (("--steer-facing", args.steer_facing), ("--steer-height", args.steer_height)):
+    for flag, frames in (("--steer-facing", args.steer_facing), ("--steer-height", args.steer_height),
+                         ("--retarget-facing", args.retarget_facing)):
         if frames is not None and frames < 0:
             raise ValueError(f"{flag} must be 0 (off) or more frames")
+    if args.retarget_turn_cap is not None and not args.retarget_turn_cap > 0:
+        raise ValueError("--retarget-turn-cap must be a positive number of degrees")
 
 
 def _finishing_steering(args: argparse.Namespace, steering: SteeringConfig) -> SteeringConfig:
-    """``steering`` with the facing and height windows of ``--steer-facing`` / ``--steer-height`` (unset: kept)."""
-    if args.steer_facing is not None:
-        steering = dataclasses.replace(steering, turn_window=args.steer_facing)
-    if args.steer_height is not None:
-        steering = dataclasses.replace(steering, height_window=args.steer_height)
-    return steering
+    """``steering`` with the windows of ``--steer-facing`` / ``--steer-height`` / ``--retarget-facing`` and the
+    cap of ``--retarget-turn-cap`` (unset: kept)."""
+    changes = {name: value for name, value in (
+        ("turn_window", args.steer_facing), ("height_window", args.steer_height),
+        ("retarget_turn_window", args.retarget_facing), ("retarget_max_turn_deg", args.retarget_turn_cap))
+        if value is not None}
+    return dataclasses.replace(steering, **changes)
 
 
 def _read_styles(folder: Path, bundle: Any) -> list[Any]:

@@ -37,8 +37,9 @@ class ArrivalState:
     progress: Tensor | None = None  # [2] share of each foot's correction applied so far
 
 
-def arrival_weight(remaining: Tensor, window: int) -> Tensor:
-    """Blend weight for frames with ``remaining`` frames after them: 0 before the window, 1 on arrival."""
+def arrival_weight(remaining: Tensor, window: int | Tensor) -> Tensor:
+    """Blend weight for frames with ``remaining`` frames after them: 0 before the window, 1 on arrival
+    (``window``: frames, positive; one for all, or one a row)."""
     u = ((window - remaining.float()) / window).clamp(0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
 

@@ -49,6 +49,7 @@ class Character:
     seq: int = 0  # frames emitted so far
     cancelled: bool = False
     slot: int = 0
+    retargeted: bool = False  # given a new target mid-stream (its facing is finished by the retarget window)
     _row: SamplerState | None = field(default=None, repr=False)
     _frame: CanonicalFrame | None = field(default=None, repr=False)
     # Exact arrival (see model.inference.arrival): its per-character state and the target pose in world space.

@@ -278,6 +278,10 @@ class Engine:
                 vec = sampler.target_input(tstate, torch.tensor([known]))
                 emb = sampler.target_encoder(vec)
             updates = {"target_vec": vec, "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
+            if batch is not None:
+                batch.mark_retargeted(ch)
+            else:
+                ch.retargeted = True
         else:
             updates = {}
         if frames is not None:

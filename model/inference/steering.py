@@ -25,6 +25,11 @@ no prediction (what is left of the miss spread over the frames left, smoothstep-
 * its **height** (``height_window``): the whole body moves up or down toward the target root's
   height, at most ``max_rise_cm`` a frame.
 
+A character given a new target mid-stream had less time to face it: from that retarget on, its
+facing is finished over ``retarget_turn_window`` frames at most ``retarget_max_turn_deg`` a frame
+(0: as any other character). Only rows flagged ``late`` take these settings, so a request without
+a retarget is unchanged (docs/experiments/2026-11-27-retarget-facing.md).
+
 A body moved under planted feet would slide them; the engine's foot lock holds them. Each frame's
 shift is capped (``max_step_cm``) so a correction never reads as a teleport.
 """
@@ -51,7 +56,9 @@ class SteeringConfig:
     ``momentum``: the share of its current velocity the character is predicted to keep to the end;
     ``max_step_cm``: the largest ground shift of one frame. ``turn_window`` / ``max_turn_deg``: the
     same for the facing (0: off; degrees a frame); ``height_window`` / ``max_rise_cm``: for the root's
-    height (0: off; cm a frame). Settings saved before the facing and height existed load with them off."""
+    height (0: off; cm a frame); ``retarget_turn_window`` / ``retarget_max_turn_deg``: the facing's
+    window and cap for a character retargeted mid-stream (0: the same as the others). Settings saved
+    before a part existed load with it off."""
 
     window: int = 0
     momentum: float = 1.0
@@ -60,26 +67,33 @@ class SteeringConfig:
     max_turn_deg: float = 4.0
     height_window: int = 0
     max_rise_cm: float = 2.0
+    retarget_turn_window: int = 0
+    retarget_max_turn_deg: float = 4.0
 
     def __post_init__(self) -> None:
-        for name in ("window", "turn_window", "height_window"):
+        for name in ("window", "turn_window", "height_window", "retarget_turn_window"):
             if getattr(self, name) < 0:
                 raise ValueError(f"the steering {name.replace('_', ' ')} must be 0 (off) or more frames, "
                                  f"got {getattr(self, name)}")
         if not 0.0 <= self.momentum <= 1.0:
             raise ValueError(f"steering momentum must be in [0, 1], got {self.momentum}")
-        for name in ("max_step_cm", "max_turn_deg", "max_rise_cm"):
+        for name in ("max_step_cm", "max_turn_deg", "max_rise_cm", "retarget_max_turn_deg"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"the steering cap {name} must be positive, got {getattr(self, name)}")
 
     @property
     def on(self) -> bool:
-        return self.window > 0 or self.turn_window > 0 or self.height_window > 0
+        return self.window > 0 or self.turn_window > 0 or self.height_window > 0 or self.retarget_turn_window > 0
+
+    @property
+    def turns(self) -> bool:
+        """Whether any row's facing is steered (which needs the skeleton's facing chains)."""
+        return self.turn_window > 0 or self.retarget_turn_window > 0
 
     def with_window(self, window: int) -> SteeringConfig:
         """These settings with the ground window ``window``; 0 switches every part off (the network alone)."""
         if window == 0:
-            return replace(self, window=0, turn_window=0, height_window=0)
+            return replace(self, window=0, turn_window=0, height_window=0, retarget_turn_window=0)
         return replace(self, window=int(window))
 
     def to_dict(self) -> dict:
@@ -113,19 +127,34 @@ def shifted(state: SamplerState, shift: Tensor) -> SamplerState:
     return replace(state, pose=PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift))
 
 
-def _spread(miss: Tensor, tta: Tensor, window: int, cap: float) -> Tensor:
-    """What is left of ``miss [N]`` spread over the frames left, smoothstep-weighted, capped at ``cap``."""
+def _spread(miss: Tensor, tta: Tensor, window: int | Tensor, cap: float | Tensor) -> Tensor:
+    """What is left of ``miss [N]`` spread over the frames left, smoothstep-weighted, capped at ``cap``
+    (window and cap: one for every row, or ``[N]``; a window of 0 moves nothing)."""
     remaining = tta.float().clamp_min(0.0)
-    return (arrival_weight(tta, window) * miss / (remaining + 1.0)).clamp(-cap, cap)
+    if isinstance(window, Tensor):
+        weight = torch.where(window > 0, arrival_weight(tta, window.clamp_min(1)), torch.zeros_like(remaining))
+    else:
+        weight = arrival_weight(tta, window) if window > 0 else torch.zeros_like(remaining)
+    spread = weight * miss / (remaining + 1.0)
+    if isinstance(cap, Tensor):
+        return torch.minimum(torch.maximum(spread, -cap), cap)
+    return spread.clamp(-cap, cap)
 
 
-def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingChains) -> Tensor:
-    """The turn ``[N]`` (radians about +Y) steering gives each row's facing this frame."""
+def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingChains,
+                   late: Tensor | None = None) -> Tensor:
+    """The turn ``[N]`` (radians about +Y) steering gives each row's facing this frame; rows where ``late
+    [N]`` (bool) is set were retargeted mid-stream and take the retarget window and cap where those are on."""
     yaw = facing.yaw(torch.cat([state.target_rot, state.pose.rot]))  # both in one pass
     n = state.pose.rot.shape[0]
     miss = yaw[:n] - yaw[n:]
     miss = torch.atan2(torch.sin(miss), torch.cos(miss))  # the short way round
-    return _spread(miss, state.tta, config.turn_window, math.radians(config.max_turn_deg))
+    cap = math.radians(config.max_turn_deg)
+    if late is None or config.retarget_turn_window == 0:
+        return _spread(miss, state.tta, config.turn_window, cap)
+    window = torch.where(late, torch.tensor(config.retarget_turn_window), torch.tensor(config.turn_window))
+    caps = torch.where(late, torch.tensor(math.radians(config.retarget_max_turn_deg)), torch.tensor(cap))
+    return _spread(miss, state.tta, window, caps)
 
 
 def finishing_rise(state: SamplerState, root: int, config: SteeringConfig) -> Tensor:
@@ -150,21 +179,21 @@ def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | N
     return replace(state, pose=PoseState(rel, vel, rot, pose.root_xz))
 
 
-def steer(state: SamplerState, root: int, config: SteeringConfig,
-          facing: FacingChains | None = None) -> tuple[SamplerState, Tensor]:
+def steer(state: SamplerState, root: int, config: SteeringConfig, facing: FacingChains | None = None,
+          late: Tensor | None = None) -> tuple[SamplerState, Tensor]:
     """``state`` with every row's body moved by :func:`steering_shift` (positions and velocities), then
     turned and raised where those parts are on, and the ground shift ``[N, 2]`` (zero where the ground
-    part is off). Turning needs ``facing``."""
+    part is off). Turning needs ``facing``; ``late [N]`` (bool) flags the rows retargeted mid-stream."""
     if config.window > 0:
         shift = steering_shift(state, root, config)
         state = shifted(state, shift)
     else:
         shift = torch.zeros_like(state.pose.root_xz)
     turn = rise = None
-    if config.turn_window > 0:
+    if config.turns:
         if facing is None:
             raise ValueError("steering the facing needs the skeleton's facing chains")
-        turn = finishing_turn(state, config, facing)
+        turn = finishing_turn(state, config, facing, late)
     if config.height_window > 0:
         rise = finishing_rise(state, root, config)
     if turn is not None or rise is not None:

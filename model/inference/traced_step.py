@@ -36,14 +36,15 @@ Tensor = torch.Tensor
 
 
 def step_and_steer(sampler: TransitionSampler, state: SamplerState, style: StyleContext, root: int,
-                   steering: SteeringConfig, facing: FacingChains | None = None) -> tuple[SamplerState, Tensor | None]:
+                   steering: SteeringConfig, facing: FacingChains | None = None,
+                   late: Tensor | None = None) -> tuple[SamplerState, Tensor | None]:
     """One frame of the sampler, then root steering where it is on (:mod:`model.inference.steering`;
-    ``facing``: the skeleton's, for steering the facing): the new state and the ground shift steering
-    gave each row (None when off)."""
+    ``facing``: the skeleton's, for steering the facing; ``late [N]``: the rows retargeted mid-stream):
+    the new state and the ground shift steering gave each row (None when off)."""
     new, _ = sampler.step(state, style)
     if not steering.on:
         return new, None
-    return steer(new, root, steering, facing)
+    return steer(new, root, steering, facing, late)
 
 
 class _FlatStep(torch.nn.Module):
@@ -55,11 +56,11 @@ class _FlatStep(torch.nn.Module):
     def forward(self, h: Tensor, c: Tensor, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, phase: Tensor,
                 target_vec: Tensor, target_pos: Tensor, target_rot: Tensor, target_emb: Tensor, tta: Tensor,
                 noise: Tensor, g1: Tensor, b1: Tensor, k1: Tensor, v1: Tensor, g2: Tensor, b2: Tensor, k2: Tensor,
-                v2: Tensor, mask: Tensor) -> tuple[Tensor, ...]:
+                v2: Tensor, mask: Tensor, late: Tensor | None = None) -> tuple[Tensor, ...]:
         state = SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, target_vec, target_pos, target_rot,
                              target_emb, tta, noise)
         style = StyleContext(g1, b1, k1, v1, g2, b2, k2, v2, mask)
-        new, shift = step_and_steer(self.sampler, state, style, self.root, self.steering, self.facing)
+        new, shift = step_and_steer(self.sampler, state, style, self.root, self.steering, self.facing, late)
         out = (new.h, new.c, new.pose.rel, new.pose.vel, new.pose.rot, new.pose.root_xz, new.phase, new.tta)
         return out if shift is None else (*out, shift)
 
@@ -103,29 +104,42 @@ class _TracedOnFirstUse:
 
 
 class CompiledStep(_TracedOnFirstUse):
-    """``step(state, style) -> (state, shift)``: :func:`step_and_steer` through a traced graph, built on
+    """``step(state, style, late) -> (state, shift)``: :func:`step_and_steer` through a traced graph, built on
     first use (eager if tracing fails or ``traced`` is False). Steering is inside the graph: eager,
     its few dozen small operations cost about a quarter of the traced network step at batch 1.
-    ``facing`` (the skeleton's :class:`FacingChains`) is needed where the steering turns the facing."""
+    ``facing`` (the skeleton's :class:`FacingChains`) is needed where the steering turns the facing;
+    ``late [N]`` (bool) flags the rows retargeted mid-stream, which matters only where the steering
+    has a retarget window (another graph: batches without such rows keep the usual one)."""
 
     def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig, traced: bool = True,
                  facing: FacingChains | None = None) -> None:
         super().__init__(traced)
-        if steering.turn_window > 0 and facing is None:
+        if steering.turns and facing is None:
             raise ValueError("steering the facing needs the skeleton's facing chains")
         self.sampler, self.root, self.steering, self.facing = sampler, root, steering, facing
         # Before the facing and height windows open, their parts move nothing: a second graph leaves them out.
+        # A batch with no retargeted row steers as if the retarget window were off (its own graph).
+        self._usual = dataclasses.replace(steering, retarget_turn_window=0)
         self._finish_from = max(steering.turn_window, steering.height_window)
-        self._cruise = dataclasses.replace(steering, turn_window=0, height_window=0) if self._finish_from else None
+        self._late_from = max(self._finish_from, steering.retarget_turn_window)
+        self._cruise = (dataclasses.replace(steering, turn_window=0, height_window=0, retarget_turn_window=0)
+                        if self._late_from else None)
 
-    def __call__(self, state: SamplerState, style: StyleContext) -> tuple[SamplerState, Tensor | None]:
-        steering, key = self.steering, ""
-        if self._cruise is not None and int(state.tta.min()) > self._finish_from:
+    def __call__(self, state: SamplerState, style: StyleContext,
+                 late: Tensor | None = None) -> tuple[SamplerState, Tensor | None]:
+        has_late = late is not None and self.steering.retarget_turn_window > 0 and bool(late.any())
+        steering, key = (self.steering, "late") if has_late else (self._usual, "")
+        finish_from = self._late_from if has_late else self._finish_from
+        if self._cruise is not None and int(state.tta.min()) > finish_from:
             steering, key = self._cruise, "cruise"
         args = _flat(state, style)
+        if key == "late":
+            args = (*args, late)  # type: ignore[arg-type]
+        else:
+            late = None
         graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, steering, self.facing), args, key)
         if graph is None:
-            return step_and_steer(self.sampler, state, style, self.root, steering, self.facing)
+            return step_and_steer(self.sampler, state, style, self.root, steering, self.facing, late)
         h, c, rel, vel, rot, root_xz, phase, tta, *shift = graph(*args)
         return (SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
                              state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)

@@ -56,6 +56,8 @@ class PackageSettings:
     steering: int | None = None
     steer_facing: int | None = None
     steer_height: int | None = None
+    retarget_facing: int | None = None
+    retarget_turn_cap: float | None = None
     floor: bool | None = None
 
     def arguments(self) -> list[str]:
@@ -69,9 +71,11 @@ class PackageSettings:
             if value is not None:
                 args += [flag, "on" if value else "off"]
         for flag, frames in (("--steering", self.steering), ("--steer-facing", self.steer_facing),
-                             ("--steer-height", self.steer_height)):
+                             ("--steer-height", self.steer_height), ("--retarget-facing", self.retarget_facing)):
             if frames is not None:
                 args += [flag, str(frames)]
+        if self.retarget_turn_cap is not None:
+            args += ["--retarget-turn-cap", repr(self.retarget_turn_cap)]
         return args
 
 

@@ -48,6 +48,9 @@ def test_package_keeps_unset_settings_and_refuses_bad_ones(tmp_path, capsys):
     assert "must not be the --model folder" in capsys.readouterr().err
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "x"), "--steer-facing", "-1"]) == 2
     assert "--steer-facing must be 0 (off) or more frames" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "x"),
+                 "--retarget-turn-cap", "0"]) == 2
+    assert "--retarget-turn-cap must be a positive" in capsys.readouterr().err and not (tmp_path / "x").exists()
 
 
 def test_package_sets_the_facing_and_height_steering(tmp_path, capsys):
@@ -60,6 +63,11 @@ def test_package_sets_the_facing_and_height_steering(tmp_path, capsys):
     assert main(["package", "--model", str(tmp_path / "a"), "--out", str(tmp_path / "b"), "--steer-height", "0"]) == 0
     steering = Bundle.load(tmp_path / "b").output.steering
     assert (steering.window, steering.turn_window, steering.height_window) == (40, 10, 0)
+    assert (steering.retarget_turn_window, steering.retarget_max_turn_deg) == (0, 4.0)  # off unless asked
+    assert main(["package", "--model", str(tmp_path / "b"), "--out", str(tmp_path / "c"), "--retarget-facing", "20",
+                 "--retarget-turn-cap", "10"]) == 0
+    steering = Bundle.load(tmp_path / "c").output.steering
+    assert (steering.turn_window, steering.retarget_turn_window, steering.retarget_max_turn_deg) == (10, 20, 10.0)
     capsys.readouterr()
 
 

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.arrival import arrival_weight
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+from model.inference.character_batch import CharacterBatch
 from model.inference.engine import Engine
 from model.inference.output_settings import OutputConfig
 from model.inference.steering import (
@@ -31,6 +32,7 @@ from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerConfig, SamplerState
 
 J = 21
+Tensor = torch.Tensor
 
 
 def _state(root_xz, vel_xz, goal_xz, tta) -> SamplerState:
@@ -269,3 +271,83 @@ def test_frames_before_the_finishing_windows_skip_their_parts_and_change_nothing
         assert keys == ({"", "cruise"} if shortcut else {""})
     (rot_a, root_a), (rot_b, root_b) = frames
     assert torch.allclose(rot_a, rot_b, atol=1e-6) and torch.allclose(root_a, root_b, atol=1e-5)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), r=st.integers(0, 30))
+def test_rows_retargeted_mid_stream_take_the_retarget_window_and_cap_and_the_others_do_not(seed, r):
+    state, facing = _posed_state(seed, [r, r])
+    config = SteeringConfig(turn_window=5, max_turn_deg=4.0, retarget_turn_window=20, retarget_max_turn_deg=10.0)
+    late = torch.tensor([False, True])
+    turn = finishing_turn(state, config, facing, late)
+    usual = finishing_turn(state, SteeringConfig(turn_window=5, max_turn_deg=4.0), facing)
+    retarget = finishing_turn(state, SteeringConfig(turn_window=20, max_turn_deg=10.0), facing)
+    assert torch.equal(turn[0], usual[0]) and torch.allclose(turn[1], retarget[1], atol=1e-7)
+    assert float(turn[1].abs()) <= 10.0 * torch.pi / 180 + 1e-6
+    if r >= 20:
+        assert torch.all(turn == 0)
+    assert torch.equal(finishing_turn(state, config, facing), usual)  # no rows flagged: the usual settings
+
+
+def test_a_retarget_window_alone_turns_only_the_flagged_rows():
+    state, facing = _posed_state(7, [3, 3])
+    config = SteeringConfig(retarget_turn_window=10, retarget_max_turn_deg=30.0)
+    assert config.on and config.turns
+    turn = finishing_turn(state, config, facing, torch.tensor([True, False]))
+    assert float(turn[0].abs()) > 0 and float(turn[1]) == 0.0
+    assert not SteeringConfig(window=40, retarget_turn_window=10).with_window(0).on
+    with pytest.raises(ValueError, match="retarget turn window"):
+        SteeringConfig(retarget_turn_window=-1)
+    with pytest.raises(ValueError, match="retarget_max_turn_deg"):
+        SteeringConfig(retarget_max_turn_deg=0.0)
+
+
+def _retargeted_streams(bundle: Bundle, compiled: bool) -> tuple[list[list[tuple[Tensor, Tensor]]], set[str]]:
+    """Two characters in one batch walking to one target; the first is retargeted to a target turned 90
+    degrees and moved at frame 6 of 16. Each character's frames, and the traced graphs that ran."""
+    engine = Engine(bundle, threads=1, compiled=compiled)
+    walk = synthetic_walk(frames=160)
+    style, _ = engine.encode_style(walk.window(30, 150))
+    target = walk.window(20, 21)
+    rotations = target.rotations.clone()
+    rotations[:, 0] = quat_mul(yaw_quat(torch.tensor(torch.pi / 2)), rotations[:, 0])
+    turned = Clip(walk.skeleton, rotations, target.root_positions + torch.tensor([80.0, 0.0, 0.0]), walk.fps)
+    batch = CharacterBatch(engine)
+    chars = [engine.prepare(walk.window(0, 10), target, 16, style, deterministic=True) for _ in range(2)]
+    for ch in chars:
+        batch.add(ch)
+    frames: dict[str, list[tuple[Tensor, Tensor]]] = {ch.id: [] for ch in chars}
+    for frame in range(16):
+        if frame == 6:
+            engine.retarget(chars[0], batch, target=turned)
+        out = batch.step()
+        for i, ch in enumerate(out.characters):
+            frames[ch.id].append((out.rotations[i], out.root_positions[i]))
+        batch.drop_finished()
+    assert chars[0].retargeted and not chars[1].retargeted
+    return [frames[ch.id] for ch in chars], set(engine.weights().step_fn._graphs)
+
+
+def test_a_retarget_finishes_its_facing_harder_and_leaves_the_others_as_they_were():
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
+    usual = SteeringConfig(window=20, turn_window=3, max_turn_deg=4.0, height_window=3)
+    results = {}
+    for name, steering in (("usual", usual), ("late", SteeringConfig(**{**usual.to_dict(), "retarget_turn_window": 8,
+                                                                          "retarget_max_turn_deg": 30.0}))):
+        bundle.output = OutputConfig(0.0, False, steering=steering)
+        for compiled in (True, False):
+            results[name, compiled], graphs = _retargeted_streams(bundle, compiled)
+            if compiled:
+                assert ("late" in graphs) == (name == "late")
+    for compiled in (True, False):
+        usual_frames, late_frames = results["usual", compiled], results["late", compiled]
+        for a, b in zip(usual_frames[1], late_frames[1]):  # the character never retargeted: the same frames
+            assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+        for a, b in zip(usual_frames[0][:6], late_frames[0][:6]):  # the retargeted one, before its retarget
+            assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+        assert not torch.allclose(usual_frames[0][-1][0], late_frames[0][-1][0], atol=1e-3)  # turned harder
+    for name in ("usual", "late"):  # traced and eager agree
+        for a, b in zip(results[name, True][0], results[name, False][0]):
+            assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)
