@@ -10,6 +10,7 @@ teleports shows there).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,8 +30,13 @@ class RetargetSettings:
     target_frames: int = 1  # frames of each target sent (1: the target frame alone)
 
 
-def _stream(method: BundleMethod, cases: CaseSet, settings: RetargetSettings, retarget: bool) -> tuple[Tensor, Tensor]:
-    """Every case streamed in one batch, retargeted at ``settings.at`` when ``retarget``; ``(rotations, roots)``."""
+def stream(method: BundleMethod, cases: CaseSet, settings: RetargetSettings, retarget: bool,
+           at: Sequence[int] | None = None) -> tuple[Tensor, Tensor]:
+    """Every case streamed in one batch, retargeted when ``retarget`` at ``settings.at`` (or at ``at[b]`` for
+    case ``b``: the frame from which the moved target applies); ``(rotations, roots)``."""
+    frames_at = [settings.at] * len(cases) if at is None else list(at)
+    if len(frames_at) != len(cases) or not all(0 < a < settings.frames for a in frames_at):
+        raise ValueError(f"one retarget frame per case, each inside the transition (1..{settings.frames - 1})")
     engine = method.engine
     first = variant("gap40")
     moved = variant("gap40-side1m")
@@ -46,8 +52,8 @@ def _stream(method: BundleMethod, cases: CaseSet, settings: RetargetSettings, re
     rots: dict[str, list[Tensor]] = {c.id: [] for c in chars}
     roots: dict[str, list[Tensor]] = {c.id: [] for c in chars}
     for frame in range(settings.frames):
-        if retarget and frame == settings.at:
-            for b, ch in enumerate(chars):
+        for b, ch in enumerate(chars):
+            if retarget and frame == frames_at[b]:
                 engine.retarget(ch, batch, target=cases.target_clip(b, moved, settings.target_frames))
         out = batch.step()
         for i, ch in enumerate(out.characters):
@@ -67,7 +73,7 @@ def retarget_report(method: BundleMethod, cases: CaseSet, settings: RetargetSett
     out: dict[str, Any] = {"cases": len(cases), "frames": settings.frames, "retarget_at": settings.at,
                            "target_frames": settings.target_frames, "moved_cm": variant("gap40-side1m").side}
     for name, retarget in (("retargeted", True), ("from_start", False)):
-        rot, root = _stream(method, cases, settings, retarget)
+        rot, root = stream(method, cases, settings, retarget)
         pos, _ = cases.forward(rot, root)
         err = (pos[:, -1] - target).norm(dim=-1).mean(-1)
         speed = (root[:, 1:, [0, 2]] - root[:, :-1, [0, 2]]).norm(dim=-1).amax(1) * cases.fps

@@ -11,7 +11,7 @@ from model.data.synthetic import synthetic_skeleton, write_synthetic_dataset
 from model.evaluation import CaseSet, build_cases
 from model.evaluation.cases import variant
 from model.evaluation.methods import BundleMethod, Request
-from model.evaluation.stream_retarget import RetargetSettings, _stream, retarget_report
+from model.evaluation.stream_retarget import RetargetSettings, retarget_report, stream
 from model.inference.bundle import Bundle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -29,7 +29,7 @@ def setup(tmp_path_factory: pytest.TempPathFactory) -> tuple[CaseSet, BundleMeth
 
 def test_a_stream_sent_to_the_moved_target_from_the_start_is_the_whole_transition(setup) -> None:
     cases, method = setup
-    rot, root = _stream(method, cases, RetargetSettings(), retarget=False)
+    rot, root = stream(method, cases, RetargetSettings(), retarget=False)
     whole_rot, whole_root = method.generate(cases, Request(variant("gap40-side1m")))
     assert torch.allclose(rot, whole_rot, atol=1e-5) and torch.allclose(root, whole_root, atol=1e-4)
 
@@ -45,3 +45,21 @@ def test_the_report_scores_the_moved_target_and_checks_the_frame(setup) -> None:
     with pytest.raises(ValueError, match="retarget frame"):
         retarget_report(method, cases, RetargetSettings(at=40))
 
+
+
+def test_each_case_can_be_retargeted_at_its_own_frame(setup) -> None:
+    cases, method = setup
+    settings = RetargetSettings()
+    at_20 = stream(method, cases, settings, retarget=True)
+    same = stream(method, cases, settings, retarget=True, at=[20] * len(cases))
+    assert torch.equal(at_20[0], same[0]) and torch.equal(at_20[1], same[1])
+    staggered = [20 + 3 * b for b in range(len(cases))]
+    rot, _ = stream(method, cases, settings, retarget=True, at=staggered)
+    late, _ = stream(method, cases, settings, retarget=True, at=[39] * len(cases))  # the first target until frame 39
+    for b, at in enumerate(staggered):  # each case as the late one until its own retarget, then elsewhere
+        assert torch.allclose(rot[b, :at], late[b, :at], atol=1e-5)
+        assert not torch.allclose(rot[b, -1], late[b, -1], atol=1e-4)
+    with pytest.raises(ValueError, match="one retarget frame per case"):
+        stream(method, cases, settings, retarget=True, at=[20])
+    with pytest.raises(ValueError, match="one retarget frame per case"):
+        stream(method, cases, settings, retarget=True, at=[0] * len(cases))
