@@ -246,7 +246,7 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     raw = BundleMethod(bundle_dir, smoothing=0.0, foot_lock=False)
     smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
     steering = {"window": 0, "momentum": 1.0, "max_step_cm": 10.0, "turn_window": 0, "max_turn_deg": 4.0,
-                "height_window": 0, "max_rise_cm": 2.0}
+                "height_window": 0, "max_rise_cm": 2.0, "retarget_turn_window": 0, "retarget_max_turn_deg": 4.0}
     assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None,
                                            "steering": steering, "floor": False}
     assert BundleMethod(bundle_dir, steering=12).describe()["output"]["steering"] == {**steering, "window": 12}
