@@ -8,7 +8,7 @@ on a loaded 2-core machine it often comes in a frame or more late (the server's 
 the frame it took effect from). So the test checks that the server streams what the yardstick scores (the
 in-process stream retargeted at those same frames arrives where the server's frames do) and that the
 yardstick, every retarget at frame 20, is under 8 cm. Each case has its own connection: the messages of one
-connection are handled in turn, so a second character's retarget would wait for the first's.
+connection are read in turn, so the targets of several characters' retargets would be read one after another.
 """
 
 from __future__ import annotations
