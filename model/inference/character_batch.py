@@ -72,8 +72,6 @@ class CharacterBatch:
         # index that puts the rows stepped set after set back in member order.
         self._groups: list[tuple[WeightSet, Tensor, StyleContext]] = []
         self._inverse: Tensor | None = None
-        # Which members were retargeted mid-stream (a row each), or None while none was.
-        self._late: Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.members) + len(self._pending)
@@ -107,7 +105,6 @@ class CharacterBatch:
             self.members.extend(joined)
             self._pending = []
             self._style_dirty = True
-            self._late = self._late_flags()
         if self._style_dirty and self.members:
             self._style = StyleContext.stack([m.style.context for m in self.members])
             groups = by_weights(self.members)
@@ -127,16 +124,6 @@ class CharacterBatch:
         else:  # waiting to join or resume
             restyle_held(ch, style, ws)
         self._style_dirty = True
-
-    def _late_flags(self) -> Tensor | None:
-        flags = [m.retargeted for m in self.members]
-        return torch.tensor(flags) if any(flags) else None
-
-    def mark_retargeted(self, ch: Character) -> None:
-        """Flag a member (or a character waiting to join) as retargeted mid-stream."""
-        ch.retargeted = True
-        if ch in self.members:
-            self._late = self._late_flags()
 
     def row_of(self, ch: Character) -> SamplerState:
         self._sync()
@@ -189,7 +176,7 @@ class CharacterBatch:
             return
         if not keep:
             self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
-            self._post, self._late = None, None
+            self._post = None
             return
         idx = torch.tensor([self.members.index(k) for k in keep])
         assert self._state is not None and self._yaw is not None and self._origin is not None
@@ -199,7 +186,6 @@ class CharacterBatch:
         self._post = {k: v[idx] for k, v in self._post.items()}
         self.members = keep
         self._style_dirty = True
-        self._late = self._late_flags()
 
     @torch.inference_mode()
     def step(self) -> StepOutput:
@@ -208,7 +194,8 @@ class CharacterBatch:
         if not self.members:
             raise ValueError("no live characters to step")
         assert self._state is not None and self._style is not None
-        late = self._late
+        flags = [m.retargeted for m in self.members]  # which rows steer their facing by the retarget window
+        late = torch.tensor(flags) if any(flags) else None
         if self._inverse is None:  # one weight set: the whole batch in one step
             self._state, shift = self._groups[0][0].step_fn(self._state, self._style, late)  # steering included
         else:

@@ -278,10 +278,7 @@ class Engine:
                 vec = sampler.target_input(tstate, torch.tensor([known]))
                 emb = sampler.target_encoder(vec)
             updates = {"target_vec": vec, "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
-            if batch is not None:
-                batch.mark_retargeted(ch)
-            else:
-                ch.retargeted = True
+            ch.retargeted = True
         else:
             updates = {}
         if frames is not None:

@@ -27,9 +27,9 @@ from model.evaluation.cases import CaseSet, build_cases, variant
 from model.evaluation.methods import BundleMethod
 from model.evaluation.stream_retarget import RetargetSettings, stream
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
-from model.motion.clip import Clip
+from tests.service.conftest import poses
 from tests.service.server import Server
-from tests.service.wsclient import Ws
+from tests.service.wsclient import Ws, poses_of
 
 pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]
 
@@ -42,7 +42,9 @@ TARGET_CM = 8.0
 def cases(shared_data: Path) -> CaseSet:
     cache = load_motion_cache(shared_data, progress=False)
     every = CaseSet.load(cache, build_cases(cache, cache.split.test))
-    assert every.skeleton.names == Bundle.load(DEFAULT_BUNDLE).skeleton.names  # poses are sent in the model's order
+    model = Bundle.load(DEFAULT_BUNDLE)
+    # Poses are sent in the model's joint order and at its frame rate (neither named in the message).
+    assert every.skeleton.names == model.skeleton.names and every.fps == model.config.fps
     return every.subset(every.locomotion_index)
 
 
@@ -53,21 +55,16 @@ def server():
     srv.stop()
 
 
-def _poses(clip: Clip) -> dict:
-    """A clip as JSON poses (exact float32 values; the data's joints are the model's, in its order)."""
-    return {"root_positions": clip.root_positions.tolist(), "rotations": clip.rotations.tolist(), "fps": clip.fps}
-
-
 def _stream_one(server: Server, cases: CaseSet, b: int) -> tuple[np.ndarray, np.ndarray, int]:
     """Case ``b`` streamed on its own connection and retargeted when frame 19 comes in:
     ``(roots, rotations, the frame the retarget took effect from)``."""
     first, moved = variant("gap40"), variant("gap40-side1m")
     retarget = json.dumps({"type": "retarget", "character": "c",
-                           "target": _poses(cases.target_clip(b, moved, SETTINGS.target_frames))})
+                           "target": poses(cases.target_clip(b, moved, SETTINGS.target_frames))})
     with Ws(server.ws, encoding="binary") as ws:
-        ws.send({"type": "start", "character": "c", "context": _poses(cases.context_clip(b)),
-                 "target": _poses(cases.target_clip(b, first, SETTINGS.target_frames)),
-                 "style": _poses(cases.style_clips[b]), "frames": SETTINGS.frames, "deterministic": True,
+        ws.send({"type": "start", "character": "c", "context": poses(cases.context_clip(b)),
+                 "target": poses(cases.target_clip(b, first, SETTINGS.target_frames)),
+                 "style": poses(cases.style_clips[b]), "frames": SETTINGS.frames, "deterministic": True,
                  "pace": "realtime"})
 
         def on_frame(w: Ws, frame: dict) -> None:
@@ -78,8 +75,7 @@ def _stream_one(server: Server, cases: CaseSet, b: int) -> tuple[np.ndarray, np.
     frames = got["frames"]
     assert [f["seq"] for f in frames] == list(range(SETTINGS.frames)) and got["end"]["reason"] == "arrived"
     (ack,) = [m for m in got["messages"] if m["type"] == "retargeted"]
-    roots = np.array([f["pose"]["root_position"] for f in frames], dtype=np.float32)
-    rotations = np.array([f["pose"]["rotations"] for f in frames], dtype=np.float32)
+    roots, rotations = poses_of(frames)
     return roots, rotations, ack["from_seq"]
 
 
