@@ -120,7 +120,7 @@ def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage,
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
-                            character_id=character_id, exact_arrival=msg.exact_arrival)
+                            character_id=character_id, exact_arrival=msg.exact_arrival, retargeted=msg.retargeted)
     except EngineError as exc:
         raise from_engine(exc) from exc
     return ch, style, seed

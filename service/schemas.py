@@ -261,6 +261,7 @@ class StartMessage(_WsMessage, _StyleChoice):
     seed: Seed | None = None
     deterministic: StrictBool = False
     exact_arrival: StrictBool = False
+    retargeted: StrictBool = False  # a resume of a character retargeted mid-motion: its facing takes the retarget window
     pace: Literal["realtime", "asap"] = "realtime"
     model: ModelName | None = None
 

@@ -188,11 +188,14 @@ class Engine:
 
     # ------------------------------------------------------------------ transitions
     def prepare(self, context: Clip, target: Clip, frames: int, style: EncodedStyle, seed: int | None = None,
-                deterministic: bool = False, character_id: str | None = None, exact_arrival: bool = False) -> Character:
+                deterministic: bool = False, character_id: str | None = None, exact_arrival: bool = False,
+                retargeted: bool = False) -> Character:
         """Validate a transition request and build its (unbatched) initial state.
 
         With ``exact_arrival`` the last frames are bent so the arrival frame equals the target pose
         exactly (:mod:`model.inference.arrival`); otherwise the network's own arrival is returned.
+        ``retargeted`` starts the character as one retargeted mid-stream (its facing is finished by the
+        retarget window): a stream resumed on another server after a retarget, from the frames received.
         """
         c = self.config
         if not 1 <= frames <= self.max_frames:
@@ -212,7 +215,7 @@ class Engine:
         if not deterministic:
             gen = torch.Generator().manual_seed(int(seed) if seed is not None else int(time.time_ns() % (2**62)))
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
-        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames)
+        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames, retargeted=retargeted)
         ch._init, ch._frame = (cstate, tstate, frames, noise, known), frame
         crot = quat_normalize(context.rotations)
         ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}

@@ -80,14 +80,23 @@ def test_retarget_and_style_are_carried_into_the_resume():
     f.sent({"type": "style", "character": "hero", "style": {"bvh": "S"}})
     (msg,) = f.resume_messages()
     assert msg["frames"] == 20 and msg["target"] == {"bvh": "T2"} and msg["style"] == {"bvh": "S"}
-    assert "style_id" not in msg
+    assert "style_id" not in msg and msg["retargeted"] is True  # its facing finishes as a retargeted one's
     g = Failover(CTX, FPS, NAMES)  # once a frame after the retarget has come, its remaining counts
     g.sent(start(frames=10))
     g.received(frame("hero", 0, 9))
     g.sent({"type": "retarget", "character": "hero", "frames": 20})
     g.received({"type": "retargeted", "character": "hero", "from_seq": 1})
     g.received(frame("hero", 1, 19))
-    assert g.resume_messages()[0]["frames"] == 19
+    (resumed,) = g.resume_messages()
+    assert resumed["frames"] == 19 and "retargeted" not in resumed  # a new duration alone is no new target
+
+
+def test_a_target_changed_before_any_frame_resumes_as_a_start_to_it_not_a_retarget():
+    f = Failover(CTX, FPS, NAMES)
+    f.sent(start(frames=10))
+    f.sent({"type": "retarget", "character": "hero", "target": {"bvh": "T2"}})
+    (msg,) = f.resume_messages()
+    assert msg == start(frames=10, target={"bvh": "T2"})
 
 
 def test_unknown_style_registers_the_clip_again_and_resends():

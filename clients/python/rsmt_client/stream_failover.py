@@ -6,9 +6,10 @@ updated by later messages), the last ``context_frames`` frames received and how 
 When the connection drops (its replica died, was restarted or drained), the client opens a new one
 through the same URL (the load balancer picks a live replica) and sends :meth:`Failover.resume_messages`:
 for each character a ``start`` whose context is the frames it received last, with the same target and
-style and the frames it still had to go. Frames of the resumed character are renumbered so that ``seq``
-and ``t`` carry on where they stopped, ``end.frames`` counts all of them, and the caller sees a stall of
-the reconnection's length, not an error and not a lost character.
+style, the frames it still had to go and ``retargeted`` when its target changed mid-motion. Frames of
+the resumed character are renumbered so that ``seq`` and ``t`` carry on where they stopped,
+``end.frames`` counts all of them, and the caller sees a stall of the reconnection's length, not an
+error and not a lost character.
 
 It also answers ``unknown_style`` (a style evicted, or registered on a store the new replica does not
 share) by registering the clip again, when it holds the clip (:meth:`Failover.remember_style`), and
@@ -54,6 +55,7 @@ class _Character:
     remaining: int = 0  # frames still to come
     retarget_frames: int | None = None  # a retarget's frame count not yet seen in a frame
     retarget_from: int | None = None  # its from_seq, in this connection's numbering, once known
+    retargeted: bool = False  # given a new target after its start: a resume from received frames says so
     awaiting_start: bool = True  # sent start (or resume), no started yet
     resent: bool = False  # the start awaited is a resume
     last_style: Message | None = None  # the last style message, to resend after registering its clip
@@ -92,6 +94,7 @@ class Failover:
         if kind == "retarget":
             if "target" in message:
                 ch.start["target"] = copy.deepcopy(message["target"])
+                ch.retargeted = True
             if "frames" in message:
                 ch.retarget_frames, ch.retarget_from = int(message["frames"]), None
         elif kind == "style":
@@ -176,6 +179,8 @@ class Failover:
             if ch.delivered:
                 msg["context"] = self._context(ch)
                 msg["frames"] = remaining
+                if ch.retargeted:  # mid-motion, so the new server finishes its facing as a retargeted one's
+                    msg["retargeted"] = True
             ch.base, ch.remaining, ch.awaiting_start, ch.resent = ch.delivered, remaining, True, True
             ch.last_start = copy.deepcopy(msg)
             out.append(msg)

@@ -120,6 +120,7 @@ static class RsmtHarness
         var r = Json.Parse(resume[0]);
         Check(r.GetInt("frames", 0) == 4 && r.Get("target").GetString("bvh", "") == "T" && r.GetString("style_id", "") == "sty_a"
               && r.GetString("model", "") == "m2" && r.GetBool("exact_arrival", false) && r.GetString("character", "") == "hero", "failover: same start, frames to go");
+        Check(!r.GetBool("retargeted", false), "failover: a character never retargeted is not resumed as one");
         Check(ContextXs(resume[0]).SequenceEqual(new double[] { 102, 103, 104, 105 }), "failover: context is the last poses received");
         st = Msg(RsmtMessageKind.Started, "hero");
         f.Received(st);
@@ -154,6 +155,12 @@ static class RsmtHarness
         var krj = Json.Parse(kr[0]);
         Check(kr.Count == 1 && krj.GetInt("frames", 0) == 20 && krj.Get("target").GetString("bvh", "") == "T2"
               && krj.GetString("style_id", "") == "sty_b", "failover: retarget and style carried, cancelled dropped");
+        Check(krj.GetBool("retargeted", false), "failover: a target changed mid-motion resumes as a retargeted character");
+        var early = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // a new target before any frame: a start to it
+        early.SentStart(opts("a", 10), "sa");
+        early.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);
+        var nj = Json.Parse(early.ResumeMessages()[0]);
+        Check(nj.Get("target").GetString("bvh", "") == "T2" && !nj.GetBool("retargeted", false), "failover: retarget before any frame is a start");
 
         var u = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // unknown_style: register again and resend
         u.RememberStyle("sty_a", "BVH", "walk");

@@ -351,3 +351,34 @@ def test_a_retarget_finishes_its_facing_harder_and_leaves_the_others_as_they_wer
     for name in ("usual", "late"):  # traced and eager agree
         for a, b in zip(results[name, True][0], results[name, False][0]):
             assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)
+
+
+def test_a_start_marked_retargeted_finishes_its_facing_as_a_retargeted_character_does():
+    """A stream resumed on another server after a retarget starts with ``retargeted``: it takes the retarget
+    window (where the bundle has one) from its first frame; without one the flag changes nothing."""
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
+    usual = SteeringConfig(window=20, turn_window=3, max_turn_deg=4.0, height_window=3)
+    late = SteeringConfig(**{**usual.to_dict(), "retarget_turn_window": 8, "retarget_max_turn_deg": 30.0})
+    walk = synthetic_walk(frames=160)
+    target = walk.window(20, 21)
+    rotations = target.rotations.clone()
+    rotations[:, 0] = quat_mul(yaw_quat(torch.tensor(torch.pi / 2)), rotations[:, 0])
+    turned = Clip(walk.skeleton, rotations, target.root_positions + torch.tensor([80.0, 0.0, 0.0]), walk.fps)
+    last = {}
+    for name, steering in (("usual", usual), ("late", late)):
+        bundle.output = OutputConfig(0.0, False, steering=steering)
+        engine = Engine(bundle, threads=1, compiled=False)
+        style, _ = engine.encode_style(walk.window(30, 150))
+        for flag in (False, True):
+            ch = engine.prepare(walk.window(0, 10), turned, 10, style, deterministic=True, retargeted=flag)
+            assert ch.retargeted is flag
+            batch = CharacterBatch(engine)
+            batch.add(ch)
+            for _ in range(10):
+                out = batch.step()
+            last[name, flag] = out.rotations[0]
+    assert torch.equal(last["usual", False], last["usual", True])
+    assert torch.equal(last["usual", False], last["late", False])
+    assert not torch.allclose(last["late", False], last["late", True], atol=1e-3)

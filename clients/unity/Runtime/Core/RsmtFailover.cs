@@ -2,7 +2,8 @@
 // connection is lost. It keeps, per live character, its start as it stands now (target and frames of later
 // retargets, style of later style changes), the last context_frames poses received (model axes) and how many
 // frames were delivered. After a reconnection ResumeMessages() gives one start per live character whose context
-// is the poses received last, with the same target, style, pace and model and the frames still to come; the
+// is the poses received last, with the same target, style, pace and model and the frames still to come (and
+// "retargeted" when its target changed mid-motion); the
 // new frames are renumbered on from the count delivered, so the game sees one continuous transition.
 // Mirrors clients/python/rsmt_client/stream_failover.py.
 using System.Collections.Generic;
@@ -26,6 +27,7 @@ namespace Rsmt.Link
             public int Delivered, Base, Remaining;
             public int RetargetFrames = -1, RetargetFrom = -1;  // a retarget's frame count not yet seen in a frame
             public bool AwaitingStart = true, Resent, Cancelled;
+            public bool Retargeted;                // given a new target after its start: a resume says so
             public string LastStart, LastStyle;    // the start (or resume) and style messages sent last
             public int Reregistered;
         }
@@ -93,7 +95,11 @@ namespace Rsmt.Link
         {
             var c = Get(character);
             if (c == null) return;
-            if (targetJson != null) c.Start.TargetJson = targetJson;
+            if (targetJson != null)
+            {
+                c.Start.TargetJson = targetJson;
+                c.Retargeted = true;
+            }
             if (frames > 0)
             {
                 c.RetargetFrames = frames;
@@ -198,6 +204,7 @@ namespace Rsmt.Link
                 {
                     o.ContextJson = Context(c);
                     o.Frames = remaining;
+                    o.Retargeted = c.Retargeted;  // mid-motion: the new server finishes its facing as a retargeted one's
                 }
                 c.Base = c.Delivered;
                 c.Remaining = remaining;
@@ -267,7 +274,7 @@ namespace Rsmt.Link
             {
                 Character = o.Character, ContextJson = o.ContextJson, TargetJson = o.TargetJson, Frames = o.Frames,
                 StyleId = o.StyleId, StyleJson = o.StyleJson, Seed = o.Seed, Deterministic = o.Deterministic,
-                ExactArrival = o.ExactArrival, Pace = o.Pace, RequestId = o.RequestId, Model = o.Model,
+                ExactArrival = o.ExactArrival, Retargeted = o.Retargeted, Pace = o.Pace, RequestId = o.RequestId, Model = o.Model,
             };
         }
     }

@@ -380,6 +380,7 @@ namespace Rsmt.Link
         public long? Seed;
         public bool Deterministic;
         public bool ExactArrival;         // bend the last frames so the arrival frame equals the target pose
+        public bool Retargeted;           // a resume of a character retargeted mid-motion (failover sets it)
         public string Pace = "realtime";  // or "asap"
         public string Model;              // a model of GET /v1/models; null: the default
         public string RequestId;
@@ -433,6 +434,7 @@ namespace Rsmt.Link
             if (o.Seed.HasValue) sb.Append(",\"seed\":").Append(o.Seed.Value.ToString(CultureInfo.InvariantCulture));
             sb.Append(",\"deterministic\":").Append(o.Deterministic ? "true" : "false");
             if (o.ExactArrival) sb.Append(",\"exact_arrival\":true");
+            if (o.Retargeted) sb.Append(",\"retargeted\":true");
             sb.Append(",\"pace\":").Append(Json.Quote(o.Pace));
             if (!string.IsNullOrEmpty(o.Model)) sb.Append(",\"model\":").Append(Json.Quote(o.Model));
             if (!string.IsNullOrEmpty(o.RequestId)) sb.Append(",\"request_id\":").Append(Json.Quote(o.RequestId));

@@ -354,6 +354,7 @@ static void TestFailover() {
     CHECK(ParseJson(resume[0], r));
     CHECK(r.NumberOr("frames", 0) == 4 && r.Find("target")->StringOr("bvh", "") == "T" && r.StringOr("style_id", "") == "sty_a");
     CHECK(r.StringOr("model", "") == "m2" && r.StringOr("character", "") == "hero" && r.Find("exact_arrival") != nullptr);
+    CHECK(r.Find("retargeted") == nullptr);  // never retargeted: a plain start
     CHECK((ContextXs(resume[0]) == std::vector<double>{102, 103, 104, 105}));
     st = Msg(MessageKind::Started, "hero");
     f.Received(st);
@@ -396,6 +397,13 @@ static void TestFailover() {
     JsonValue krj;
     CHECK(kr.size() == 1 && ParseJson(kr[0], krj) && krj.NumberOr("frames", 0) == 20 &&
           krj.Find("target")->StringOr("bvh", "") == "T2" && krj.StringOr("style_id", "") == "sty_b");
+    CHECK(krj.Find("retargeted") != nullptr && krj.Find("retargeted")->boolean);  // a target changed mid-motion
+    Failover n = MakeFailover();  // a new target before any frame: resumed as a start to it, not a retarget
+    n.SentStart(opts("a", 10));
+    n.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);
+    JsonValue nj;
+    CHECK(ParseJson(n.ResumeMessages()[0], nj) && nj.Find("target")->StringOr("bvh", "") == "T2" &&
+          nj.Find("retargeted") == nullptr);
 
     Failover u = MakeFailover();  // unknown_style: register again, resend the start
     u.RememberStyle("sty_a", "{\"name\":\"walk\"}");

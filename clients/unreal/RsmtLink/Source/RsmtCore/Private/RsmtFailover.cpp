@@ -38,7 +38,10 @@ void Failover::SentStart(const StartOptions& options) {
 void Failover::SentRetarget(const std::string& character, const std::string& targetJson, int frames) {
     auto it = characters_.find(character);
     if (it == characters_.end()) return;
-    if (!targetJson.empty()) it->second.start.targetJson = targetJson;
+    if (!targetJson.empty()) {
+        it->second.start.targetJson = targetJson;
+        it->second.retargeted = true;
+    }
     if (frames > 0) {
         it->second.retargetFrames = frames;
         it->second.retargetFrom = -1;
@@ -129,6 +132,7 @@ std::vector<std::string> Failover::ResumeMessages() {
         if (c.delivered > 0) {
             o.contextJson = Context(c);
             o.frames = remaining;
+            o.retargeted = c.retargeted;  // mid-motion: the new server finishes its facing as a retargeted one's
         }
         c.base = c.delivered;
         c.remaining = remaining;

@@ -308,6 +308,7 @@ std::string BuildStart(const StartOptions& o) {
     if (o.hasSeed) s += ",\"seed\":" + std::to_string(o.seed);
     s += std::string(",\"deterministic\":") + (o.deterministic ? "true" : "false");
     if (o.exactArrival) s += ",\"exact_arrival\":true";
+    if (o.retargeted) s += ",\"retargeted\":true";
     s += ",\"pace\":" + JsonQuote(o.pace);
     if (!o.model.empty()) s += ",\"model\":" + JsonQuote(o.model);
     if (!o.requestId.empty()) s += ",\"request_id\":" + JsonQuote(o.requestId);

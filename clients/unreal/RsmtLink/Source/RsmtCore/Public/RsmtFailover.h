@@ -6,7 +6,8 @@
 // later style changes), the last context_frames poses received and how many frames were delivered. When the
 // connection is lost (Resumable(close code)), the owner connects again to the same URL (ReconnectDelay between
 // attempts); after the new hello, ResumeMessages() gives a start per live character whose context is the poses
-// received last, with the same target, style, pace and model and the frames still to come. Received() numbers
+// received last, with the same target, style, pace and model and the frames still to come ("retargeted" when
+// its target changed mid-motion, so the new server finishes its facing as it does after a retarget). Received() numbers
 // the new frames on from the count delivered, so the animation layer sees one continuous transition.
 // Mirrors clients/python/rsmt_client/stream_failover.py.
 #pragma once
@@ -66,6 +67,7 @@ private:
         bool awaitingStart = true;
         bool resent = false;
         bool cancelled = false;
+        bool retargeted = false;  // given a new target after its start: a resume says so
         int reregistered = 0;
         std::string lastStart;  // the start (or resume) sent last
         std::string lastStyle;  // the style message sent last

@@ -140,6 +140,7 @@ struct StartOptions {
     std::uint64_t seed = 0;
     bool deterministic = false;
     bool exactArrival = false;      // bend the last frames so the arrival frame equals the target pose
+    bool retargeted = false;        // a resume of a character retargeted mid-motion (Failover sets it)
     std::string pace = "realtime";  // or "asap"
     std::string model;              // optional: a model of GET /v1/models
     std::string requestId;          // optional
