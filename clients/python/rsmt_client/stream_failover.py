@@ -13,7 +13,8 @@ error and not a lost character.
 
 It also answers ``unknown_style`` (a style evicted, or registered on a store the new replica does not
 share) by registering the clip again, when it holds the clip (:meth:`Failover.remember_style`), and
-resending the message that named it. The sync and async clients (:mod:`rsmt_client.stream`) do the I/O.
+resending the message that named it; a resume refused for its ``retargeted`` option (a replica older
+than it) is sent again without it. The sync and async clients (:mod:`rsmt_client.stream`) do the I/O.
 """
 
 from __future__ import annotations
@@ -151,6 +152,10 @@ class Failover:
 
     def _error(self, ch: _Character, item: Message) -> Actions:
         cid = item["character"]
+        if item.get("code") == "validation_error" and ch.awaiting_start and ch.resent and "retargeted" in ch.last_start:
+            # A replica older than the "retargeted" option (a rolling upgrade): the resume again, without it.
+            ch.last_start = {k: v for k, v in ch.last_start.items() if k != "retargeted"}
+            return Actions(None, send=[copy.deepcopy(ch.last_start)])
         if item.get("code") == "unknown_style":
             # A start refused during a resume is resent as the resume (received context, frames still to come).
             named = ch.last_start if ch.awaiting_start else ch.last_style

@@ -156,6 +156,11 @@ static class RsmtHarness
         Check(kr.Count == 1 && krj.GetInt("frames", 0) == 20 && krj.Get("target").GetString("bvh", "") == "T2"
               && krj.GetString("style_id", "") == "sty_b", "failover: retarget and style carried, cancelled dropped");
         Check(krj.GetBool("retargeted", false), "failover: a target changed mid-motion resumes as a retargeted character");
+        var old = k.Received(Msg(RsmtMessageKind.Error, "a", "validation_error"));  // a replica older than the option
+        var oldj = Json.Parse(old.Resend);
+        Check(!old.Deliver && old.RegisterStyleId == null && !oldj.GetBool("retargeted", false) && oldj.GetInt("frames", 0) == 20
+              && oldj.Get("target").GetString("bvh", "") == "T2", "failover: a resume refused for retargeted is sent again without it");
+        Check(k.Received(Msg(RsmtMessageKind.Error, "a", "validation_error")).Deliver && !k.Live, "failover: refused again, the error is delivered");
         var early = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // a new target before any frame: a start to it
         early.SentStart(opts("a", 10), "sa");
         early.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);

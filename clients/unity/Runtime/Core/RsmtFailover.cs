@@ -13,8 +13,8 @@ namespace Rsmt.Link
     /// <summary>What the stream client does with one received message (see RsmtFailover.Received).</summary>
     public sealed class RsmtFailoverAction
     {
-        public bool Deliver = true;      // false: swallow it (its style is being registered again)
-        public string RegisterStyleId;   // register this style's clip again, then send Resend
+        public bool Deliver = true;      // false: swallow it (its style is being registered again, or Resend replaces it)
+        public string RegisterStyleId;   // register this style's clip again, then send Resend (null: just send it)
         public string Resend;
     }
 
@@ -29,6 +29,7 @@ namespace Rsmt.Link
             public bool AwaitingStart = true, Resent, Cancelled;
             public bool Retargeted;                // given a new target after its start: a resume says so
             public string LastStart, LastStyle;    // the start (or resume) and style messages sent last
+            public RsmtStartOptions LastResume;    // the options of the resume sent last, while it is awaited
             public int Reregistered;
         }
 
@@ -149,6 +150,15 @@ namespace Rsmt.Link
                     m.Frames = c.Delivered;
                     break;
                 case RsmtMessageKind.Error:
+                    if (m.Code == "validation_error" && c.AwaitingStart && c.Resent && c.LastResume != null && c.LastResume.Retargeted)
+                    {
+                        // A replica older than the "retargeted" option (a rolling upgrade): the resume again, without it.
+                        c.LastResume.Retargeted = false;
+                        c.LastStart = RsmtMessages.Start(c.LastResume);
+                        action.Deliver = false;
+                        action.Resend = c.LastStart;
+                        return action;
+                    }
                     if (m.Code == "unknown_style")
                     {
                         string named = c.AwaitingStart ? c.LastStart : c.LastStyle;
@@ -211,6 +221,7 @@ namespace Rsmt.Link
                 c.AwaitingStart = c.Resent = true;
                 c.Reregistered = 0;
                 c.LastStart = RsmtMessages.Start(o);
+                c.LastResume = o;
                 output.Add(c.LastStart);
             }
             if (output.Count > 0) Resumes++;

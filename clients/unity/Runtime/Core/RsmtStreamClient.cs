@@ -223,7 +223,8 @@ namespace Rsmt.Link
                 case RsmtMessageKind.Error:
                     if (action != null && !action.Deliver)
                     {
-                        Reregister(m.Character, action.RegisterStyleId, action.Resend);
+                        if (action.RegisterStyleId == null) Send(action.Resend);  // a resume sent again as it was refused
+                        else Reregister(m.Character, action.RegisterStyleId, action.Resend);
                         return;
                     }
                     if (Failover && m.Code == "unknown_style")

@@ -398,6 +398,13 @@ static void TestFailover() {
     CHECK(kr.size() == 1 && ParseJson(kr[0], krj) && krj.NumberOr("frames", 0) == 20 &&
           krj.Find("target")->StringOr("bvh", "") == "T2" && krj.StringOr("style_id", "") == "sty_b");
     CHECK(krj.Find("retargeted") != nullptr && krj.Find("retargeted")->boolean);  // a target changed mid-motion
+    Message ke = Msg(MessageKind::Error, "a", "validation_error");  // a replica older than the option
+    FailoverAction older = k.Received(ke);
+    JsonValue oj;
+    CHECK(!older.deliver && older.registerStyleBody.empty() && ParseJson(older.resend, oj) && oj.Find("retargeted") == nullptr &&
+          oj.NumberOr("frames", 0) == 20 && oj.Find("target")->StringOr("bvh", "") == "T2");
+    Message ke2 = Msg(MessageKind::Error, "a", "validation_error");
+    CHECK(k.Received(ke2).deliver && !k.Live());  // refused again: the error is delivered
     Failover n = MakeFailover();  // a new target before any frame: resumed as a start to it, not a retarget
     n.SentStart(opts("a", 10));
     n.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);

@@ -97,6 +97,14 @@ FailoverAction Failover::Received(Message& m) {
         characters_.erase(it);
         break;
     case MessageKind::Error: {
+        if (m.code == "validation_error" && c.awaitingStart && c.resent && c.lastResume.retargeted) {
+            // A replica older than the "retargeted" option (a rolling upgrade): the resume again, without it.
+            c.lastResume.retargeted = false;
+            c.lastStart = BuildStart(c.lastResume);
+            action.deliver = false;
+            action.resend = c.lastStart;
+            return action;
+        }
         if (m.code == "unknown_style") {
             const std::string& named = c.awaitingStart ? c.lastStart : c.lastStyle;
             const auto style = styles_.find(c.start.styleId);
@@ -139,6 +147,7 @@ std::vector<std::string> Failover::ResumeMessages() {
         c.awaitingStart = c.resent = true;
         c.reregistered = 0;
         c.lastStart = BuildStart(o);
+        c.lastResume = o;
         out.push_back(c.lastStart);
         ++it;
     }

@@ -24,8 +24,8 @@ namespace rsmt {
 
 // What the owner does with one received message.
 struct FailoverAction {
-    bool deliver = true;            // false: swallow it (its style is being registered again)
-    std::string registerStyleBody;  // non-empty: POST /v1/styles with this body, then send resend
+    bool deliver = true;            // false: swallow it (its style is being registered again, or resend replaces it)
+    std::string registerStyleBody;  // non-empty: POST /v1/styles with this body, then send resend; empty: just send it
     std::string resend;
 };
 
@@ -70,6 +70,7 @@ private:
         bool retargeted = false;  // given a new target after its start: a resume says so
         int reregistered = 0;
         std::string lastStart;  // the start (or resume) sent last
+        StartOptions lastResume;  // the options of the resume sent last
         std::string lastStyle;  // the style message sent last
     };
 

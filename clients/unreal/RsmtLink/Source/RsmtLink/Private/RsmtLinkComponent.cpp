@@ -233,7 +233,10 @@ void URsmtLinkComponent::HandleMessage(rsmt::Message& Message)
 		const rsmt::FailoverAction Action = Failover.Received(Message);
 		if (!Action.deliver)
 		{
-			PostStyle(Action.registerStyleBody, 0, Action.resend);
+			if (Action.registerStyleBody.empty())
+				SendText(Action.resend);  // a resume sent again as it was refused
+			else
+				PostStyle(Action.registerStyleBody, 0, Action.resend);
 			return;
 		}
 	}
