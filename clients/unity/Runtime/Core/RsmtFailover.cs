@@ -29,7 +29,7 @@ namespace Rsmt.Link
             public bool AwaitingStart = true, Resent, Cancelled;
             public bool Retargeted;                // given a new target after its start: a resume says so
             public string LastStart, LastStyle;    // the start (or resume) and style messages sent last
-            public RsmtStartOptions LastResume;    // the options of the resume sent last, while it is awaited
+            public RsmtStartOptions LastResume;    // the options of the resume sent last
             public int Reregistered;
         }
 
