@@ -35,6 +35,13 @@ J = 21
 Tensor = torch.Tensor
 
 
+def _small_bundle(seed: int) -> Bundle:
+    """An untrained bundle of the synthetic skeleton, small enough to run in a test."""
+    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
+    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    return Bundle.create(synthetic_skeleton(), cfg, man, seed=seed)
+
+
 def _state(root_xz, vel_xz, goal_xz, tta) -> SamplerState:
     n = len(tta)
     vel = torch.zeros(n, J, 3)
@@ -124,9 +131,7 @@ def _far_arrival(engine: Engine, walk: Clip, frames: int) -> float:
 
 
 def test_a_random_network_is_steered_onto_a_far_target():
-    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
-    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
-    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=1)
+    bundle = _small_bundle(1)
     walk = synthetic_walk(frames=160)
     off = _far_arrival(Engine(bundle, steering=0), walk, 30)
     on = _far_arrival(Engine(bundle, steering=30), walk, 30)
@@ -210,9 +215,7 @@ def test_steer_with_only_the_finishing_parts_gives_no_ground_shift():
 
 
 def test_a_step_that_turns_the_facing_needs_the_skeleton():
-    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
-    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
-    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=1)
+    bundle = _small_bundle(1)
     with pytest.raises(ValueError, match="facing chains"):
         CompiledStep(bundle.sampler, 0, SteeringConfig(turn_window=10))
 
@@ -237,9 +240,7 @@ def _turned_arrival(engine: Engine, walk: Clip, frames: int) -> tuple[float, flo
 
 
 def test_a_random_network_arrives_facing_the_target_at_its_height():
-    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
-    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
-    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)  # untrained: it drifts to face about +35°
+    bundle = _small_bundle(3)  # untrained: it drifts to face about +35°
     walk = synthetic_walk(frames=160)
     finish = OutputConfig(0.0, False, steering=SteeringConfig(window=30, turn_window=10, max_turn_deg=45.0,
                                                               height_window=10, max_rise_cm=5.0))
@@ -253,9 +254,7 @@ def test_a_random_network_arrives_facing_the_target_at_its_height():
 
 
 def test_frames_before_the_finishing_windows_skip_their_parts_and_change_nothing():
-    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
-    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
-    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
+    bundle = _small_bundle(3)
     bundle.output = OutputConfig(0.0, False, steering=SteeringConfig(window=20, turn_window=4, height_window=3))
     walk = synthetic_walk(frames=160)
     frames = []
@@ -302,6 +301,18 @@ def test_a_retarget_window_alone_turns_only_the_flagged_rows():
         SteeringConfig(retarget_max_turn_deg=0.0)
 
 
+USUAL = SteeringConfig(window=20, turn_window=3, max_turn_deg=4.0, height_window=3)
+LATE = SteeringConfig(**{**USUAL.to_dict(), "retarget_turn_window": 8, "retarget_max_turn_deg": 30.0})
+
+
+def _turned_target(walk: Clip) -> Clip:
+    """The walk's frame 20, turned 90 degrees about its vertical and moved 80 cm along x."""
+    target = walk.window(20, 21)
+    rotations = target.rotations.clone()
+    rotations[:, 0] = quat_mul(yaw_quat(torch.tensor(torch.pi / 2)), rotations[:, 0])
+    return Clip(walk.skeleton, rotations, target.root_positions + torch.tensor([80.0, 0.0, 0.0]), walk.fps)
+
+
 def _retargeted_streams(bundle: Bundle, compiled: bool) -> tuple[list[list[tuple[Tensor, Tensor]]], set[str]]:
     """Two characters in one batch walking to one target; the first is retargeted to a target turned 90
     degrees and moved at frame 6 of 16. Each character's frames, and the traced graphs that ran."""
@@ -309,9 +320,7 @@ def _retargeted_streams(bundle: Bundle, compiled: bool) -> tuple[list[list[tuple
     walk = synthetic_walk(frames=160)
     style, _ = engine.encode_style(walk.window(30, 150))
     target = walk.window(20, 21)
-    rotations = target.rotations.clone()
-    rotations[:, 0] = quat_mul(yaw_quat(torch.tensor(torch.pi / 2)), rotations[:, 0])
-    turned = Clip(walk.skeleton, rotations, target.root_positions + torch.tensor([80.0, 0.0, 0.0]), walk.fps)
+    turned = _turned_target(walk)
     batch = CharacterBatch(engine)
     chars = [engine.prepare(walk.window(0, 10), target, 16, style, deterministic=True) for _ in range(2)]
     for ch in chars:
@@ -329,13 +338,9 @@ def _retargeted_streams(bundle: Bundle, compiled: bool) -> tuple[list[list[tuple
 
 
 def test_a_retarget_finishes_its_facing_harder_and_leaves_the_others_as_they_were():
-    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
-    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
-    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
-    usual = SteeringConfig(window=20, turn_window=3, max_turn_deg=4.0, height_window=3)
+    bundle = _small_bundle(3)
     results = {}
-    for name, steering in (("usual", usual), ("late", SteeringConfig(**{**usual.to_dict(), "retarget_turn_window": 8,
-                                                                          "retarget_max_turn_deg": 30.0}))):
+    for name, steering in (("usual", USUAL), ("late", LATE)):
         bundle.output = OutputConfig(0.0, False, steering=steering)
         for compiled in (True, False):
             results[name, compiled], graphs = _retargeted_streams(bundle, compiled)
@@ -356,18 +361,11 @@ def test_a_retarget_finishes_its_facing_harder_and_leaves_the_others_as_they_wer
 def test_a_start_marked_retargeted_finishes_its_facing_as_a_retargeted_character_does():
     """A stream resumed on another server after a retarget starts with ``retargeted``: it takes the retarget
     window (where the bundle has one) from its first frame; without one the flag changes nothing."""
-    cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
-    man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
-    bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=3)
-    usual = SteeringConfig(window=20, turn_window=3, max_turn_deg=4.0, height_window=3)
-    late = SteeringConfig(**{**usual.to_dict(), "retarget_turn_window": 8, "retarget_max_turn_deg": 30.0})
+    bundle = _small_bundle(3)
     walk = synthetic_walk(frames=160)
-    target = walk.window(20, 21)
-    rotations = target.rotations.clone()
-    rotations[:, 0] = quat_mul(yaw_quat(torch.tensor(torch.pi / 2)), rotations[:, 0])
-    turned = Clip(walk.skeleton, rotations, target.root_positions + torch.tensor([80.0, 0.0, 0.0]), walk.fps)
+    turned = _turned_target(walk)
     last = {}
-    for name, steering in (("usual", usual), ("late", late)):
+    for name, steering in (("usual", USUAL), ("late", LATE)):
         bundle.output = OutputConfig(0.0, False, steering=steering)
         engine = Engine(bundle, threads=1, compiled=False)
         style, _ = engine.encode_style(walk.window(30, 150))
