@@ -223,15 +223,13 @@ def _mutations(draw: st.DrawFn) -> str:
     return text
 
 
-@settings(max_examples=400, deadline=None)
-@given(text=_mutations())
-def test_damaged_files_fail_cleanly_and_as_the_server_would(text: str) -> None:
-    """Damaged text either reads or raises BvhError naming a line of the text, and exactly when the project's
-    reader (which the server uses) refuses it too."""
+def _reads_as_the_server_reads(text: str, project_error: type[Exception]) -> None:
+    """The client's reader gives a file exactly when the project's reader (the server's) does, and otherwise a
+    BvhError naming a line of the text or none; the project's refusal must be ``project_error``."""
     try:
         BvhDocument.parse(text)
         project_accepts = True
-    except ValueError:
+    except project_error:
         project_accepts = False
     try:
         parsed = BvhFile.parse(text, source="x.bvh")
@@ -241,6 +239,14 @@ def test_damaged_files_fail_cleanly_and_as_the_server_would(text: str) -> None:
         return
     assert project_accepts, "read what the server refuses"
     assert parsed.motion.shape == (parsed.num_frames, sum(len(j.channels) for j in parsed.joints))
+
+
+@settings(max_examples=400, deadline=None)
+@given(text=_mutations())
+def test_damaged_files_fail_cleanly_and_as_the_server_would(text: str) -> None:
+    """Damaged text either reads or raises BvhError naming a line of the text, and exactly when the project's
+    reader (which the server uses) refuses it too."""
+    _reads_as_the_server_reads(text, ValueError)
 
 
 # ---------------------------------------------------------------------- hostile input: BvhError and nothing else
@@ -262,6 +268,16 @@ def test_hostile_counts_are_bvh_errors(text: str, line: int, words: str) -> None
         BvhDocument.parse(text)
 
 
+@pytest.mark.parametrize(("tail", "line", "wanted"), [("MOTION\n", 12, "Frames"), ("MOTION\nFrames: 0\n", 13, "Frame Time"),
+                                                   ("MOTION", 11, "Frames")])
+def test_a_file_that_ends_early_names_its_last_line(tail: str, line: int, wanted: str) -> None:
+    """A header missing at the end of the file is reported on the file's last line, never past it."""
+    text = "HIERARCHY\nROOT j0\n{\nOFFSET 0 1 0\nCHANNELS 0\nEnd Site\n{\nOFFSET 0 1 0\n}\n}\n" + tail
+    with pytest.raises(BvhError, match=f"expected '{wanted}: ...', found the end of the file") as err:
+        BvhFile.parse(text, source="x.bvh")
+    assert err.value.line == line == text.count("\n") + 1
+
+
 def test_zero_channels_and_leading_zeros_read_as_the_server_reads_them() -> None:
     for text in (ZERO_CHANNELS % "0", ZERO_CHANNELS % "12", ZERO_CHANNELS % ("0" * 5000 + "12")):
         ours, theirs = BvhFile.parse(text), BvhDocument.parse(text)
@@ -273,16 +289,4 @@ def test_zero_channels_and_leading_zeros_read_as_the_server_reads_them() -> None
 def test_any_text_reads_or_is_a_bvh_error_as_on_the_server(text: str) -> None:
     """Fuzzing: any text (or file bytes) gives a file or BvhError, never another exception, and exactly when
     the project's reader (itself fuzzed in tests/model/motion/test_bvh.py) accepts it."""
-    try:
-        BvhDocument.parse(text)
-        project_accepts = True
-    except ProjectBvhError:
-        project_accepts = False
-    try:
-        parsed = BvhFile.parse(text, source="x.bvh")
-    except BvhError as exc:
-        assert not project_accepts, f"refused what the server reads: {exc}"
-        assert exc.line is None or 1 <= exc.line <= text.count("\n") + 1
-        return
-    assert project_accepts, "read what the server refuses"
-    assert parsed.motion.shape == (parsed.num_frames, sum(len(j.channels) for j in parsed.joints))
+    _reads_as_the_server_reads(text, ProjectBvhError)

@@ -336,8 +336,9 @@ def _header(lines: Sequence[str], at: int, pattern: re.Pattern[str], what: str, 
         at += 1
     found = pattern.fullmatch(lines[at].strip()) if at < len(lines) else None
     if found is None or not found.group(1):
-        seen = repr(lines[at].strip()) if at < len(lines) else "the end of the file"
-        raise BvhError(f"expected '{what}: ...', found {seen}", at + 1, source)
+        if at < len(lines):
+            raise BvhError(f"expected '{what}: ...', found {lines[at].strip()!r}", at + 1, source)
+        raise BvhError(f"expected '{what}: ...', found the end of the file", len(lines), source)  # its last line
     return found.group(1), at + 1
 
 
