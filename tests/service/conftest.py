@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import httpx
 import pytest
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
@@ -25,6 +26,13 @@ def server(bundle_dir):
     srv = Server(bundle_dir).start()
     yield srv
     srv.stop()
+
+
+@pytest.fixture(scope="module")
+def client(server):
+    """An HTTP client of the module's server."""
+    with httpx.Client(base_url=server.url, timeout=30.0) as c:
+        yield c
 
 
 def bvh(clip: Clip) -> dict:

@@ -28,12 +28,6 @@ HOSTILE = {
 
 
 @pytest.fixture(scope="module")
-def client(server):
-    with httpx.Client(base_url=server.url, timeout=30.0) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def style_id(client) -> str:
     return client.post("/v1/styles", json={"name": "walk", "motion": bvh(walk(60))}).json()["style_id"]
 

@@ -21,12 +21,6 @@ from tests.service.conftest import (
 
 
 @pytest.fixture(scope="module")
-def client(server):
-    with httpx.Client(base_url=server.url, timeout=30.0) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def style_id(client) -> str:
     return client.post("/v1/styles", json={"name": "walk", "motion": bvh(walk(120))}).json()["style_id"]
 
