@@ -25,6 +25,7 @@ from pathlib import Path
 
 import torch
 
+from model.evaluation.metrics import ground_levels
 from model.inference.bundle import Bundle
 from model.inference.bundle_adapters import StyleAdapter, adapter_from
 from model.motion.clip import Clip
@@ -67,6 +68,9 @@ class FinetuneConfig:
     w_acc: float = 2.0
     w_spectrum: float = 0.2
     w_foot: float = 1.0  # planted-foot sliding
+    # The generated feet's horizontal speed at their ground height (planted_foot_speed, the main recipe's
+    # w_foot_height): the term above holds feet only where the clip's feet were down.
+    w_foot_height: float = 0.0
     # The adapter keeps ``blend * tuned + (1 - blend) * original`` weights (weight-space ensembling): on
     # validation 0.5 kept the new style's transitions closer to the capture (amendment 3 of the record).
     blend: float = 0.5
@@ -120,6 +124,7 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
         p.requires_grad_(n in names)
     stage = SamplerStageConfig(batch=cfg.batch, max_transition=transition, style_frames=style_frames,
                                validation_transition=min(transition, 30))
+    ground = ground_levels(tensors.positions, list(tensors.skeleton.feet)).to(dev) if cfg.w_foot_height > 0 else None
     pairs = StylePairs(tensors, c.context + transition, style_frames, step=2)
     val_gen = torch.Generator().manual_seed(cfg.loop.seed + 1)
     val_sets = [pairs.sample(8, val_gen) for _ in range(2)]
@@ -128,11 +133,12 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
         batch = make_batch(tensors, starts, owners, c.context + length, c.context - 1)
         pos, rot = tensors.gather(style_starts, style_frames)
         feats = local_frame_features(pos, rot, tensors.skeleton)
-        return transition_losses(sampler, tensors, batch, feats, length, stage, gen, training)
+        return transition_losses(sampler, tensors, batch, feats, length, stage, gen, training, ground=ground)
 
     def objective(out: dict) -> torch.Tensor:
         return (out["pos"] + out["rot"] + out["last_pos"] + 0.5 * out["last_rot"] + 0.5 * out["fk"] + cfg.w_foot * out["foot"]
-                + cfg.w_vel * out["vel"] + cfg.w_acc * out["acc"] + cfg.w_spectrum * out["spectrum"])
+                + cfg.w_vel * out["vel"] + cfg.w_acc * out["acc"] + cfg.w_spectrum * out["spectrum"]
+                + (cfg.w_foot_height * out["foot_height"] if ground is not None else 0.0))
 
     def step(i: int) -> dict[str, float]:
         gen = step_generator(cfg.loop.seed, i)
