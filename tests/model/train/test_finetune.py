@@ -74,3 +74,27 @@ def test_each_scope_has_the_defaults_it_was_measured_with() -> None:
 def test_an_unknown_scope_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown fine-tuning scope"):
         FinetuneConfig.for_scope("everything")
+
+
+
+def test_the_generated_feet_term_changes_what_is_learned_only_when_weighed(bundle, tmp_path, monkeypatch):
+    """``w_foot_height`` adds the generated feet's speed at their ground height (the clips' ground levels) to
+    the objective: weighed, the tuned weights differ; at 0 (the default) the term is not computed and the run
+    is the one it always was. An untrained network's generated feet hover above the ground, where the term
+    is 0, so here every generated foot counts as planted."""
+    import model.train.sampler_losses as losses
+
+    seen: list = []
+
+    def every_foot_planted(positions, feet, ground):
+        seen.append(ground)
+        p = positions[:, :, feet]
+        return (p[:, 1:, :, [0, 2]] - p[:, :-1, :, [0, 2]]).pow(2).sum(-1).add(1e-6).sqrt().mean()
+
+    monkeypatch.setattr(losses, "planted_foot_speed", every_foot_planted)
+    plain, _ = finetune_style(bundle, _clips(), "bouncy", _config("network"), tmp_path / "a", progress=False)
+    assert not seen and FinetuneConfig().w_foot_height == 0.0
+    held, _ = finetune_style(bundle, _clips(), "bouncy", _config("network", w_foot_height=5.0), tmp_path / "c",
+                             progress=False)
+    assert seen and seen[0].shape == (len(bundle.skeleton.feet),)
+    assert held.version != plain.version
