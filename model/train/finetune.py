@@ -69,7 +69,8 @@ class FinetuneConfig:
     w_spectrum: float = 0.2
     w_foot: float = 1.0  # planted-foot sliding
     # The generated feet's horizontal speed at their ground height (planted_foot_speed, the main recipe's
-    # w_foot_height): the term above holds feet only where the clip's feet were down.
+    # w_foot_height): the term above holds feet only where the clip's feet were down. Off: on validation
+    # 0.5 and 2.0 lowered foot skate but cost more in FMD, L2P and style (amendment 6 of the record).
     w_foot_height: float = 0.0
     # The adapter keeps ``blend * tuned + (1 - blend) * original`` weights (weight-space ensembling): on
     # validation 0.5 kept the new style's transitions closer to the capture (amendment 3 of the record).
