@@ -91,23 +91,25 @@ def test_retarget_and_style_are_carried_into_the_resume():
     assert resumed["frames"] == 19 and "retargeted" not in resumed  # a new duration alone is no new target
 
 
-def test_a_resume_refused_for_its_retargeted_option_is_sent_again_without_it():
-    f = Failover(CTX, FPS, NAMES)  # an older replica (a rolling upgrade) does not know the option
+def _resumed_after_a_retarget() -> tuple[Failover, dict]:
+    """A failover whose character was retargeted mid-motion, and the resume it sends after a drop."""
+    f = Failover(CTX, FPS, NAMES)
     f.sent(start(frames=10))
     f.received(frame("hero", 0, 9))
     f.sent({"type": "retarget", "character": "hero", "target": {"bvh": "T2"}})
     (resume,) = f.resume_messages()
+    return f, resume
+
+
+def test_a_resume_refused_for_its_retargeted_option_is_sent_again_without_it():
+    f, resume = _resumed_after_a_retarget()  # an older replica (a rolling upgrade) does not know the option
     assert resume["retargeted"] is True
     act = f.received({"type": "error", "character": "hero", "code": "validation_error"})
     assert act.item is None and act.register is None
     (again,) = act.send
     assert again == {k: v for k, v in resume.items() if k != "retargeted"}
     assert f.received({"type": "started", "character": "hero"}).item["resumed"] is True
-    g = Failover(CTX, FPS, NAMES)  # refused again (or a plain start refused): the error reaches the caller
-    g.sent(start(frames=10))
-    g.received(frame("hero", 0, 9))
-    g.sent({"type": "retarget", "character": "hero", "target": {"bvh": "T2"}})
-    g.resume_messages()
+    g, _ = _resumed_after_a_retarget()  # refused again (or a plain start refused): the error reaches the caller
     g.received({"type": "error", "character": "hero", "code": "validation_error"})
     last = g.received({"type": "error", "character": "hero", "code": "validation_error"})
     assert last.item is not None and last.item["code"] == "validation_error" and not last.send and not g.live
