@@ -23,6 +23,8 @@ from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFra
 from model.inference.floor_contact import FloorContact
 from model.inference.foot_lock import FootLock
 from model.inference.int8_step import int8_lstm_sampler
+from model.inference.leg_chains import LegChains
+from model.inference.stride_warp import StrideWarp, StrideWarpConfig
 from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
 from model.motion.clip import Clip
@@ -79,7 +81,9 @@ class Engine:
         legs = feet_kinematics(self.skeleton)
         self.foot_lock = FootLock(self.skeleton, self.config.fps, kinematics=legs) if self.output.foot_lock else None
         self.floor = FloorContact(self.skeleton, kinematics=legs) if self.output.floor else None
-        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor),
+        warp = (StrideWarp(LegChains(self.skeleton, legs), self.config.fps, StrideWarpConfig(self.output.stride_warp))
+                if self.output.stride_warp > 0 and self.output.steering.window > 0 else None)
+        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor, warp),
                                              traced=compiled)
         self._ids = itertools.count()
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import torch
 
-from model.motion.kinematics import ChainKinematics, feet_kinematics, two_bone_ik
-from model.motion.rotations import quat_conjugate, quat_mul
+from model.inference.leg_chains import LegChains
+from model.motion.kinematics import ChainKinematics
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
@@ -85,33 +85,15 @@ class FootLock:
         use, e.g. the one floor contact uses, so that FrameOutput computes them once for both."""
         self.config = config or FootLockConfig()
         self.fps = fps
-        sk = skeleton
-        chains = [sk.chain_to(ankle) for _, _, ankle in sk.legs]  # root ... hip, knee, ankle of each leg
-        for chain in chains:
-            if len(chain) < 4:  # the hip's parent turns its new world rotation into a local one
-                raise ValueError(f"the ankle {sk.names[chain[-1]]!r} has no two-bone leg below the root")
-        if len(chains[0]) != len(chains[1]):
-            raise ValueError("foot lock needs legs of the same depth below the root")
-        self.chain = torch.tensor(chains).T  # [depth, 2]: joint of each leg at each depth
-        self.kinematics = feet_kinematics(sk) if kinematics is None else kinematics
-        self._depth = len(chains[0])
-        self._chain_joints = self.chain.reshape(-1).tolist()  # depth-major: both legs' joints at each depth
-        self.kinematics.columns(self._chain_joints)  # a ValueError when it does not reach both legs
-        self.hip, self.knee, self.ankle = self.chain[-3], self.chain[-2], self.chain[-1]
-        self.leg_joints = self.chain[-3:].reshape(-1)  # hips, knees, ankles: the joints the lock rewrites
+        self.legs = LegChains(skeleton, kinematics)
 
-    def _legs_fk(self, rotations: Tensor, roots: Tensor,
-                 chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
-        """World positions ``[N, depth, 2, 3]`` and rotations ``[N, depth, 2, 4]`` along both legs' chains;
-        ``chains``: :attr:`kinematics`' results for these rotations and roots, where already computed."""
-        pos, rot = self.kinematics(rotations, roots) if chains is None else chains
-        shape = (*pos.shape[:-2], self._depth, 2)
-        return (self.kinematics.pick(pos, self._chain_joints).view(*shape, 3),
-                self.kinematics.pick(rot, self._chain_joints).view(*shape, 4))
+    @property
+    def kinematics(self) -> ChainKinematics:
+        return self.legs.kinematics
 
     def ankles(self, rotations: Tensor, roots: Tensor) -> Tensor:
         """World ankle positions ``[N, 2, 3]`` of local ``rotations [N, J, 4]`` and ``roots [N, 3]``."""
-        return self._legs_fk(rotations, roots)[0][:, -1]
+        return self.legs.poses(rotations, roots)[0][:, -1]
 
     def start(self, rotations: Tensor, roots: Tensor) -> FootLockState:
         """State of one character from its context ``[T, J, 4]``, ``[T, 3]``."""
@@ -141,7 +123,7 @@ class FootLock:
                 for these rotations and roots, where the caller has them (FrameOutput does).
         """
         c = self.config
-        pos, grot = self._legs_fk(rotations, roots, chains)
+        pos, grot = self.legs.poses(rotations, roots, chains)
         ank = pos[:, -1]  # [N, 2, 3]
         step = torch.zeros_like(ank) if shift is None else shift.unsqueeze(1).expand_as(ank)
         carried = state.carried + step
@@ -161,11 +143,4 @@ class FootLock:
         move = offset.norm(dim=-1) > 1e-4  # [N, 2]
         if skip_idle and not bool(move.any()):
             return rotations, new_state
-        hip_w, knee_w, ankle_w = grot[:, -3], grot[:, -2], grot[:, -1]
-        new_hip, new_knee = two_bone_ik(pos[:, -3], pos[:, -2], ank, hip_w, knee_w, ank + offset)
-        # Local rotations from the new world ones; the ankle keeps its world rotation (the foot stays flat).
-        parents_w = torch.cat([grot[:, -4], new_hip, new_knee], 1)  # [N, 6, 4]: hips, knees, ankles of both legs
-        local = quat_mul(quat_conjugate(parents_w), torch.cat([new_hip, new_knee, ankle_w], 1))
-        moved = torch.where(move.repeat(1, 3).unsqueeze(-1), local, rotations.index_select(1, self.leg_joints))
-        # index_copy rather than indexed assignment: a traced graph keeps it generic in the batch size.
-        return rotations.index_copy(1, self.leg_joints, moved), new_state
+        return self.legs.bend(rotations, pos, grot, ank + offset, move), new_state

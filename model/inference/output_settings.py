@@ -20,15 +20,20 @@ class OutputConfig:
     rotations, in [0, 1) (0: off); ``root_smoothing``: the same for the root position (None: as
     ``smoothing``). ``foot_lock``: hold planted feet by leg IK. ``steering``: keep the root on course
     for the target (:mod:`model.inference.steering`; its window 0: off). ``floor``: lift a body whose
-    feet sink under the floor of its context (:mod:`model.inference.floor_contact`)."""
+    feet sink under the floor of its context (:mod:`model.inference.floor_contact`). ``stride_warp``: the
+    longest stride the feet are stretched to where steering carries the body, as a share of the
+    network's stride beyond 1 (:mod:`model.inference.stride_warp`; 0: off)."""
 
     smoothing: float = 0.0
     foot_lock: bool = False
     root_smoothing: float | None = None
     steering: SteeringConfig = field(default_factory=SteeringConfig)
     floor: bool = False
+    stride_warp: float = 0.0
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.stride_warp <= 4.0:
+            raise ValueError(f"stride warp must be in [0, 4], got {self.stride_warp}")
         for name, value in (("output smoothing", self.smoothing), ("root smoothing", self.root_strength)):
             if not 0.0 <= value < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {value}")
@@ -43,7 +48,7 @@ class OutputConfig:
 
     def with_overrides(self, smoothing: float | None = None, root_smoothing: float | None = None,
                        foot_lock: bool | None = None, steering: int | None = None,
-                       floor: bool | None = None) -> OutputConfig:
+                       floor: bool | None = None, stride_warp: float | None = None) -> OutputConfig:
         """These settings with a caller's overrides (None keeps a setting). Once either strength is
         given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value.
         ``steering`` is the ground steering window in frames (0: every part of steering off)."""
@@ -54,14 +59,15 @@ class OutputConfig:
             rot, root = self.smoothing, self.root_smoothing
         steer = self.steering if steering is None else self.steering.with_window(int(steering))
         return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer,
-                            self.floor if floor is None else bool(floor))
+                            self.floor if floor is None else bool(floor),
+                            self.stride_warp if stride_warp is None else float(stride_warp))
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> OutputConfig:
-        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering", "floor"}
+        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering", "floor", "stride_warp"}
         if unknown:
             raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
         data = dict(data)

@@ -24,6 +24,7 @@ from model.inference.foot_lock import FootLock, FootLockState
 from model.inference.output_filter import smooth_frame, smoothing_weight
 from model.inference.output_settings import OutputConfig
 from model.inference.steering import SteeringConfig, steer
+from model.inference.stride_warp import StrideWarp
 from model.motion.features import CanonicalFrame, FacingChains
 from model.motion.kinematics import global_to_local_rotations
 from model.motion.rotations import sixd_to_quat
@@ -157,16 +158,17 @@ def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int],
 class FrameOutput:
     """What happens to a generated frame before it leaves, for one skeleton and output settings:
     to world space, the output filter (:mod:`model.inference.output_filter`), floor contact
-    (:mod:`model.inference.floor_contact`), then the foot lock.
+    (:mod:`model.inference.floor_contact`), the stride warp (:mod:`model.inference.stride_warp`),
+    then the foot lock.
 
     Each character's memory is a dict of named rows ``[N, ...]`` (:attr:`keys`): the previous
     emitted frame for the filter, and the lock's state. Eager and traced paths share this code.
     """
 
     def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None,
-                 floor: FloorContact | None = None) -> None:
+                 floor: FloorContact | None = None, warp: StrideWarp | None = None) -> None:
         self.parents, self.root = list(skeleton.parents), skeleton.roles.root
-        self.output, self.lock, self.floor = output, lock, floor
+        self.output, self.lock, self.floor, self.warp = output, lock, floor, warp
         self.keys = (("prev_rot", "prev_root") + (("floor",) if floor else ())
                      + (FootLockState.MEMORY_KEYS if lock else ()))
 
@@ -174,8 +176,8 @@ class FrameOutput:
                  skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """Local rotations ``[N, J, 4]``, root positions ``[N, 3]`` and the new memory, for rows with
         ``remaining [N]`` frames after this one; ``shift [N, 2]`` is the ground shift steering gave each
-        row's body this frame (canonical x, z; :mod:`model.inference.steering`), which the foot lock
-        discounts."""
+        row's body this frame (canonical x, z; :mod:`model.inference.steering`), which the stride warp
+        takes up and the foot lock discounts."""
         local, root = world_pose(pose, yaw, origin, self.parents, self.root)
         out = self.output
         if out.smooths:
@@ -196,11 +198,17 @@ class FrameOutput:
             if self.lock is not None and self.lock.kinematics is self.floor.kinematics:
                 chains = (legs[0] + up.unsqueeze(-2), legs[1])
             new["floor"] = memory["floor"]
+        world_shift = None
+        if shift is not None and (self.lock is not None or self.warp is not None):
+            turn = CanonicalFrame(yaw, torch.zeros_like(origin))
+            world_shift = turn.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], -1))
+            if self.warp is not None:
+                # The network's own root velocity: its state's, less the shift steering added to it.
+                velocity = turn.positions_from(pose.vel[:, self.root]) - world_shift
+                local, world_shift = self.warp.apply(local, root, remaining, velocity, world_shift,
+                                                     skip_idle=skip_idle, chains=chains)
+                chains = None  # the legs moved: the lock reads them again
         if self.lock is not None:
-            world_shift = None
-            if shift is not None:
-                frame = CanonicalFrame(yaw, torch.zeros_like(origin))
-                world_shift = frame.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], -1))
             local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle,
                                            shift=world_shift, chains=chains)
             new.update(state.memory())

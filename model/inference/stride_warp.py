@@ -1,0 +1,97 @@
+"""Stride warping: longer (or shorter) strides where steering carries the body faster than the gait.
+
+Steering (:mod:`model.inference.steering`) moves the whole body toward a target the network's gait
+would not reach in time, so a foot the network plants is carried along and slides; the foot lock can
+hold it only as far as the leg reaches. Engines meet the same problem (a capsule moving faster than
+its animation) by placing the feet further from the hips along the motion. Here, each frame, with
+``u`` the ground shift steering gave the body and ``v`` the network's own root velocity (its velocity
+less the shift), each ankle moves on the ground by ``(r . v/|v|) u / |v|``, ``r`` being its ground
+offset from the root. A planted foot's offset shrinks by ``|v|`` a frame, so its move changes by
+``-u``: it stays where it is in the world while the body is carried, and a swinging foot lands
+further along. The legs reach the moved ankles by two-bone IK (:mod:`model.inference.leg_chains`).
+
+``|u| / |v|`` is capped at ``reach`` (the longest stride is ``1 + reach`` times the network's); the
+warp fades in with the root's speed (none for a character standing or turning on the spot) and out
+over the last ``fade`` frames, so the arrival frame is the network's own. Stateless: whole
+transitions and streams get the same frames. What the cap leaves of the shift is returned for the
+foot lock, which then judges planted feet against that part only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from model.inference.leg_chains import LegChains
+
+Tensor = torch.Tensor
+
+
+@dataclass(frozen=True)
+class StrideWarpConfig:
+    reach: float  # cap on |shift| / |network root speed|: strides up to 1 + reach times the network's
+    slow_cm_s: float = 15.0  # root speed under which nothing is warped
+    full_cm_s: float = 45.0  # root speed from which the warp is whole
+    fade: int = 5  # frames before arrival over which the warp fades out
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.reach <= 4.0:
+            raise ValueError(f"stride warp reach must be in (0, 4], got {self.reach}")
+        if not 0.0 <= self.slow_cm_s < self.full_cm_s:
+            raise ValueError("stride warp needs 0 <= slow_cm_s < full_cm_s")
+        if self.fade < 0:
+            raise ValueError("stride warp fade must be 0 or more")
+
+
+class StrideWarp:
+    """Batched stride warping for one skeleton (Y up, cm) at ``fps``."""
+
+    def __init__(self, legs: LegChains, fps: float, config: StrideWarpConfig) -> None:
+        self.legs, self.fps, self.config = legs, fps, config
+
+    def share(self, velocity: Tensor, shift: Tensor, remaining: Tensor) -> Tensor:
+        """The ground shift per unit of root speed ``[N, 3]`` the warp takes up, for the network's own
+        root ``velocity [N, 3]`` (cm a frame, shift excluded), steering's ``shift [N, 3]`` and ``remaining
+        [N]`` frames after this one (0 on arrival)."""
+        c = self.config
+        ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
+        v, u = velocity * ground, shift * ground
+        speed = v.norm(dim=-1, keepdim=True)
+        ratio = u / speed.clamp_min(1e-3)
+        ratio = ratio * (c.reach / ratio.norm(dim=-1, keepdim=True).clamp_min(c.reach))
+        x = ((speed * self.fps - c.slow_cm_s) / (c.full_cm_s - c.slow_cm_s)).clamp(0.0, 1.0)
+        gate = x * x * (3.0 - 2.0 * x)
+        if c.fade > 0:
+            gate = gate * (remaining.float() / c.fade).clamp(0.0, 1.0).unsqueeze(-1)
+        return ratio * gate
+
+    def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, velocity: Tensor, shift: Tensor,
+              skip_idle: bool = True, chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
+        """Warp the strides of one frame of ``N`` characters: new local rotations, and the part of
+        ``shift`` the warp left (``[N, 3]``, what still carries a planted foot).
+
+        Args:
+            rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots (world).
+            remaining: ``[N]`` frames left after this one (0 on the arrival frame).
+            velocity: ``[N, 3]`` the network's own root velocity this frame (world, cm a frame,
+                steering's shift excluded).
+            shift: ``[N, 3]`` how far steering moved the whole body this frame (world).
+            skip_idle: return early when no foot needs moving (eager use); False keeps the
+                operations independent of the data, as a traced graph needs.
+            chains: the legs' kinematics results for these rotations and roots, where the caller has them.
+        """
+        ratio = self.share(velocity, shift, remaining)  # [N, 3]
+        ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
+        speed = (velocity * ground).norm(dim=-1, keepdim=True)
+        left = shift - ratio * speed
+        move_any = ratio.norm(dim=-1) > 1e-6  # [N]
+        if skip_idle and not bool(move_any.any()):
+            return rotations, left
+        pos, grot = self.legs.poses(rotations, roots, chains)
+        ank = pos[:, -1]  # [N, 2, 3]
+        heading = velocity * ground / speed.clamp_min(1e-3)
+        along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1, keepdim=True)  # [N, 2, 1]
+        targets = ank + along * ratio.unsqueeze(1)
+        move = move_any.unsqueeze(-1).expand(-1, 2)
+        return self.legs.bend(rotations, pos, grot, targets, move), left
