@@ -81,9 +81,9 @@ class Engine:
         legs = feet_kinematics(self.skeleton)
         self.foot_lock = FootLock(self.skeleton, self.config.fps, kinematics=legs) if self.output.foot_lock else None
         self.floor = FloorContact(self.skeleton, kinematics=legs) if self.output.floor else None
-        warp = (StrideWarp(LegChains(self.skeleton, legs), self.config.fps, StrideWarpConfig(self.output.stride_warp))
+        self.warp = (StrideWarp(LegChains(self.skeleton, legs), self.config.fps, StrideWarpConfig(self.output.stride_warp))
                 if self.output.stride_warp > 0 and self.output.steering.window > 0 else None)
-        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor, warp),
+        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor, self.warp),
                                              traced=compiled)
         self._ids = itertools.count()
 
@@ -225,6 +225,8 @@ class Engine:
         ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
         if self.floor is not None:
             ch._post["floor"] = self.floor.floor(crot, context.root_positions)
+        if self.warp is not None:
+            ch._post.update(self.warp.start())
         if self.foot_lock is not None:
             lock = self.foot_lock.start(crot, context.root_positions)
             ch._post.update(lock.memory())

@@ -34,6 +34,7 @@ class StrideWarpConfig:
     slow_cm_s: float = 15.0  # root speed under which nothing is warped
     full_cm_s: float = 45.0  # root speed from which the warp is whole
     fade: int = 5  # frames before arrival over which the warp fades out
+    settle: float = 0.1  # share of the way a frame the integrated offset is pulled to the stateless one
 
     def __post_init__(self) -> None:
         if not 0.0 < self.reach <= 4.0:
@@ -42,10 +43,14 @@ class StrideWarpConfig:
             raise ValueError("stride warp needs 0 <= slow_cm_s < full_cm_s")
         if self.fade < 0:
             raise ValueError("stride warp fade must be 0 or more")
+        if not 0.0 <= self.settle <= 1.0:
+            raise ValueError("stride warp settle must be in [0, 1]")
 
 
 class StrideWarp:
-    """Batched stride warping for one skeleton (Y up, cm) at ``fps``."""
+    """Batched stride warping for one skeleton (Y up, cm) at ``fps``, with per-character memory."""
+
+    MEMORY_KEYS = ("warp_offset", "warp_along")
 
     def __init__(self, legs: LegChains, fps: float, config: StrideWarpConfig) -> None:
         self.legs, self.fps, self.config = legs, fps, config
@@ -66,10 +71,15 @@ class StrideWarp:
             gate = gate * (remaining.float() / c.fade).clamp(0.0, 1.0).unsqueeze(-1)
         return ratio * gate
 
+    def start(self, rows: int = 1) -> dict[str, Tensor]:
+        """A character's warp memory under :attr:`MEMORY_KEYS`: no offset yet, no stride seen."""
+        return {"warp_offset": torch.zeros(rows, 2, 3), "warp_along": torch.full((rows, 2), float("nan"))}
+
     def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, velocity: Tensor, shift: Tensor,
-              skip_idle: bool = True, chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
-        """Warp the strides of one frame of ``N`` characters: new local rotations, and the part of
-        ``shift`` the warp left (``[N, 3]``, what still carries a planted foot).
+              memory: dict[str, Tensor], skip_idle: bool = True,
+              chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Warp the strides of one frame of ``N`` characters: new local rotations, the part of
+        ``shift`` the warp left (``[N, 3]``, what still carries a planted foot) and the new memory.
 
         Args:
             rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots (world).
@@ -77,21 +87,32 @@ class StrideWarp:
             velocity: ``[N, 3]`` the network's own root velocity this frame (world, cm a frame,
                 steering's shift excluded).
             shift: ``[N, 3]`` how far steering moved the whole body this frame (world).
+            memory: ``warp_offset [N, 2, 3]`` (each ankle's move last frame) and ``warp_along [N, 2]``
+                (each ankle's ground offset from the root along the motion last frame; NaN: none).
             skip_idle: return early when no foot needs moving (eager use); False keeps the
                 operations independent of the data, as a traced graph needs.
             chains: the legs' kinematics results for these rotations and roots, where the caller has them.
         """
+        c = self.config
         ratio = self.share(velocity, shift, remaining)  # [N, 3]
         ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
         speed = (velocity * ground).norm(dim=-1, keepdim=True)
         left = shift - ratio * speed
-        move_any = ratio.norm(dim=-1) > 1e-6  # [N]
-        if skip_idle and not bool(move_any.any()):
-            return rotations, left
+        before = memory["warp_offset"]
+        if skip_idle and not bool((ratio.norm(dim=-1) > 1e-6).any()) and not bool((before.norm(dim=-1) > 1e-4).any()):
+            return rotations, left, {"warp_offset": torch.zeros_like(before),
+                                     "warp_along": torch.full_like(memory["warp_along"], float("nan"))}
         pos, grot = self.legs.poses(rotations, roots, chains)
         ank = pos[:, -1]  # [N, 2, 3]
         heading = velocity * ground / speed.clamp_min(1e-3)
-        along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1, keepdim=True)  # [N, 2, 1]
-        targets = ank + along * ratio.unsqueeze(1)
-        move = move_any.unsqueeze(-1).expand(-1, 2)
-        return self.legs.bend(rotations, pos, grot, targets, move), left
+        along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1)  # [N, 2]
+        last = memory["warp_along"]
+        step = torch.where(torch.isnan(last), torch.zeros_like(along), along - last)  # no stride seen: no change
+        grown = before + step.unsqueeze(-1) * ratio.unsqueeze(1)
+        settled = along.unsqueeze(-1) * ratio.unsqueeze(1)  # the stateless offset, which the state is pulled to
+        offset = grown + c.settle * (settled - grown)
+        if c.fade > 0:
+            offset = offset * (remaining.float() / c.fade).clamp(0.0, 1.0).view(-1, 1, 1)
+        move = offset.norm(dim=-1) > 1e-4  # [N, 2]
+        return (self.legs.bend(rotations, pos, grot, ank + offset, move), left,
+                {"warp_offset": offset, "warp_along": along})

@@ -170,7 +170,7 @@ class FrameOutput:
         self.parents, self.root = list(skeleton.parents), skeleton.roles.root
         self.output, self.lock, self.floor, self.warp = output, lock, floor, warp
         self.keys = (("prev_rot", "prev_root") + (("floor",) if floor else ())
-                     + (FootLockState.MEMORY_KEYS if lock else ()))
+                     + (StrideWarp.MEMORY_KEYS if warp else ()) + (FootLockState.MEMORY_KEYS if lock else ()))
 
     def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
                  skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
@@ -205,9 +205,13 @@ class FrameOutput:
             if self.warp is not None:
                 # The network's own root velocity: its state's, less the shift steering added to it.
                 velocity = turn.positions_from(pose.vel[:, self.root]) - world_shift
-                local, world_shift = self.warp.apply(local, root, remaining, velocity, world_shift,
-                                                     skip_idle=skip_idle, chains=chains)
+                local, world_shift, warped = self.warp.apply(local, root, remaining, velocity, world_shift,
+                                                             {k: memory[k] for k in StrideWarp.MEMORY_KEYS},
+                                                             skip_idle=skip_idle, chains=chains)
+                new.update(warped)
                 chains = None  # the legs moved: the lock reads them again
+        elif self.warp is not None:  # not steered this frame: nothing to warp, the memory kept
+            new.update({k: memory[k] for k in StrideWarp.MEMORY_KEYS})
         if self.lock is not None:
             local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle,
                                            shift=world_shift, chains=chains)
