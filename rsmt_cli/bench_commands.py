@@ -75,4 +75,5 @@ def engine_label(engine: Any, path: Path) -> str:
     steering = f", steering {steer.window}{f' ({finish})' if finish else ''}" if steer.on else ""
     return (f"{engine.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
             f"foot lock {'on' if out.foot_lock else 'off'}{steering}{', floor contact' if out.floor else ''}"
+            f"{f', stride warp {out.stride_warp:g}' if out.stride_warp and steer.on else ''}"
             f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")

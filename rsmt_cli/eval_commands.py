@@ -134,7 +134,7 @@ def _command(args: argparse.Namespace) -> str:
         parts.append("--stream-retarget")
     for flag, setting in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing),
                           ("--foot-lock", args.foot_lock), ("--steering", args.steering), ("--floor", args.floor),
-                          ("--int8-lstm", args.int8_lstm)):
+                          ("--stride-warp", args.stride_warp), ("--int8-lstm", args.int8_lstm)):
         if setting is not None:
             parts += [flag, f"{setting:g}" if isinstance(setting, float) else str(setting)]
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),

@@ -92,7 +92,8 @@ def _run(args: argparse.Namespace) -> int:
     kept = {n: s for n, s in bundle.styles.items() if not s.weights}
     bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
     bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
-                                                 overrides["foot_lock"], overrides["steering"], overrides["floor"])
+                                                 overrides["foot_lock"], overrides["steering"], overrides["floor"],
+                                                 overrides["stride_warp"])
     bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
     bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
     if args.name:

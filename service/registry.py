@@ -182,6 +182,7 @@ def load_registry(settings: Settings) -> Registry:
                         cache_bytes=settings.style_cache_bytes, smoothing=settings.output_smoothing,
                         foot_lock=settings.foot_lock, root_smoothing=settings.output_root_smoothing,
                         int8_lstm=settings.int8_lstm, steering=settings.steering, floor=settings.floor,
+                        stride_warp=settings.stride_warp,
                         compiled=not settings.eager)
         name = engine.name if engine.name not in names else path.name
         if name in names:

@@ -51,6 +51,10 @@ class Settings(BaseSettings):
     floor: bool | None = Field(
         default=None, description="lift a body whose feet sink under its context's floor, for every model (default: "
         "each bundle's own)")
+    stride_warp: float | None = Field(
+        default=None, ge=0, le=4,
+        description="stretch the strides where steering carries the body, up to 1 + this times the network's, for "
+        "every model (0: off; default: each bundle's own)")
     steering: int | None = Field(
         default=None, ge=0, le=240,
         description="steer each character's root toward its target over the last this many frames (0: off; default: "

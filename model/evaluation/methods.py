@@ -97,14 +97,15 @@ class BundleMethod(Method):
 
     def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
                  smoothing: float | None = None, foot_lock: bool | None = None, root_smoothing: float | None = None,
-                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None) -> None:
+                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None,
+                 stride_warp: float | None = None) -> None:
         from model.inference.bundle import Bundle
         from model.inference.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)
         self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock, root_smoothing=root_smoothing,
-                             int8_lstm=int8_lstm, steering=steering, floor=floor)
+                             int8_lstm=int8_lstm, steering=steering, floor=floor, stride_warp=stride_warp)
         self.name = name or self.path.name
         self.batch = batch
         self.exact_arrival = exact_arrival
@@ -154,11 +155,12 @@ class BundleMethod(Method):
 
 def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smoothing: float | None = None,
                    foot_lock: bool | None = None, root_smoothing: float | None = None,
-                   int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None) -> Method:
+                   int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None,
+                   stride_warp: float | None = None) -> Method:
     """``interp``, ``zerovel``, ``gt`` or the path of a model bundle.
 
-    ``exact_arrival``, ``smoothing``, ``root_smoothing``, ``foot_lock``, ``int8_lstm``, ``steering`` and ``floor`` (None:
-    the bundle's own) are the engine's options for bundles.
+    ``exact_arrival``, ``smoothing``, ``root_smoothing``, ``foot_lock``, ``int8_lstm``, ``steering``, ``floor``
+    and ``stride_warp`` (None: the bundle's own) are the engine's options for bundles.
     """
     if spec in BASELINES:
         return BaselineMethod(spec)
@@ -168,4 +170,5 @@ def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smo
     if not path.is_dir():
         raise FileNotFoundError(f"--model {spec!r} is neither {', '.join([*BASELINES, GROUND_TRUTH])} nor a bundle folder")
     return BundleMethod(path, batch, exact_arrival=exact_arrival, smoothing=smoothing, foot_lock=foot_lock,
-                        root_smoothing=root_smoothing, int8_lstm=int8_lstm, steering=steering, floor=floor)
+                        root_smoothing=root_smoothing, int8_lstm=int8_lstm, steering=steering, floor=floor,
+                        stride_warp=stride_warp)

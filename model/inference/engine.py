@@ -46,17 +46,19 @@ class Engine:
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
                  cache_bytes: int = 256 << 20, compiled: bool = True, smoothing: float | None = None,
                  foot_lock: bool | None = None, root_smoothing: float | None = None,
-                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None) -> None:
+                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None,
+                 stride_warp: float | None = None) -> None:
         """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
         the root, :mod:`model.inference.output_filter`) and ``foot_lock`` (:mod:`model.inference.foot_lock`) override the
         bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
         ``steering`` overrides the steering window of the bundle's output settings (frames; 0: off;
-        :mod:`model.inference.steering`), ``floor`` its floor contact (:mod:`model.inference.floor_contact`).
+        :mod:`model.inference.steering`), ``floor`` its floor contact (:mod:`model.inference.floor_contact`),
+        ``stride_warp`` its stride warp's reach (0: off; :mod:`model.inference.stride_warp`).
         ``int8_lstm`` overrides the bundle's inference setting
         (:mod:`model.inference.int8_step`).
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
-        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering, floor)
+        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering, floor, stride_warp)
         self.inference = bundle.inference.with_overrides(int8_lstm)
         if threads:
             torch.set_num_threads(threads)

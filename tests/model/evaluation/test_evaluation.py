@@ -248,9 +248,10 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     steering = {"window": 0, "momentum": 1.0, "max_step_cm": 10.0, "turn_window": 0, "max_turn_deg": 4.0,
                 "height_window": 0, "max_rise_cm": 2.0, "retarget_turn_window": 0, "retarget_max_turn_deg": 4.0}
     assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None,
-                                           "steering": steering, "floor": False}
+                                           "steering": steering, "floor": False, "stride_warp": 0.0}
     assert BundleMethod(bundle_dir, steering=12).describe()["output"]["steering"] == {**steering, "window": 12}
     assert BundleMethod(bundle_dir, floor=True).describe()["output"]["floor"] is True
+    assert BundleMethod(bundle_dir, stride_warp=1.5).describe()["output"]["stride_warp"] == 1.5
     a = raw.generate(cs, Request(variant("gap10")))
     b = smooth.generate(cs, Request(variant("gap10")))
     assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way
@@ -260,6 +261,8 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     assert "--smoothing" in capsys.readouterr().err
     assert main(["eval", "--model", str(bundle_dir), "--data", str(data), "--steering", "-1", "--quiet"]) == 2
     assert "--steering" in capsys.readouterr().err
+    assert main(["eval", "--model", str(bundle_dir), "--data", str(data), "--stride-warp", "5", "--quiet"]) == 2
+    assert "--stride-warp" in capsys.readouterr().err
 
 
 def test_unknown_model_is_an_error(dataset: tuple[Path, Path], capsys: pytest.CaptureFixture[str]) -> None:
