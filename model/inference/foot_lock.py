@@ -107,7 +107,7 @@ class FootLock:
 
     def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, state: FootLockState,
               skip_idle: bool = True, shift: Tensor | None = None,
-              chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, FootLockState]:
+              chains: tuple[Tensor, Tensor] | None = None, warp: Tensor | None = None) -> tuple[Tensor, FootLockState]:
         """Lock the feet of one frame of ``N`` characters; returns new local rotations and state.
 
         Args:
@@ -121,10 +121,12 @@ class FootLock:
                 shift, so the lock holds the foot while the body is carried over it.
             chains: world ``(positions [N, K, 3], rotations [N, K, 4])`` of :attr:`kinematics`' joints
                 for these rotations and roots, where the caller has them (FrameOutput does).
+            warp: ``[N, 2, 3]`` where the stride warp (:mod:`model.inference.stride_warp`) moves each
+                ankle: the lock treats the moved ankles as the generated ones, and one IK reaches both.
         """
         c = self.config
         pos, grot = self.legs.poses(rotations, roots, chains)
-        ank = pos[:, -1]  # [N, 2, 3]
+        ank = pos[:, -1] if warp is None else pos[:, -1] + warp  # [N, 2, 3]
         step = torch.zeros_like(ank) if shift is None else shift.unsqueeze(1).expand_as(ank)
         carried = state.carried + step
         height = ank[..., 1] - state.ground.unsqueeze(-1)
@@ -140,7 +142,8 @@ class FootLock:
         fade = (remaining.float() / max(c.fade, 1)).clamp(0.0, 1.0).view(-1, 1, 1)
         offset = torch.where(locked.unsqueeze(-1), anchor - ank, state.offset * (1.0 - c.catch_up) * fade)
         new_state = FootLockState(state.ground, locked, anchor, offset, ank, carried)
-        move = offset.norm(dim=-1) > 1e-4  # [N, 2]
+        total = offset if warp is None else offset + warp
+        move = total.norm(dim=-1) > 1e-4  # [N, 2]
         if skip_idle and not bool(move.any()):
             return rotations, new_state
         return self.legs.bend(rotations, pos, grot, ank + offset, move), new_state

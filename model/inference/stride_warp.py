@@ -75,11 +75,33 @@ class StrideWarp:
         """A character's warp memory under :attr:`MEMORY_KEYS`: no offset yet, no stride seen."""
         return {"warp_offset": torch.zeros(rows, 2, 3), "warp_along": torch.full((rows, 2), float("nan"))}
 
+    def offsets(self, pos: Tensor, roots: Tensor, remaining: Tensor, velocity: Tensor, shift: Tensor,
+                memory: dict[str, Tensor]) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """How far to move each ankle on the ground ``[N, 2, 3]``, the part of ``shift`` the warp left
+        (``[N, 3]``, what still carries a planted foot) and the new memory, for legs at world positions
+        ``pos`` (:meth:`LegChains.poses`); the arguments otherwise as :meth:`apply`'s."""
+        c = self.config
+        ratio = self.share(velocity, shift, remaining)  # [N, 3]
+        ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
+        speed = (velocity * ground).norm(dim=-1, keepdim=True)
+        ank = pos[:, -1]  # [N, 2, 3]
+        heading = velocity * ground / speed.clamp_min(1e-3)
+        along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1)  # [N, 2]
+        last = memory["warp_along"]
+        step = torch.where(torch.isnan(last), torch.zeros_like(along), along - last)  # no stride seen: no change
+        grown = memory["warp_offset"] + step.unsqueeze(-1) * ratio.unsqueeze(1)
+        settled = along.unsqueeze(-1) * ratio.unsqueeze(1)  # the stateless offset, which the state is pulled to
+        offset = grown + c.settle * (settled - grown)
+        if c.fade > 0:
+            offset = offset * (remaining.float() / c.fade).clamp(0.0, 1.0).view(-1, 1, 1)
+        return offset, shift - ratio * speed, {"warp_offset": offset, "warp_along": along}
+
     def apply(self, rotations: Tensor, roots: Tensor, remaining: Tensor, velocity: Tensor, shift: Tensor,
-              memory: dict[str, Tensor], skip_idle: bool = True,
-              chains: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+              memory: dict[str, Tensor], chains: tuple[Tensor, Tensor] | None = None
+              ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """Warp the strides of one frame of ``N`` characters: new local rotations, the part of
-        ``shift`` the warp left (``[N, 3]``, what still carries a planted foot) and the new memory.
+        ``shift`` the warp left (``[N, 3]``) and the new memory. With the foot lock on, the frame
+        output hands :meth:`offsets` to the lock instead, so both legs are solved once.
 
         Args:
             rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots (world).
@@ -89,30 +111,9 @@ class StrideWarp:
             shift: ``[N, 3]`` how far steering moved the whole body this frame (world).
             memory: ``warp_offset [N, 2, 3]`` (each ankle's move last frame) and ``warp_along [N, 2]``
                 (each ankle's ground offset from the root along the motion last frame; NaN: none).
-            skip_idle: return early when no foot needs moving (eager use); False keeps the
-                operations independent of the data, as a traced graph needs.
             chains: the legs' kinematics results for these rotations and roots, where the caller has them.
         """
-        c = self.config
-        ratio = self.share(velocity, shift, remaining)  # [N, 3]
-        ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
-        speed = (velocity * ground).norm(dim=-1, keepdim=True)
-        left = shift - ratio * speed
-        before = memory["warp_offset"]
-        if skip_idle and not bool((ratio.norm(dim=-1) > 1e-6).any()) and not bool((before.norm(dim=-1) > 1e-4).any()):
-            return rotations, left, {"warp_offset": torch.zeros_like(before),
-                                     "warp_along": torch.full_like(memory["warp_along"], float("nan"))}
         pos, grot = self.legs.poses(rotations, roots, chains)
-        ank = pos[:, -1]  # [N, 2, 3]
-        heading = velocity * ground / speed.clamp_min(1e-3)
-        along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1)  # [N, 2]
-        last = memory["warp_along"]
-        step = torch.where(torch.isnan(last), torch.zeros_like(along), along - last)  # no stride seen: no change
-        grown = before + step.unsqueeze(-1) * ratio.unsqueeze(1)
-        settled = along.unsqueeze(-1) * ratio.unsqueeze(1)  # the stateless offset, which the state is pulled to
-        offset = grown + c.settle * (settled - grown)
-        if c.fade > 0:
-            offset = offset * (remaining.float() / c.fade).clamp(0.0, 1.0).view(-1, 1, 1)
+        offset, left, new = self.offsets(pos, roots, remaining, velocity, shift, memory)
         move = offset.norm(dim=-1) > 1e-4  # [N, 2]
-        return (self.legs.bend(rotations, pos, grot, ank + offset, move), left,
-                {"warp_offset": offset, "warp_along": along})
+        return self.legs.bend(rotations, pos, grot, pos[:, -1] + offset, move), left, new

@@ -198,23 +198,28 @@ class FrameOutput:
             if self.lock is not None and self.lock.kinematics is self.floor.kinematics:
                 chains = (legs[0] + up.unsqueeze(-2), legs[1])
             new["floor"] = memory["floor"]
-        world_shift = None
+        world_shift = moved = None
         if shift is not None and (self.lock is not None or self.warp is not None):
             turn = CanonicalFrame(yaw, torch.zeros_like(origin))
             world_shift = turn.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], -1))
             if self.warp is not None:
                 # The network's own root velocity: its state's, less the shift steering added to it.
                 velocity = turn.positions_from(pose.vel[:, self.root]) - world_shift
-                local, world_shift, warped = self.warp.apply(local, root, remaining, velocity, world_shift,
-                                                             {k: memory[k] for k in StrideWarp.MEMORY_KEYS},
-                                                             skip_idle=skip_idle, chains=chains)
+                warp_memory = {k: memory[k] for k in StrideWarp.MEMORY_KEYS}
+                if self.lock is None:
+                    local, world_shift, warped = self.warp.apply(local, root, remaining, velocity, world_shift,
+                                                                 warp_memory, chains=chains)
+                else:  # the lock's IK reaches the warped ankles: the legs are solved once
+                    chains = self.warp.legs.kinematics(local, root) if chains is None else chains
+                    legs_pos = self.warp.legs.poses(local, root, chains)[0]
+                    moved, world_shift, warped = self.warp.offsets(legs_pos, root, remaining, velocity, world_shift,
+                                                                   warp_memory)
                 new.update(warped)
-                chains = None  # the legs moved: the lock reads them again
         elif self.warp is not None:  # not steered this frame: nothing to warp, the memory kept
             new.update({k: memory[k] for k in StrideWarp.MEMORY_KEYS})
         if self.lock is not None:
             local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle,
-                                           shift=world_shift, chains=chains)
+                                           shift=world_shift, chains=chains, warp=moved)
             new.update(state.memory())
         return local, root, new
 

@@ -11,7 +11,7 @@ from model.data.synthetic import synthetic_walk
 from model.inference.leg_chains import LegChains
 from model.inference.output_settings import OutputConfig
 from model.inference.stride_warp import StrideWarp, StrideWarpConfig
-from model.inference.traced_step import CompiledFrameOutput, FrameOutput
+from model.inference.traced_step import CompiledFrameOutput, FrameOutput, world_pose
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
@@ -98,7 +98,7 @@ def test_nothing_moves_without_a_shift_standing_or_on_arrival(case: str):
         velocity = torch.tensor([[0.3, 0.0, 0.0]])  # 9 cm/s
     else:
         remaining = torch.tensor([0])
-    r, left, memory = warp.apply(rot[:1], root[:1], remaining, velocity, shift, warp.start(), skip_idle=False)
+    r, left, memory = warp.apply(rot[:1], root[:1], remaining, velocity, shift, warp.start())
     assert torch.allclose(r, rot[:1], atol=1e-5)
     assert torch.allclose(left, shift)
     assert float(memory["warp_offset"].abs().max()) == 0.0
@@ -142,3 +142,34 @@ def test_traced_frame_output_gives_the_eager_frames():
         warped = max(warped, float(eager_mem["warp_offset"].norm(dim=-1).max()))
     assert warped > 0.5  # the warp moved the feet: the comparison is not of two untouched frames
     assert float(eager_mem["warp_offset"].abs().max()) == 0.0  # faded out by the arrival frame
+
+
+def test_with_the_lock_the_legs_are_solved_once_for_what_warp_then_lock_give():
+    # The frame output hands the warp's ankle moves to the lock, whose one IK reaches both; where the
+    # legs reach, that is the warp's IK followed by the lock's.
+    from model.inference.foot_lock import FootLock, FootLockConfig
+
+    sk, legs, rot, root = _planted_walk(14, 3.0)  # slow enough for the leg to reach while held
+    gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
+    states = state_from_positions(gpos.unsqueeze(0), quat_to_sixd(grot).unsqueeze(0), sk.roles.root)
+    warp = StrideWarp(LegChains(sk), FPS, StrideWarpConfig(reach=0.3))
+    lock = FootLock(sk, FPS, FootLockConfig(contact_cm=3.0, lift_cm=5.0, release_cm=10.0))
+    output = FrameOutput(sk, OutputConfig(foot_lock=True, stride_warp=0.3), lock, None, warp)
+    mem = {"prev_rot": rot[:1], "prev_root": root[:1], **warp.start(), **lock.start(rot[:2], root[:2]).memory()}
+    warp_mem, lock_state = warp.start(), lock.start(rot[:2], root[:2])
+    shift2 = torch.tensor([[0.8, 0.0]])
+    shift3 = torch.tensor([[0.8, 0.0, 0.0]])
+    moved = held = False
+    for t in range(2, 14):
+        remaining = torch.tensor([13 - t])
+        pose = states.index((slice(None), t))
+        one, _, mem = output(pose, torch.zeros(1), torch.zeros(1, 3), remaining, mem, skip_idle=False, shift=shift2)
+        velocity = pose.vel[:, sk.roles.root] - shift3
+        local, world_root = world_pose(pose, torch.zeros(1), torch.zeros(1, 3), list(sk.parents), sk.roles.root)
+        warped, left, warp_mem = warp.apply(local, world_root, remaining, velocity, shift3, warp_mem)
+        two, lock_state = lock.apply(warped, world_root, remaining, lock_state, skip_idle=False, shift=left)
+        assert torch.allclose(one, two, atol=1e-3)  # acos in the IK magnifies rounding near a straight leg
+        assert torch.equal(mem["lock_locked"], lock_state.locked)
+        held = held or bool(lock_state.locked.any())
+        moved = moved or bool((one - local).abs().max() > 1e-3)
+    assert moved and held  # the legs were bent and a foot held: the comparison is not of two untouched frames
