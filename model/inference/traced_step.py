@@ -162,7 +162,8 @@ class FrameOutput:
     then the foot lock.
 
     Each character's memory is a dict of named rows ``[N, ...]`` (:attr:`keys`): the previous
-    emitted frame for the filter, and the lock's state. Eager and traced paths share this code.
+    emitted frame for the filter, the floor, the stride warp's and the lock's state. Eager and
+    traced paths share this code.
     """
 
     def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None,
