@@ -43,12 +43,23 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 RETRY_AFTER_S = 1
 
+# A use's score in an owner's set: Redis's clock in milliseconds, but always above the set's latest, so
+# two uses within one millisecond keep their order (milliseconds: Lua hands numbers to Redis with 14
+# significant digits).
+_STAMP = """
+local function stamp(own)
+  local t = redis.call('TIME')
+  local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
+  local top = redis.call('ZRANGE', own, -1, -1, 'WITHSCORES')
+  if top[2] and tonumber(top[2]) >= now then now = tonumber(top[2]) + 1 end
+  return now
+end
+"""
+
 # ARGV: prefix, owner, id, clip, meta, cap, ttl  ->  {had, evicted}
-_ADD = """
+_ADD = _STAMP + """
 local p, owner, sid = ARGV[1], ARGV[2], ARGV[3]
 local cap, ttl = tonumber(ARGV[6]), tonumber(ARGV[7])
-local t = redis.call('TIME')
-local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
 local own, refs, clip, meta = p .. 'own:' .. owner, p .. 'refs:' .. sid, p .. 'clip:' .. sid, p .. 'meta:' .. sid
 local exists = redis.call('EXISTS', meta) == 1 and redis.call('EXISTS', clip) == 1
 local had = exists and redis.call('ZSCORE', own, sid) ~= false
@@ -56,7 +67,7 @@ if not exists then
   redis.call('SET', clip, ARGV[4])
   redis.call('SET', meta, ARGV[5])
 end
-redis.call('ZADD', own, now, sid)
+redis.call('ZADD', own, stamp(own), sid)
 redis.call('SADD', refs, owner)
 redis.call('SADD', p .. 'owners', owner)
 local evicted = 0
@@ -76,7 +87,7 @@ return {had and 1 or 0, evicted}
 """
 
 # ARGV: prefix, owner, id, admin (0/1), touch (0/1), want clip (0/1), ttl  ->  false | {meta, clip or false}
-_GET = """
+_GET = _STAMP + """
 local p, owner, sid, admin, touch, want = ARGV[1], ARGV[2], ARGV[3], ARGV[4], ARGV[5], ARGV[6]
 local ttl = tonumber(ARGV[7])
 local own, clip, meta = p .. 'own:' .. owner, p .. 'clip:' .. sid, p .. 'meta:' .. sid
@@ -89,8 +100,7 @@ if not m then
 end
 if touch == '1' then
   if mine then
-    local t = redis.call('TIME')
-    redis.call('ZADD', own, 'XX', tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000), sid)
+    redis.call('ZADD', own, 'XX', stamp(own), sid)
     if ttl > 0 then redis.call('EXPIRE', own, ttl) end
   end
   if ttl > 0 then

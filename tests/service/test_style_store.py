@@ -107,6 +107,19 @@ def test_redis_store_per_key_cap_drops_least_recently_used(stores, engines):
     assert one.peek(A, ids[1]) is None and one.client.exists(one.prefix + "clip:" + ids[1]) == 0  # nobody holds it
 
 
+def test_redis_store_orders_uses_even_when_the_clock_does_not_move_on(stores, engines):
+    # Two uses within one millisecond read the same clock, and a Redis that fails over to a replica
+    # whose clock lags reads an earlier one: the later use must still count as the more recent.
+    one, _ = stores
+    ids = [register(one, "a", clip_of(engines[0], yaw=10.0 * i))[0] for i in range(2)]
+    (own,) = one.client.keys(one.prefix + "own:*")
+    one.client.zadd(own, {ids[0]: 9_000_000_000_000})  # ids[0] last used "in the future" (ms)
+    assert one.get(A, ids[1]) is not None  # used now: the most recent use whatever the clock says
+    assert [s.style_id for s in one.styles_of(A)] == [ids[0], ids[1]]
+    ids.append(register(one, "a", clip_of(engines[0], yaw=20.0))[0])
+    assert [s.style_id for s in one.styles_of(A)] == [ids[1], ids[2]] and one.evictions == 1
+
+
 def test_redis_store_ttl(redis_server, engines):
     client = connect(redis_server.url, 1.0)
     store = RedisStyleStore(client, "ttl", engines[0], per_owner=4, ttl_s=1)
