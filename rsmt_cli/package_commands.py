@@ -54,6 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--retarget-facing", type=int, default=None, metavar="FRAMES",
                    help="for a character retargeted mid-stream, turn the body toward the new target's facing over "
                         "the last FRAMES frames instead (0: as the others; default: the bundle's own setting)")
+    p.add_argument("--steer-cap", type=float, default=None, metavar="CM",
+                   help="the most steering moves the body in one frame, cm (default: the bundle's own setting)")
     p.add_argument("--retarget-turn-cap", type=float, default=None, metavar="DEG",
                    help="the most a retargeted character's facing turns in one frame, degrees (default: the "
                         "bundle's own setting)")
@@ -130,14 +132,17 @@ def _check_finishing(args: argparse.Namespace) -> None:
             raise ValueError(f"{flag} must be 0 (off) or more frames")
     if args.retarget_turn_cap is not None and not args.retarget_turn_cap > 0:
         raise ValueError("--retarget-turn-cap must be a positive number of degrees")
+    if args.steer_cap is not None and not args.steer_cap > 0:
+        raise ValueError("--steer-cap must be a positive number of cm")
 
 
 def _finishing_steering(args: argparse.Namespace, steering: SteeringConfig) -> SteeringConfig:
     """``steering`` with the windows of ``--steer-facing`` / ``--steer-height`` / ``--retarget-facing`` and the
-    cap of ``--retarget-turn-cap`` (unset: kept)."""
+    caps of ``--steer-cap`` and ``--retarget-turn-cap`` (unset: kept)."""
     changes = {name: value for name, value in (
         ("turn_window", args.steer_facing), ("height_window", args.steer_height),
-        ("retarget_turn_window", args.retarget_facing), ("retarget_max_turn_deg", args.retarget_turn_cap))
+        ("retarget_turn_window", args.retarget_facing), ("retarget_max_turn_deg", args.retarget_turn_cap),
+        ("max_step_cm", args.steer_cap))
         if value is not None}
     return dataclasses.replace(steering, **changes)
 

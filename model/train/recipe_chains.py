@@ -59,6 +59,8 @@ class PackageSettings:
     retarget_facing: int | None = None
     retarget_turn_cap: float | None = None
     floor: bool | None = None
+    stride_warp: float | None = None
+    steer_cap: float | None = None
 
     def arguments(self) -> list[str]:
         """These settings as ``rsmt package`` options."""
@@ -74,8 +76,10 @@ class PackageSettings:
                              ("--steer-height", self.steer_height), ("--retarget-facing", self.retarget_facing)):
             if frames is not None:
                 args += [flag, str(frames)]
-        if self.retarget_turn_cap is not None:
-            args += ["--retarget-turn-cap", repr(self.retarget_turn_cap)]
+        for flag, amount in (("--retarget-turn-cap", self.retarget_turn_cap), ("--stride-warp", self.stride_warp),
+                             ("--steer-cap", self.steer_cap)):
+            if amount is not None:
+                args += [flag, repr(amount)]
         return args
 
 

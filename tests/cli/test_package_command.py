@@ -68,6 +68,12 @@ def test_package_sets_the_facing_and_height_steering(tmp_path, capsys):
                  "--retarget-turn-cap", "10"]) == 0
     steering = Bundle.load(tmp_path / "c").output.steering
     assert (steering.turn_window, steering.retarget_turn_window, steering.retarget_max_turn_deg) == (10, 20, 10.0)
+    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "d"), "--steer-cap", "15",
+                 "--stride-warp", "2"]) == 0
+    copy = Bundle.load(tmp_path / "d")
+    assert (copy.output.steering.max_step_cm, copy.output.steering.turn_window, copy.output.stride_warp) == (15.0, 10, 2.0)
+    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "e"), "--steer-cap", "0"]) == 2
+    assert "--steer-cap must be a positive" in capsys.readouterr().err and not (tmp_path / "e").exists()
     capsys.readouterr()
 
 
