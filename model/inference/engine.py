@@ -83,8 +83,9 @@ class Engine:
         legs = feet_kinematics(self.skeleton)
         self.foot_lock = FootLock(self.skeleton, self.config.fps, kinematics=legs) if self.output.foot_lock else None
         self.floor = FloorContact(self.skeleton, kinematics=legs) if self.output.floor else None
-        self.warp = (StrideWarp(LegChains(self.skeleton, legs), self.config.fps, StrideWarpConfig(self.output.stride_warp))
-                if self.output.stride_warp > 0 and self.output.steering.window > 0 else None)
+        warp_legs = self.foot_lock.legs if self.foot_lock is not None else LegChains(self.skeleton, legs)
+        self.warp = (StrideWarp(warp_legs, self.config.fps, StrideWarpConfig(self.output.stride_warp))
+                     if self.output.stride_warp > 0 and self.output.steering.window > 0 else None)
         self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor, self.warp),
                                              traced=compiled)
         self._ids = itertools.count()

@@ -27,6 +27,8 @@ from model.inference.leg_chains import LegChains
 
 Tensor = torch.Tensor
 
+_GROUND = torch.tensor([1.0, 0.0, 1.0])  # keeps the x and z of a vector
+
 
 @dataclass(frozen=True)
 class StrideWarpConfig:
@@ -59,11 +61,12 @@ class StrideWarp:
         """The ground shift per unit of root speed ``[N, 3]`` the warp takes up, for the network's own
         root ``velocity [N, 3]`` (cm a frame, shift excluded), steering's ``shift [N, 3]`` and ``remaining
         [N]`` frames after this one (0 on arrival)."""
+        return self._ratio(shift, (velocity * _GROUND).norm(dim=-1, keepdim=True), remaining)
+
+    def _ratio(self, shift: Tensor, speed: Tensor, remaining: Tensor) -> Tensor:
+        """:meth:`share` for the network's ground ``speed [N, 1]`` (cm a frame)."""
         c = self.config
-        ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
-        v, u = velocity * ground, shift * ground
-        speed = v.norm(dim=-1, keepdim=True)
-        ratio = u / speed.clamp_min(1e-3)
+        ratio = shift * _GROUND / speed.clamp_min(1e-3)
         ratio = ratio * (c.reach / ratio.norm(dim=-1, keepdim=True).clamp_min(c.reach))
         x = ((speed * self.fps - c.slow_cm_s) / (c.full_cm_s - c.slow_cm_s)).clamp(0.0, 1.0)
         gate = x * x * (3.0 - 2.0 * x)
@@ -81,11 +84,11 @@ class StrideWarp:
         (``[N, 3]``, what still carries a planted foot) and the new memory, for legs at world positions
         ``pos`` (:meth:`LegChains.poses`); the arguments otherwise as :meth:`apply`'s."""
         c = self.config
-        ratio = self.share(velocity, shift, remaining)  # [N, 3]
-        ground = torch.tensor([1.0, 0.0, 1.0], dtype=velocity.dtype)
-        speed = (velocity * ground).norm(dim=-1, keepdim=True)
+        v = velocity * _GROUND
+        speed = v.norm(dim=-1, keepdim=True)
+        ratio = self._ratio(shift, speed, remaining)  # [N, 3]
         ank = pos[:, -1]  # [N, 2, 3]
-        heading = velocity * ground / speed.clamp_min(1e-3)
+        heading = v / speed.clamp_min(1e-3)
         along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1)  # [N, 2]
         last = memory["warp_along"]
         step = torch.where(torch.isnan(last), torch.zeros_like(along), along - last)  # no stride seen: no change

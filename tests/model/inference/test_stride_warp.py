@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
+from model.inference.foot_lock import FootLock, FootLockConfig
 from model.inference.leg_chains import LegChains
 from model.inference.output_settings import OutputConfig
 from model.inference.stride_warp import StrideWarp, StrideWarpConfig
@@ -147,8 +148,6 @@ def test_traced_frame_output_gives_the_eager_frames():
 def test_with_the_lock_the_legs_are_solved_once_for_what_warp_then_lock_give():
     # The frame output hands the warp's ankle moves to the lock, whose one IK reaches both; where the
     # legs reach, that is the warp's IK followed by the lock's.
-    from model.inference.foot_lock import FootLock, FootLockConfig
-
     sk, legs, rot, root = _planted_walk(14, 3.0)  # slow enough for the leg to reach while held
     gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
     states = state_from_positions(gpos.unsqueeze(0), quat_to_sixd(grot).unsqueeze(0), sk.roles.root)

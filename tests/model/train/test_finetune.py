@@ -76,7 +76,6 @@ def test_an_unknown_scope_is_refused() -> None:
         FinetuneConfig.for_scope("everything")
 
 
-
 def test_the_generated_feet_term_changes_what_is_learned_only_when_weighed(bundle, tmp_path, monkeypatch):
     """``w_foot_height`` adds the generated feet's speed at their ground height (the clips' ground levels) to
     the objective: weighed, the tuned weights differ; at 0 (the default) the term is not computed and the run
