@@ -288,5 +288,5 @@ def test_zero_channels_and_leading_zeros_read_as_the_server_reads_them() -> None
 @given(text=ANY_BVH_TEXT)
 def test_any_text_reads_or_is_a_bvh_error_as_on_the_server(text: str) -> None:
     """Fuzzing: any text (or file bytes) gives a file or BvhError, never another exception, and exactly when
-    the project's reader (itself fuzzed in tests/model/motion/test_bvh.py) accepts it."""
+    the project's reader (itself fuzzed in tests/model/motion/test_bvh_hostile.py) accepts it."""
     _reads_as_the_server_reads(text, ProjectBvhError)
