@@ -12,9 +12,11 @@ further along. The legs reach the moved ankles by two-bone IK (:mod:`model.infer
 
 ``|u| / |v|`` is capped at ``reach`` (the longest stride is ``1 + reach`` times the network's); the
 warp fades in with the root's speed (none for a character standing or turning on the spot) and out
-over the last ``fade`` frames, so the arrival frame is the network's own. Stateless: whole
-transitions and streams get the same frames. What the cap leaves of the shift is returned for the
-foot lock, which then judges planted feet against that part only.
+over the last ``fade`` frames, so the arrival frame is the network's own. The offsets are integrated
+over the stride in each character's memory (each ankle's offset and its place along the motion last
+frame), pulled a little each frame toward the offset the formula gives on its own; whole transitions
+and streams step the same memory, so they get the same frames. What the cap leaves of the shift is
+returned for the foot lock, which then judges planted feet against that part only.
 """
 
 from __future__ import annotations
@@ -57,14 +59,10 @@ class StrideWarp:
     def __init__(self, legs: LegChains, fps: float, config: StrideWarpConfig) -> None:
         self.legs, self.fps, self.config = legs, fps, config
 
-    def share(self, velocity: Tensor, shift: Tensor, remaining: Tensor) -> Tensor:
-        """The ground shift per unit of root speed ``[N, 3]`` the warp takes up, for the network's own
-        root ``velocity [N, 3]`` (cm a frame, shift excluded), steering's ``shift [N, 3]`` and ``remaining
+    def ratio(self, shift: Tensor, speed: Tensor, remaining: Tensor) -> Tensor:
+        """The ground shift per unit of root speed ``[N, 3]`` the warp takes up, for steering's ``shift
+        [N, 3]``, the network's own ground ``speed [N, 1]`` (cm a frame, shift excluded) and ``remaining
         [N]`` frames after this one (0 on arrival)."""
-        return self._ratio(shift, (velocity * _GROUND).norm(dim=-1, keepdim=True), remaining)
-
-    def _ratio(self, shift: Tensor, speed: Tensor, remaining: Tensor) -> Tensor:
-        """:meth:`share` for the network's ground ``speed [N, 1]`` (cm a frame)."""
         c = self.config
         ratio = shift * _GROUND / speed.clamp_min(1e-3)
         ratio = ratio * (c.reach / ratio.norm(dim=-1, keepdim=True).clamp_min(c.reach))
@@ -86,7 +84,7 @@ class StrideWarp:
         c = self.config
         v = velocity * _GROUND
         speed = v.norm(dim=-1, keepdim=True)
-        ratio = self._ratio(shift, speed, remaining)  # [N, 3]
+        ratio = self.ratio(shift, speed, remaining)  # [N, 3]
         ank = pos[:, -1]  # [N, 2, 3]
         heading = v / speed.clamp_min(1e-3)
         along = ((ank - roots.unsqueeze(1)) * heading.unsqueeze(1)).sum(-1)  # [N, 2]

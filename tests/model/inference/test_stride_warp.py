@@ -83,7 +83,7 @@ def test_the_settling_pull_moves_a_planted_foot_only_while_the_warp_sets_in():
 
 def test_the_cap_leaves_the_rest_of_the_shift_to_the_lock():
     warp = StrideWarp(LegChains(synthetic_walk(frames=4).skeleton), FPS, WHOLE)
-    ratio = warp.share(torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([[3.0, 0.0, 4.0]]), torch.tensor([100]))
+    ratio = warp.ratio(torch.tensor([[3.0, 0.0, 4.0]]), torch.tensor([[1.0]]), torch.tensor([100]))
     assert torch.allclose(ratio.norm(dim=-1), torch.tensor([1.0]))  # |u| / |v| = 5, capped at the reach
     assert torch.allclose(ratio, torch.tensor([[0.6, 0.0, 0.8]]))  # the shift's direction kept
 
