@@ -14,7 +14,6 @@ Works frame by frame with explicit per-character state, so streaming and whole t
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -49,14 +48,10 @@ class ArrivalCorrector:
     """Batched exact-arrival correction for one skeleton."""
 
     def __init__(self, skeleton: Skeleton, window: int = DEFAULT_WINDOW, plant_speed_cm: float = PLANT_SPEED_CM,
-                 strength: float = 1.0, move_root: bool = True, hold_planted: bool = False,
-                 upper_body_only: bool = False, max_angle_deg: float | None = None) -> None:
+                 strength: float = 1.0, move_root: bool = True, hold_planted: bool = False) -> None:
         """``strength``: the share of the way to the target's rotations taken on the arrival frame (1: all of
         it); ``move_root``: blend the root's place too; ``hold_planted``: a foot planted on the arrival frame
-        stays where it is instead of taking its blended place; ``upper_body_only``: blend only the joints
-        that are neither the root nor in a leg (from each hip down), so no foot moves (the root's place is
-        then left alone too); ``max_angle_deg``: no joint's rotation is moved by more than this in all (None:
-        no bound). The defaults are exact arrival."""
+        stays where it is instead of taking its blended place. The defaults are exact arrival."""
         if window < 1:
             raise ValueError("the arrival window must be at least one frame")
         if not 0.0 <= strength <= 1.0:
@@ -68,15 +63,6 @@ class ArrivalCorrector:
         sk = skeleton
         self.legs = sk.legs
         self.offsets = sk.offsets_tensor()
-        self.upper_body_only = upper_body_only
-        self.max_angle = None if max_angle_deg is None else math.radians(max_angle_deg)
-        if upper_body_only:
-            self.move_root = False
-        hips = {hip for hip, _, _ in self.legs}
-        lower = {j for j in range(sk.num_joints) if j == sk.roles.root or hips & set(sk.chain_to(j))}
-        # [J, 1] share of the blend each joint takes: 1 everywhere, or 0 on the root and the legs
-        self.joint_share = torch.tensor([0.0 if upper_body_only and j in lower else 1.0
-                                         for j in range(sk.num_joints)]).view(-1, 1)
 
     def apply(self, rotations: Tensor, roots: Tensor, target_rotations: Tensor, target_roots: Tensor,
               remaining: Tensor, states: list[ArrivalState]) -> tuple[Tensor, Tensor]:
@@ -90,17 +76,11 @@ class ArrivalCorrector:
         """
         sk = self.skeleton
         w = arrival_weight(remaining, self.window)
-        if self.upper_body_only:  # no foot can move: nothing to hold
-            share = self.strength * w.view(-1, 1, 1) * self.joint_share
-            return torch.where(share > 0, quat_slerp(rotations, target_rotations, share), rotations), roots
         gen_pos, _ = forward_kinematics(rotations, roots, self.offsets, sk.parents)
         ankles = torch.stack([gen_pos[:, leg[2]] for leg in self.legs], dim=1)  # [N, 2, 3]
         active = (w > 0).view(-1, 1)  # before the window the generated pose passes through untouched
-        share = self.strength * w.view(-1, 1, 1).expand(-1, rotations.shape[1], 1)
-        if self.max_angle is not None:  # each joint's correction at most max_angle, reached as the weight reaches 1
-            angle = 2.0 * torch.acos((rotations * target_rotations).sum(-1, keepdim=True).abs().clamp(max=1.0))
-            share = torch.minimum(share, w.view(-1, 1, 1) * self.max_angle / angle.clamp_min(1e-6))
-        rot = torch.where(active.unsqueeze(-1), quat_slerp(rotations, target_rotations, share), rotations)
+        rot = torch.where(active.unsqueeze(-1), quat_slerp(rotations, target_rotations, self.strength * w.view(-1, 1)),
+                          rotations)
         root = torch.where(active, torch.lerp(roots, target_roots, w.view(-1, 1)), roots) if self.move_root else roots
         pos, grot = forward_kinematics(rot, root, self.offsets, sk.parents)
         goals = torch.zeros(len(states), len(self.legs), 3)
