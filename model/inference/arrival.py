@@ -47,19 +47,12 @@ def arrival_weight(remaining: Tensor, window: int | Tensor) -> Tensor:
 class ArrivalCorrector:
     """Batched exact-arrival correction for one skeleton."""
 
-    def __init__(self, skeleton: Skeleton, window: int = DEFAULT_WINDOW, plant_speed_cm: float = PLANT_SPEED_CM,
-                 strength: float = 1.0, move_root: bool = True, hold_planted: bool = False) -> None:
-        """``strength``: the share of the way to the target's rotations taken on the arrival frame (1: all of
-        it); ``move_root``: blend the root's place too; ``hold_planted``: a foot planted on the arrival frame
-        stays where it is instead of taking its blended place. The defaults are exact arrival."""
+    def __init__(self, skeleton: Skeleton, window: int = DEFAULT_WINDOW, plant_speed_cm: float = PLANT_SPEED_CM) -> None:
         if window < 1:
             raise ValueError("the arrival window must be at least one frame")
-        if not 0.0 <= strength <= 1.0:
-            raise ValueError(f"the arrival strength must be between 0 and 1; got {strength}")
         self.skeleton = skeleton
         self.window = window
         self.plant_speed = plant_speed_cm
-        self.strength, self.move_root, self.hold_planted = strength, move_root, hold_planted
         sk = skeleton
         self.legs = sk.legs
         self.offsets = sk.offsets_tensor()
@@ -79,9 +72,8 @@ class ArrivalCorrector:
         gen_pos, _ = forward_kinematics(rotations, roots, self.offsets, sk.parents)
         ankles = torch.stack([gen_pos[:, leg[2]] for leg in self.legs], dim=1)  # [N, 2, 3]
         active = (w > 0).view(-1, 1)  # before the window the generated pose passes through untouched
-        rot = torch.where(active.unsqueeze(-1), quat_slerp(rotations, target_rotations, self.strength * w.view(-1, 1)),
-                          rotations)
-        root = torch.where(active, torch.lerp(roots, target_roots, w.view(-1, 1)), roots) if self.move_root else roots
+        rot = torch.where(active.unsqueeze(-1), quat_slerp(rotations, target_rotations, w.view(-1, 1)), rotations)
+        root = torch.where(active, torch.lerp(roots, target_roots, w.view(-1, 1)), roots)
         pos, grot = forward_kinematics(rot, root, self.offsets, sk.parents)
         goals = torch.zeros(len(states), len(self.legs), 3)
         body = torch.stack([pos[:, leg[2]] for leg in self.legs], dim=1)  # ankles of the blended body
@@ -94,15 +86,14 @@ class ArrivalCorrector:
                 st.placed = ankles[i].clone()
             r = int(remaining[i])
             if r == 0:
-                done = torch.ones_like(st.progress)
-                st.progress = torch.where(planted, st.progress, done) if self.hold_planted else done
+                st.progress = torch.ones_like(st.progress)
             elif w[i] > 0:
                 # A foot in the air catches up with the body so it is done by the end; a planted one waits.
                 step = (w[i] - st.progress).clamp_min(0.0)
                 st.progress = torch.where(planted, st.progress, st.progress + step)
             goal = torch.lerp(ankles[i], body[i], st.progress.unsqueeze(-1))
             # A planted foot stays exactly where it was put on the previous frame.
-            goal = torch.where((planted & (w[i] > 0) & ((r > 0) | self.hold_planted)).unsqueeze(-1), st.placed, goal)
+            goal = torch.where((planted & (w[i] > 0) & (r > 0)).unsqueeze(-1), st.placed, goal)
             st.previous, st.placed = ankles[i].clone(), goal.clone()
             goals[i] = goal
         adjusting = w > 0
