@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 
 from model.train.sampler_losses import acceleration_profile, planted_foot_speed
@@ -40,6 +42,7 @@ def test_planted_foot_speed_counts_horizontal_sliding_on_the_ground_only():
 def test_planted_foot_speed_slows_feet_rather_than_lifting_them():
     pos = _feet([0.0, 4.5, 12.5], dx=1.0).requires_grad_(True)
     planted_foot_speed(pos, [1, 2], torch.tensor([4.0, 12.0])).backward()
+    assert pos.grad is not None
     assert pos.grad[..., 1].abs().max() == 0  # no gradient on height
     assert pos.grad[..., 0].abs().max() > 0
 
@@ -69,12 +72,15 @@ def test_a_critic_that_reads_rotations_is_refused_when_the_config_is_made():
 
     from model.train.sampler_config import SamplerStageConfig
 
+    # A name or a list where the field is a tuple, on purpose: what a JSON config (or one written before
+    # critics became a list) holds, which __post_init__ turns into a tuple; cast says so to the type checker.
     for bad in ("pose", ["velocity", "pose"], [], ["velocity", "velocity"]):
         with pytest.raises(ValueError, match="critic_inputs"):
-            SamplerStageConfig(critic_inputs=bad)
+            SamplerStageConfig(critic_inputs=cast(tuple[str, ...], bad))
     # A single name (configs written before critics became a list) is one critic.
-    assert SamplerStageConfig(critic_inputs="velocity").critic_inputs == ("velocity",)
-    assert SamplerStageConfig(critic_inputs=["dynamics", "acceleration"]).critic_inputs == ("dynamics", "acceleration")
+    assert SamplerStageConfig(critic_inputs=cast(tuple[str, ...], "velocity")).critic_inputs == ("velocity",)
+    listed = cast(tuple[str, ...], ["dynamics", "acceleration"])
+    assert SamplerStageConfig(critic_inputs=listed).critic_inputs == ("dynamics", "acceleration")
 
 
 def test_changed_control_settings_are_checked():
