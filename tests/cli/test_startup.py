@@ -92,14 +92,20 @@ def test_the_command_table_names_what_each_group_registers():
 
     from rsmt_cli.main import GROUPS, build_parser
 
+    def commands_of(parser: argparse.ArgumentParser) -> list[str]:
+        subparsers = parser._subparsers
+        assert subparsers is not None
+        choices = subparsers._group_actions[0].choices
+        assert choices is not None
+        return list(choices)
+
     for module, commands in GROUPS:
         sub = argparse.ArgumentParser().add_subparsers()
         importlib.import_module(f"rsmt_cli.{module}").register(sub)
         assert tuple(sub.choices) == commands, module
     # A command line builds the parser of its own group only; no command: all of them, in the table's order.
-    everything = build_parser([])._subparsers._group_actions[0].choices  # type: ignore[union-attr]
-    assert list(everything) == [c for _, commands in GROUPS for c in commands]
-    assert list(build_parser(["-v", "client", "--help"])._subparsers._group_actions[0].choices) == ["client"]
+    assert commands_of(build_parser([])) == [c for _, commands in GROUPS for c in commands]
+    assert commands_of(build_parser(["-v", "client", "--help"])) == ["client"]
 
 
 def test_the_probe_sees_torch_when_a_command_needs_it(tmp_path):

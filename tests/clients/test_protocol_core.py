@@ -95,7 +95,7 @@ def test_session_files_each_characters_traffic():
     for raw in wire:
         if s.take(s.parse(raw), a):
             break
-    assert [f.seq for f in a.frames] == [0, 1] and a.end["reason"] == "arrived"
+    assert [f.seq for f in a.frames] == [0, 1] and a.end is not None and a.end["reason"] == "arrived"
     assert [m["type"] for m in a.messages] == ["started"]
     # b's traffic and the pong waited, in arrival order; b ends from the queue alone.
     b, ended = s.begin_collect("b")

@@ -78,7 +78,8 @@ def test_transition_gives_numpy_arrays_and_is_repeatable(client, motions, style_
     assert isinstance(a, Poses) and a.num_frames == FRAMES
     assert a.root_positions.shape == (FRAMES, 3) and a.rotations.shape == (FRAMES, 21, 4)
     assert a.root_positions.dtype == np.float32 and a.rotations.dtype == np.float32
-    assert a.style_id == style_id and a.fps == 30.0 and a.joints[0] == "Hips" and a.timing_ms["total"] > 0
+    assert a.style_id == style_id and a.fps == 30.0 and a.timing_ms["total"] > 0
+    assert a.joints is not None and a.joints[0] == "Hips"
     np.testing.assert_array_equal(a.root_positions, b.root_positions)
     np.testing.assert_array_equal(a.rotations, b.rotations)
     # An inline style clip encodes to the same style: same frames.
@@ -159,7 +160,7 @@ def test_stream_json_and_binary_match_http(server, client, motions, style_id):
         assert all(isinstance(f, Frame) and f.character == c for f in result.frames)
         assert [f.remaining for f in result.frames] == list(range(FRAMES - 1, -1, -1))
         assert result.frames[-1].t == pytest.approx(FRAMES / 30.0, abs=1e-6)
-        assert result.end["reason"] == "arrived" and result.end["frames"] == FRAMES
+        assert result.end is not None and result.end["reason"] == "arrived" and result.end["frames"] == FRAMES
         got[encoding] = result.poses(s.joint_names)
     for poses in got.values():
         np.testing.assert_allclose(poses.root_positions, http.root_positions, atol=1e-4)
@@ -171,7 +172,7 @@ def test_stream_retarget_cancel_ping_and_many_characters(server, motions, style_
     with StreamClient(server.url, api_key=API_KEY, encoding="binary") as s:
         a = s.start(motions["context"], motions["target"], 60, style_id=style_id, pace="realtime")
         b = s.start(motions["context"], motions["target"], 60, style_id=style_id, pace="realtime")
-        sent = []
+        sent: list[int] = []
 
         def on_frame(client: StreamClient, f: Frame) -> None:
             if f.seq == 2 and not sent:
@@ -182,13 +183,15 @@ def test_stream_retarget_cancel_ping_and_many_characters(server, motions, style_
 
         ra = s.collect(a, on_frame=on_frame)
         k = next(m for m in ra.messages if m["type"] == "retargeted")["from_seq"]
-        assert len(ra.frames) == k + 5 == ra.end["frames"] and ra.end["reason"] == "arrived"
+        assert ra.end is not None and len(ra.frames) == k + 5 == ra.end["frames"] and ra.end["reason"] == "arrived"
         rb = s.collect(b)  # b's traffic was queued while a was collected
-        assert rb.end["reason"] == "cancelled" and len(rb.frames) < 60
+        assert rb.end is not None and rb.end["reason"] == "cancelled" and len(rb.frames) < 60
         kinds = []
         while True:  # the pong came while a and b were collected
             try:
-                kinds.append(s.recv(timeout=2)["type"])
+                item = s.recv(timeout=2)
+                assert isinstance(item, dict), item  # both characters have ended: no frame is left
+                kinds.append(item["type"])
             except RsmtError as exc:
                 assert exc.code == "timeout"
                 break
@@ -207,7 +210,8 @@ def test_stream_errors_and_token_in_query(server, motions, style_id):
             s.start(motions["context"], motions["target"], 10, style=motions["style"], pace="asap")
         assert err.value.code == "message_too_large" and "register_style" in err.value.message
         c = s.start(motions["context"], motions["target"], 10, style_id=style_id, pace="asap")
-        assert s.collect(c, timeout=20).end["reason"] == "arrived"
+        end = s.collect(c, timeout=20).end
+        assert end is not None and end["reason"] == "arrived"
     with pytest.raises(RsmtError) as err:
         StreamClient(server.url, api_key="wrong-key-wrong-key-wrong")
     assert err.value.code == "unauthorized" and err.value.status == 401
@@ -268,7 +272,8 @@ def test_binary_frames_of_another_model_use_started_floats_per_frame():
     small = session.parse(encode_binary(np.array([0]), np.array([2]), np.array([0.1]), np.array([[4, 5, 6]]),
                                         rots5[:, :3], np.array([1]))[0])
     assert isinstance(big, Frame) and big.character == "big" and big.rotations.shape == (5, 4) and big.remaining == 7
-    assert small.character == "small" and small.rotations.shape == (3, 4) and small.seq == 2
+    assert isinstance(small, Frame) and small.character == "small" and small.rotations.shape == (3, 4)
+    assert small.seq == 2
     np.testing.assert_array_equal(big.root_position, [1, 2, 3])
 
 
@@ -277,7 +282,8 @@ def test_binary_frames_of_another_model_use_started_floats_per_frame():
 def test_retry_after_parsing():
     assert parse_retry_after("3") == 3.0 and parse_retry_after(None) is None and parse_retry_after("soon") is None
     later = email.utils.formatdate(time.time() + 30, usegmt=True)
-    assert 25 < parse_retry_after(later) <= 31
+    seconds = parse_retry_after(later)
+    assert seconds is not None and 25 < seconds <= 31
     policy = RetryPolicy(attempts=3, backoff_s=0.5, jitter=0.0)
     assert policy.wait(0, 503, {}) == 0.5 and policy.wait(1, 503, {}) == 1.0 and policy.wait(2, 503, {}) is None
     assert policy.wait(0, 429, {"retry-after": "2"}) == 2.0
@@ -340,7 +346,9 @@ def test_live_429_is_retried_after_retry_after(client_bundle, motions):
         with Client(srv.url, retry=NO_RETRY) as c, pytest.raises(RsmtError) as err:
             c.model()
             c.model()
-        assert err.value.code == "rate_limited" and err.value.status == 429 and err.value.retry_after >= 1
+        retry_after = err.value.retry_after
+        assert err.value.code == "rate_limited" and err.value.status == 429
+        assert retry_after is not None and retry_after >= 1
         # The WebSocket handshake is rate limited too; the stream client retries it the same way.
         with StreamClient(srv.url) as s:
             assert s.hello["type"] == "hello"

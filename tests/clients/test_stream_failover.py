@@ -6,6 +6,7 @@ The resume across a killed replica behind HAProxy is tests/service/test_replicas
 from __future__ import annotations
 
 import asyncio
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,6 +25,18 @@ def frame(character: str, seq: int, remaining: int, value: float = 0.0) -> Frame
                  np.tile(np.array([0, 0, 0, 1], np.float32), (J, 1)))
 
 
+def as_message(item: Frame | dict[str, Any] | None) -> dict[str, Any]:
+    """An item handed to the caller that the test expects to be a message (not a frame, not swallowed)."""
+    assert isinstance(item, dict), item
+    return item
+
+
+def as_frame(item: Frame | dict[str, Any] | None) -> Frame:
+    """An item handed to the caller that the test expects to be a frame."""
+    assert isinstance(item, Frame), item
+    return item
+
+
 def start(character: str = "hero", frames: int = 10, **kw) -> dict:
     context = {"root_positions": [[float(i), 0.0, 0.0] for i in range(6)],
                "rotations": [[[0.0, 0.0, 0.0, 1.0]] * J for _ in range(6)]}
@@ -36,17 +49,17 @@ def start(character: str = "hero", frames: int = 10, **kw) -> dict:
 def test_resume_from_the_last_frames_received_and_number_on():
     f = Failover(CTX, FPS, NAMES)
     f.sent(start(frames=10))
-    assert f.received({"type": "started", "character": "hero", "slot": 0}).item["type"] == "started"
+    assert as_message(f.received({"type": "started", "character": "hero", "slot": 0}).item)["type"] == "started"
     for seq in range(6):
-        assert f.received(frame("hero", seq, 9 - seq, value=100.0 + seq)).item.seq == seq
+        assert as_frame(f.received(frame("hero", seq, 9 - seq, value=100.0 + seq)).item).seq == seq
     (msg,) = f.resume_messages()
     assert msg["frames"] == 4 and msg["target"] == {"bvh": "T"} and msg["style_id"] == "sty_a"
     assert [r[0] for r in msg["context"]["root_positions"]] == [102.0, 103.0, 104.0, 105.0]  # the last CTX received
     assert f.resumes == 1
-    assert f.received({"type": "started", "character": "hero", "slot": 1}).item["resumed"] is True
-    out = [f.received(frame("hero", seq, 3 - seq)).item for seq in range(4)]
+    assert as_message(f.received({"type": "started", "character": "hero", "slot": 1}).item)["resumed"] is True
+    out = [as_frame(f.received(frame("hero", seq, 3 - seq)).item) for seq in range(4)]
     assert [x.seq for x in out] == [6, 7, 8, 9] and out[-1].t == pytest.approx(10 / FPS)
-    assert f.received({"type": "end", "character": "hero", "frames": 4}).item["frames"] == 10
+    assert as_message(f.received({"type": "end", "character": "hero", "frames": 4}).item)["frames"] == 10
     assert not f.live and f.resume_messages() == []
 
 
@@ -108,11 +121,11 @@ def test_a_resume_refused_for_its_retargeted_option_is_sent_again_without_it():
     assert act.item is None and act.register is None
     (again,) = act.send
     assert again == {k: v for k, v in resume.items() if k != "retargeted"}
-    assert f.received({"type": "started", "character": "hero"}).item["resumed"] is True
+    assert as_message(f.received({"type": "started", "character": "hero"}).item)["resumed"] is True
     g, _ = _resumed_after_a_retarget()  # refused again (or a plain start refused): the error reaches the caller
     g.received({"type": "error", "character": "hero", "code": "validation_error"})
     last = g.received({"type": "error", "character": "hero", "code": "validation_error"})
-    assert last.item is not None and last.item["code"] == "validation_error" and not last.send and not g.live
+    assert isinstance(last.item, dict) and last.item["code"] == "validation_error" and not last.send and not g.live
 
 
 def test_a_target_changed_before_any_frame_resumes_as_a_start_to_it_not_a_retarget():
@@ -153,7 +166,7 @@ def test_unknown_style_during_a_resume_resends_the_resume_not_the_original_start
     assert act.register is not None and act.send == [resume]
     assert act.send[0]["frames"] == 4 and act.send[0]["context"] != start()["context"]
     f.received({"type": "started", "character": "hero"})
-    assert [f.received(frame("hero", s, 3 - s)).item.seq for s in range(4)] == [6, 7, 8, 9]
+    assert [as_frame(f.received(frame("hero", s, 3 - s)).item).seq for s in range(4)] == [6, 7, 8, 9]
 
 
 def test_http_url():

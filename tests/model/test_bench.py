@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 from model.bench import BenchResult, bench_engine, format_table, machine_probe, paired_latency, per_frame_parameters
 from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
+from model.inference.traced_step import CompiledStep
 from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
 
@@ -46,7 +49,8 @@ def test_paired_latency_takes_turns_and_reports_both_medians_and_their_ratio():
             calls.append(_name)
             return _step(*args)
 
-        engine.weight_sets[""].step_fn = counted
+        # A counting stand-in for the compiled step (it calls the real one): cast, as it is no CompiledStep.
+        engine.weight_sets[""].step_fn = cast(CompiledStep, counted)
     paired = paired_latency(small, big, blocks=4, frames=6, warm=1)
     assert paired.first_ms > 0 and paired.second_ms > 0 and paired.ratio == paired.first_ms / paired.second_ms
     # One step a timed or warm frame; the engines take turns a block at a time, the first alternating.

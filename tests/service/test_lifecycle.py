@@ -23,6 +23,8 @@ def test_rsmt_serve_sigterm(bundle_dir):
     srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"],
                  env={"RSMT_SHUTDOWN_DRAIN_S": "1.5", "RSMT_SHUTDOWN_GRACE_S": "3"})
     srv.start()
+    proc = srv.proc
+    assert proc is not None
     try:
         assert srv.ready() == 200
         ws = Ws(srv.ws)
@@ -39,8 +41,8 @@ def test_rsmt_serve_sigterm(bundle_dir):
         reader = threading.Thread(target=wait_close)
         reader.start()
         sent = time.monotonic()
-        srv.proc.send_signal(signal.SIGTERM)
-        seen = None
+        proc.send_signal(signal.SIGTERM)
+        seen: int | str | None = None
         while time.monotonic() - sent < 1.2:  # readiness turns 503 while the drain lets LBs notice
             try:
                 seen = httpx.get(srv.url + "/v1/health/ready", timeout=1).status_code
@@ -53,7 +55,7 @@ def test_rsmt_serve_sigterm(bundle_dir):
         assert httpx.get(srv.url + "/v1/health/live", timeout=1).status_code == 200
         reader.join(10)
         assert closed.get("code") == 1001 and closed["at"] - sent < 1.0
-        code = srv.proc.wait(timeout=1.5 + 3 + 3)
+        code = proc.wait(timeout=1.5 + 3 + 3)
         assert time.monotonic() - sent < 1.5 + 3 + 3
         assert code in (0, -signal.SIGTERM), code
     finally:

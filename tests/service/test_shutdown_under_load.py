@@ -21,14 +21,16 @@ def test_sigterm_with_64_queued_answers_json_and_exits_in_time(bundle_dir):
     srv = slow_server(bundle_dir, DELAY_S, REQUESTS,
                       {"RSMT_SHUTDOWN_DRAIN_S": str(DRAIN_S), "RSMT_SHUTDOWN_GRACE_S": str(GRACE_S)})
     srv.start()
+    proc = srv.proc
+    assert proc is not None
     try:
         burst = Burst(srv.url, transition_body(frames=10), REQUESTS)
         # Most of them are waiting for the work thread (at worst, carry on after a while).
         wait_for(lambda: metric(srv.url, "rsmt_work_queue_waiting") >= REQUESTS // 2, 10)
         time.sleep(0.3)
         sent = time.monotonic()
-        srv.proc.send_signal(signal.SIGTERM)
-        code = srv.proc.wait(timeout=DRAIN_S + GRACE_S + 10)
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=DRAIN_S + GRACE_S + 10)
         exit_s = time.monotonic() - sent
         answers = burst.join(30)
     finally:

@@ -45,11 +45,13 @@ def test_a_full_queue_answers_503_overloaded_at_once(server):
     assert LIMIT + 1 >= len(ok) >= 2 and len(refused) >= 12 - (LIMIT + 1) - 2
     for a in refused:
         assert a.content_type.startswith("application/json")
-        assert a.json()["error"]["code"] == "overloaded", a.body
-        assert int(a.retry_after) >= 1
+        body = a.json()
+        assert body is not None and body["error"]["code"] == "overloaded", a.body
+        assert a.retry_after is not None and int(a.retry_after) >= 1
         assert a.seconds < DELAY_S, a.seconds  # at once: before even one queued job could have run
     for a in ok:
-        assert len(a.json()["frames"]) == FRAMES
+        body = a.json()
+        assert body is not None and len(body["frames"]) == FRAMES, a.body
     assert max(a.seconds for a in ok) >= DELAY_S * (len(ok) - 1)  # the accepted ones did wait their turn
     assert metric(server.url, "rsmt_work_queue_jobs_total", outcome="rejected") >= len(refused)
 
@@ -73,7 +75,9 @@ def test_a_request_whose_client_left_is_not_run(server):
     assert metric(server.url, "rsmt_transition_frames_total") == frames + 3 * FRAMES, seen
     assert seen["run"] == runs + 3 and seen["abandoned"] >= 3, seen
     # It waited for the first two at most (2 * DELAY_S), not for the three abandoned ones as well (3 * DELAY_S).
-    queued_ms = after.json()["timing_ms"]["queue"]
+    answer = after.json()
+    assert answer is not None, after.body
+    queued_ms = answer["timing_ms"]["queue"]
     assert queued_ms < 4 * DELAY_S * 1e3, queued_ms
 
 

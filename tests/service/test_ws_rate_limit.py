@@ -29,7 +29,8 @@ def test_ws_messages_spend_the_rate_limit(server):
             else:
                 ws.send({"type": "cancel", "character": f"c{i}", "request_id": i})
         answers = [ws.recv(timeout=20) for _ in range(12)]
-        by_id = {a.get("request_id", a.get("id")): a for a in answers}
+        # Each answer names its message: by the request_id it echoes, else (a pong) by its id.
+        by_id: dict[int, dict] = {(a["request_id"] if "request_id" in a else a["id"]): a for a in answers}
         assert sorted(by_id) == list(range(12))
         limited = [i for i in range(12) if by_id[i].get("code") == "rate_limited"]
         served = [i for i in range(12) if i not in limited]

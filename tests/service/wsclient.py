@@ -50,7 +50,7 @@ class Ws:
     def ping(self, ident: Any = "p", timeout: float = 30.0) -> list[dict]:
         """Send a ping and read until its pong; returns what came before it."""
         self.send({"type": "ping", "id": ident})
-        seen = []
+        seen: list[dict] = []
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             m = self.recv(timeout)
@@ -61,7 +61,7 @@ class Ws:
 
     def run(self, characters: set[str], timeout: float = 60.0, on_frame=None) -> dict[str, dict]:
         """Read until every character in ``characters`` has ended; frames, end and other messages per character."""
-        out = {c: {"frames": [], "end": None, "messages": []} for c in characters}
+        out: dict[str, dict[str, Any]] = {c: {"frames": [], "end": None, "messages": []} for c in characters}
         deadline = time.monotonic() + timeout
         while any(v["end"] is None for v in out.values()):
             m = self.recv(max(0.1, deadline - time.monotonic()))

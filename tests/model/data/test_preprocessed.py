@@ -132,9 +132,14 @@ def test_a_copy_of_the_data_elsewhere_gets_its_own_cache(tmp_path: Path) -> None
 def test_reuse_and_rebuild(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     make_bandai_tree(tmp_path / "data", takes_per_group=1)
     first = load(tmp_path / "data", tmp_path / "cache")
-    built = []
+    built: list[int] = []
     real_build = mc.build_motion_cache
-    monkeypatch.setattr(mc, "build_motion_cache", lambda *a, **k: built.append(1) or real_build(*a, **k))
+
+    def counted_build(*a, **k):
+        built.append(1)
+        return real_build(*a, **k)
+
+    monkeypatch.setattr(mc, "build_motion_cache", counted_build)
     again = load(tmp_path / "data", tmp_path / "cache")
     assert built == [] and again.folder == first.folder
     load(tmp_path / "data", tmp_path / "cache", rebuild=True)

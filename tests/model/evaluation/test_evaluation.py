@@ -298,10 +298,12 @@ def test_accuracy_by_style_agrees_with_the_overall_accuracy() -> None:
 
 def test_accuracy_by_style_groups_cases_by_another_label() -> None:
     from types import SimpleNamespace
+    from typing import cast
 
     from model.evaluation.style_scores import StyleScorer
 
-    scorer = SimpleNamespace(index={"a": 0, "b": 1, "c": 2})
+    # A stand-in with only the index the method reads (no classifier to build): cast, as it is no StyleScorer.
+    scorer = cast(StyleScorer, SimpleNamespace(index={"a": 0, "b": 1, "c": 2}))
     logits = torch.eye(3)[[0, 1, 1, 2, 0]]  # predictions a, b, b, c, a
     labels = torch.tensor([0, 1, 2, 2, -1])  # requested styles; the last is unknown to the classifier
     by_label = StyleScorer.accuracy_by_style(scorer, logits, labels)

@@ -97,9 +97,11 @@ def test_traced_output_matches_eager_at_any_batch():
     yaw, origin = torch.zeros(3), torch.zeros(3, 3)
     output = FrameOutput(sk, OutputConfig(smoothing=0.2, foot_lock=True), FootLock(sk, 30.0, MECHANICS))
     eager, traced = output, CompiledFrameOutput(output)
+    lock = output.lock
+    assert lock is not None
 
     def memory(rows: slice) -> dict[str, torch.Tensor]:
-        starts = [output.lock.start(rot[:10, i], root[:10, i]) for i in range(3)[rows]]
+        starts = [lock.start(rot[:10, i], root[:10, i]) for i in range(3)[rows]]
         mem = {"prev_rot": rot[9, rows], "prev_root": root[9, rows]}
         mem.update({k: torch.cat([s.memory()[k] for s in starts]) for k in FootLockState.MEMORY_KEYS})
         return mem
@@ -119,7 +121,7 @@ def test_traced_output_matches_eager_at_any_batch():
     assert torch.equal(e_mem["lock_locked"], t_mem["lock_locked"])
     assert torch.allclose(e_mem["lock_anchor"], t_mem["lock_anchor"], atol=1e-4)
     # The lock did something to compare: the slow character's left ankle was held for a while.
-    ankles = output.lock.ankles(e_out[:, 0], root[10:, 0])
+    ankles = lock.ankles(e_out[:, 0], root[10:, 0])
     assert (ankles[1:12, 0] - ankles[0, 0]).norm(dim=-1).max() < 0.1
 
 

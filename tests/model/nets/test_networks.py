@@ -45,7 +45,8 @@ def test_mixture_linear_matches_explicit_blend():
     alpha = torch.softmax(torch.randn(6, 3), -1)
     w = layer.weight.view(5, 3, 4)
     b = layer.bias.view(3, 4)
-    expected = torch.stack([sum(alpha[i, e] * (x[i] @ w[:, e] + b[e]) for e in range(3)) for i in range(6)])
+    expected = torch.stack([sum((alpha[i, e] * (x[i] @ w[:, e] + b[e]) for e in range(3)), torch.zeros(4))
+                            for i in range(6)])
     assert torch.allclose(layer(x, alpha), expected, atol=1e-5)
 
 

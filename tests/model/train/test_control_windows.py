@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import pytest
 import torch
@@ -68,7 +69,8 @@ def test_a_turned_target_keeps_its_place_and_heights_and_turns_by_the_angle(angl
 
 
 def test_control_settings_are_checked():
-    for bad in ({"control_turn": -1.0}, {"control_side": -5.0}):
+    overrides: tuple[dict[str, Any], ...] = ({"control_turn": -1.0}, {"control_side": -5.0})
+    for bad in overrides:
         with pytest.raises(ValueError, match="control"):
             SamplerStageConfig(**bad)
     for bad_drop in (-0.1, 1.5):
@@ -159,7 +161,7 @@ def test_a_checkpoint_without_the_flag_grows_its_column_and_moments_and_resumes(
     old = tiny_bundle(0).sampler
     params = trained_parameters(old)
     opt = make_optimizer(params, LoopConfig())
-    sum(p.sum() for _, p in params).backward()  # one step, so the moments exist
+    torch.stack([p.sum() for _, p in params]).sum().backward()  # one step, so the moments exist
     opt.step()
     save_checkpoint(tmp_path, old, opt, 7, [{"step": 7}])
     flagged = TransitionSampler(FLAGGED, old.decoder)

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 import torch
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
+from model.inference.bundle_adapters import StyleAdapter
 from model.nets.manifold import ManifoldConfig
 from model.nets.phase import PhaseConfig
 from model.nets.sampler import SamplerConfig
 from model.train.finetune import FROZEN_PREFIXES, STYLE_PREFIXES, FinetuneConfig, finetune_style
-from model.train.loop import LoopConfig
+from model.train.loop import LoopConfig, LoopResult
 
 
 @pytest.fixture()
@@ -35,7 +38,8 @@ def _config(scope: str, **extra) -> FinetuneConfig:
     return ft
 
 
-def _changed(bundle: Bundle, run) -> tuple[set[str], object, object]:
+def _changed(bundle: Bundle, run: Callable[[], tuple[StyleAdapter, LoopResult]]
+             ) -> tuple[set[str], StyleAdapter, LoopResult]:
     before = {k: v.clone() for k, v in bundle.sampler.state_dict().items()}
     adapter, result = run()
     assert all(torch.equal(v, before[k]) for k, v in bundle.sampler.state_dict().items())  # left as it was

@@ -6,6 +6,7 @@ import dataclasses
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 from safetensors import safe_open
@@ -38,7 +39,7 @@ CHAINS = {name: [stage.preset for stage in load_recipe(name).stages] for name in
 
 
 def _flat(data: dict, where: str = "") -> dict:
-    out = {}
+    out: dict[str, Any] = {}
     for key, value in data.items():
         path = f"{where}.{key}" if where else key
         out.update(_flat(value, path) if isinstance(value, dict) else {path: value})

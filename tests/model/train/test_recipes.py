@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+from typing import Any
 
 import pytest
 import torch
@@ -49,7 +50,7 @@ def test_every_recipe_loads_and_names_presets_that_exist():
 
 
 def test_recipe_files_are_checked():
-    good = {"about": "x", "stages": [{"label": "A", "command": "all", "preset": "smoke"}]}
+    good: dict[str, Any] = {"about": "x", "stages": [{"label": "A", "command": "all", "preset": "smoke"}]}
     assert Recipe.from_dict("r", good).package == PackageSettings()
     for bad, message in (
         ({**good, "stage": []}, "unknown recipe setting"),

@@ -96,8 +96,9 @@ def test_largest_seed_and_generated_seeds_fit_javascript(client, style_id):
 
 
 def test_websocket_frames_are_strictly_typed(server):
+    changes: tuple[dict[str, object], ...] = ({"frames": "10"}, {"frames": True}, {"seed": 2**53})
     with Ws(server.ws) as ws:
-        for n, change in enumerate(({"frames": "10"}, {"frames": True}, {"seed": 2**53})):
+        for n, change in enumerate(changes):
             ws.send({**start_message(f"s{n}", 10, style=bvh(walk(30))), **change})
             seen = ws.ping(f"strict{n}")
             assert [m["type"] for m in seen] == ["error"] and seen[0]["code"] == "validation_error", seen

@@ -92,7 +92,7 @@ def test_retarget_changes_where_it_arrives(server, styles):
     with Ws(server.ws) as ws:
         base = _baseline(ws, styles, "base")
         ws.send(start_message("moved", 60, deterministic=True, style_id=styles["walk"]))
-        sent = []
+        sent: list[int] = []
 
         def on_frame(w: Ws, f: dict) -> None:
             if f["seq"] == 10 and not sent:
@@ -115,7 +115,7 @@ def test_retarget_changes_where_it_arrives(server, styles):
 def test_retarget_frames_changes_length(server, styles):
     with Ws(server.ws) as ws:
         ws.send(start_message("len", 60, pace="realtime", style_id=styles["walk"]))
-        sent = []
+        sent: list[int] = []
 
         def on_frame(w: Ws, f: dict) -> None:
             if f["seq"] == 2 and not sent:
@@ -132,7 +132,7 @@ def test_style_switch(server, styles):
     with Ws(server.ws) as ws:
         base = _baseline(ws, styles, "base")
         ws.send(start_message("sw", 60, deterministic=True, style_id=styles["walk"]))
-        sent = []
+        sent: list[int] = []
 
         def on_frame(w: Ws, f: dict) -> None:
             if f["seq"] == 5 and not sent:
@@ -152,7 +152,7 @@ def test_style_switch(server, styles):
 def test_cancel(server, styles):
     with Ws(server.ws) as ws:
         ws.send(start_message("c", 60, pace="realtime", style_id=styles["walk"]))
-        sent = []
+        sent: list[int] = []
 
         def on_frame(w: Ws, f: dict) -> None:
             if f["seq"] == 3 and not sent:
@@ -229,7 +229,7 @@ def test_binary_and_json_frames_agree(server, styles):
 
 
 def test_bad_messages_get_errors_and_the_connection_stays(server, styles):
-    bad = [
+    bad: list[tuple[str | bytes, str]] = [
         ("garbage", "invalid_json"),
         ("[1, 2]", "validation_error"),
         ('{"no": "type"}', "validation_error"),
@@ -273,7 +273,8 @@ def test_idle_connection_closes_1000(server):
         started = time.monotonic()
         with pytest.raises(ConnectionClosed) as info:
             ws.recv(10)
-        assert info.value.rcvd.code == 1000 and info.value.rcvd.reason == "idle"
+        rcvd = info.value.rcvd
+        assert rcvd is not None and rcvd.code == 1000 and rcvd.reason == "idle"
         assert 1.5 < time.monotonic() - started < 6
 
 

@@ -41,7 +41,7 @@ async def _stream(url: str, message: dict) -> np.ndarray:
         hello = json.loads(await ws.recv())
         joints = len(hello["model"]["skeleton"]["joints"])
         await ws.send(json.dumps(message))
-        rows = []
+        rows: list[np.ndarray] = []
         while True:
             m = await asyncio.wait_for(ws.recv(), 60)
             if isinstance(m, bytes):
@@ -143,6 +143,7 @@ class _Outbox:
         stream.queued += 1
         self.frames.append(seq)
         if stream.queued >= self.capacity:
+            assert stream.scheduler is not None  # set by Scheduler.add, which delivers these frames
             stream.scheduler.park(stream, now)
 
     def deliver_end(self, stream: Stream, reason: str) -> None:
