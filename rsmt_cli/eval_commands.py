@@ -100,7 +100,8 @@ def _stream_retarget(run, methods, target_frames: int) -> str:
 
     if run.loco is None:
         return "No locomotion cases: no stream-retarget figures.\n"
-    lines = ["### Stream retargeted at frame 20 of 40 to the target moved 1 m sideways (locomotion)", "",
+    exact = " (exact arrival)" if any(getattr(m, "exact_arrival", False) for m in methods) else ""
+    lines = [f"### Stream retargeted at frame 20 of 40 to the target moved 1 m sideways (locomotion){exact}", "",
              "| method | arrival cm (mean / median / p90) | sent from the start | max root speed cm/s (mean / worst) |",
              "|---|---|---|---|"]
     for method, (name, entry) in zip(methods, run.report["methods"].items(), strict=True):

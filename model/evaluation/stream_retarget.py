@@ -5,7 +5,8 @@ game sends it); at frame ``at`` the stream is retargeted to the same target move
 (the evaluation's ``gap40-side1m`` target), keeping the arrival time. Scored: the mean joint
 distance of the last frame to the moved target (arrival, cm), beside the arrival of the same
 transition sent to the moved target from the start, and the largest root speed (a correction that
-teleports shows there).
+teleports shows there). A method run with exact arrival streams with it too (the service's
+``exact_arrival`` request field), so its retargeted arrival is the bent one.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ def stream(method: BundleMethod, cases: CaseSet, settings: RetargetSettings, ret
     for b in range(len(cases)):
         style, _ = engine.encode_style(cases.style_clips[b])
         ch = engine.prepare(cases.context_clip(b), cases.target_clip(b, start, settings.target_frames), settings.frames,
-                            style, deterministic=True, character_id=cases.cases[b].id)
+                            style, deterministic=True, character_id=cases.cases[b].id,
+                            exact_arrival=method.exact_arrival)
         batch.add(ch)
         chars.append(ch)
     rots: dict[str, list[Tensor]] = {c.id: [] for c in chars}
@@ -71,7 +73,8 @@ def retarget_report(method: BundleMethod, cases: CaseSet, settings: RetargetSett
         raise ValueError(f"the retarget frame must fall inside the transition (1..{settings.frames - 1})")
     target = cases.target_positions(variant("gap40-side1m"))
     out: dict[str, Any] = {"cases": len(cases), "frames": settings.frames, "retarget_at": settings.at,
-                           "target_frames": settings.target_frames, "moved_cm": variant("gap40-side1m").side}
+                           "target_frames": settings.target_frames, "moved_cm": variant("gap40-side1m").side,
+                           "exact_arrival": method.exact_arrival}
     for name, retarget in (("retargeted", True), ("from_start", False)):
         rot, root = stream(method, cases, settings, retarget)
         pos, _ = cases.forward(rot, root)

@@ -46,6 +46,14 @@ def test_the_report_scores_the_moved_target_and_checks_the_frame(setup) -> None:
         retarget_report(method, cases, RetargetSettings(at=40))
 
 
+def test_a_method_with_exact_arrival_streams_with_it(setup) -> None:
+    cases, method = setup
+    exact = BundleMethod(method.path, exact_arrival=True)
+    r = retarget_report(exact, cases)
+    assert r["exact_arrival"] is True and retarget_report(method, cases)["exact_arrival"] is False
+    # Bent onto the moved target, retargeted mid-stream or sent there from the start.
+    assert r["retargeted"]["arrival_cm"] < 0.05 and r["from_start"]["arrival_cm"] < 0.05
+
 
 def test_each_case_can_be_retargeted_at_its_own_frame(setup) -> None:
     cases, method = setup
