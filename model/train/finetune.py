@@ -52,7 +52,8 @@ class FinetuneConfig:
     validation against 300 steps at 1e-4 and the feet at 0.05 (the earlier default), a higher rate
     alone and a heavier foot term alone: held-out active went from 40% to 69% of the style judge's
     reading, elderly stayed at 84-86%, foot skate fell (docs/experiments/2026-11-25-unseen-styles.md,
-    amendment 2). About 4 minutes on a 2-core CPU. ``blend`` 0.5 then won against 1 and 0.75
+    amendment 2). About a minute on a 2-core CPU (62-67 s, amendment 7; 800 and 1,200 steps did
+    no better, amendment 8). ``blend`` 0.5 then won against 1 and 0.75
     (amendment 3): lower L2P and skate, less of a distant style (active 69% -> 17% on validation)."""
 
     loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=400, epoch_iterations=50, lr=3e-4, warmup=20,
@@ -61,6 +62,8 @@ class FinetuneConfig:
     batch: int = 16
     max_transition: int = 40
     style_frames: int = 120
+    # Mirrored and time-rescaled copies of the clips; without the rescaled ones the judge read the new
+    # styles no better on validation (amendment 7 of the record).
     augment: bool = True
     # The texture terms of the default sampler's last training steps (SamplerStageConfig): how much
     # each joint accelerates and the velocity spectrum are much of what a style looks like.
