@@ -35,11 +35,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--target-frames", type=int, default=1, choices=[1, 2],
                    help="target frames sent to bundles: 1, the target alone (what a game has; default), or 2, "
                         "with the frame before it (the target's velocity)")
+    p.add_argument("--noise", action="store_true",
+                   help="bundles sample their per-transition noise (a seed per case from --seed), as a request with "
+                        "the API's default \"deterministic\": false does; default: no noise")
     p.add_argument("--out", type=Path, metavar="DIR", help="folder for report.json, report.md and the pictures")
     p.add_argument("--limit", type=int, metavar="N", help="evaluate at most N cases, spread evenly over the split")
     p.add_argument("--styles", nargs="+", default=[], metavar="STYLE",
                    help="only cases of these styles, e.g. a style held out of training (style clips still come from all)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the noisy samples for diversity (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noisy samples (diversity, --noise; default 0)")
     p.add_argument("--diversity-cases", type=int, default=32, metavar="N",
                    help="cases used for diversity, spread evenly (default 32; 0 skips diversity)")
     p.add_argument("--diversity-samples", type=int, default=10, metavar="N",
@@ -79,7 +82,7 @@ def eval_command(args: argparse.Namespace) -> int:
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
                             diversity_samples=args.diversity_samples, render_cases=args.render_cases,
-                            styles=tuple(args.styles), target_frames=args.target_frames)
+                            styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise)
     run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
                    progress=not args.quiet, judge=judge, judge_path=str(args.judge) if args.judge else None)
     command = _command(args)
@@ -129,6 +132,8 @@ def _command(args: argparse.Namespace) -> str:
     if args.styles:
         parts += ["--styles", *args.styles]
     parts += ["--seed", str(args.seed)]
+    if args.noise:
+        parts.append("--noise")
     if args.exact_arrival:
         parts.append("--exact-arrival")
     if args.stream_retarget:

@@ -47,7 +47,8 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
         + ".",
         "",
         f"Target sent to the models: {report['protocol'].get('target', 'the target frame and the frame before it')} "
-        "(baselines use the target frame only).",
+        "(baselines use the target frame only). Bundles' sampling noise: "
+        f"{report['protocol'].get('noise', 'none (deterministic)')}.",
         "",
     ]
     lines += _judge_line(report)

@@ -69,6 +69,9 @@ class EvalSettings:
     render_cases: int = 4
     styles: tuple[str, ...] = ()  # only cases of these styles (e.g. a held-out one); all when empty
     target_frames: int = 1  # target frames sent to bundles: 1 (the target alone) or 2 (with its velocity)
+    # Bundles sample their per-transition noise, one seed per case and variant from ``seed``, as a request
+    # with the API's default ``"deterministic": false`` does; False: no noise (the figures so far).
+    noise: bool = False
 
 
 @dataclass
@@ -172,6 +175,8 @@ def evaluate(
             "style_clip_frames": STYLE_CLIP_FRAMES,
             "target": "the target frame alone" if settings.target_frames == 1
                       else "the target frame and the frame before it (its velocity)",
+            "noise": ("sampled, a seed per case and variant (as the API's default request)" if settings.noise
+                      else "none (deterministic)"),
             "style_pairing": "same style, another take of the split (120+ frames first, same content first), "
                              "hash-ranked; cross: a hash-chosen other style, same ranking",
         },
@@ -259,7 +264,7 @@ def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSetting
             loco_rows[v.name] = {"unavailable": "no locomotion case"}
             continue
         try:
-            rot, root = method.generate(on, Request(v, target_frames=settings.target_frames), progress)
+            rot, root = method.generate(on, _request(v, on, settings), progress)
         except Unavailable as exc:
             loco_rows[v.name] = {"unavailable": str(exc)}
             if not v.locomotion_only:
@@ -308,8 +313,15 @@ def _cross_style(run: EvalRun, method: Method, v: Variant, out: Transitions, set
     """The method's transitions with each case's other-style clip (``out`` itself where the style clip is ignored)."""
     if not method.uses_style:
         return out
-    rot, root = method.generate(run.cases, Request(v, cross_style=True, target_frames=settings.target_frames), progress)
+    rot, root = method.generate(run.cases, _request(v, run.cases, settings, cross_style=True), progress)
     return to_canonical(run.cases, rot, root)
+
+
+def _request(v: Variant, cases: CaseSet, settings: EvalSettings, cross_style: bool = False) -> Request:
+    """What every case of ``cases`` is asked on variant ``v``: with a noise seed per case when ``settings.noise``."""
+    seeds = ([stable_hash(settings.seed, c.id, v.name, "noise", cross_style) % (2**31) for c in cases.cases]
+             if settings.noise else None)
+    return Request(v, cross_style=cross_style, seeds=seeds, target_frames=settings.target_frames)
 
 
 def _judge_cross(judge: StyleJudge, cases: CaseSet, positions: Tensor) -> dict[str, Any]:

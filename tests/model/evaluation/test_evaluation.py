@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -236,6 +237,21 @@ def test_bundle_is_deterministic_without_noise(cache: MotionCache, bundle_dir: P
     s1 = method.generate(cs, Request(variant("gap10"), seeds=[1, 2, 3]))
     s2 = method.generate(cs, Request(variant("gap10"), seeds=[4, 5, 6]))
     assert not torch.equal(s1[1], s2[1])
+
+
+def test_noise_samples_as_a_default_request_does_reproducibly(cache: MotionCache, bundle_dir: Path, stats) -> None:
+    def gap40(settings: EvalSettings) -> tuple[float, str]:
+        run = evaluate(cache, [BundleMethod(bundle_dir)], settings, progress=False, stats=stats)
+        return run.report["methods"]["random"]["variants"]["gap40"]["l2p"], run.report["protocol"]["noise"]
+
+    base = EvalSettings(limit=4, render_cases=0, diversity_cases=0)
+    plain, plain_noise = gap40(base)
+    sampled, sampled_noise = gap40(replace(base, noise=True))
+    assert plain_noise.startswith("none") and sampled_noise.startswith("sampled")
+    assert sampled != plain
+    assert gap40(replace(base, noise=True))[0] == sampled  # a seed per case from settings.seed
+    assert gap40(replace(base, noise=True, seed=1))[0] != sampled
+    assert gap40(replace(base, seed=1))[0] == plain  # the seed draws noise only when asked to
 
 
 def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle_dir: Path, dataset: tuple[Path, Path],
