@@ -11,7 +11,7 @@ import time
 from typing import Any
 
 from model.inference.engine import Character, EncodedStyle
-from model.inference.errors import EngineError
+from model.inference.errors import EngineError, TooManyFrames
 from model.motion.clip import Clip
 from service.builtin_styles import builtin_style, is_builtin
 from service.errors import ServiceError, from_engine
@@ -19,6 +19,7 @@ from service.motion import frames_bvh, frames_json, motion_to_clip
 from service.registry import LoadedModel
 from service.schemas import BvhMotion, PoseMotion, StartMessage, TransitionRequest
 from service.style_book import Caller
+from service.style_hints import builtin_suggestion, style_length_hint
 from service.style_store import StyleEntry
 
 
@@ -32,7 +33,8 @@ def lookup_style(model: LoadedModel, caller: Caller, style_id: str) -> EncodedSt
         raise ServiceError("unknown_style", f"no style {style_id!r} for model {model.name!r} under this API key: "
                                             "register the clip with POST /v1/styles (ids are content hashes, so "
                                             "re-registering gives the same id; styles live in memory only, per key, "
-                                            "and are evicted and lost on restart)")
+                                            "and are evicted and lost on restart)."
+                                            + builtin_suggestion(style_id, model.engine.bundle.styles))
     return style
 
 
@@ -43,6 +45,8 @@ def encode_style(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) 
 def encode_clip(model: LoadedModel, clip: Clip, name: str) -> tuple[EncodedStyle, bool]:
     try:
         return model.engine.encode_style(clip, name)
+    except TooManyFrames as exc:  # a whole take, say: say how to cut it
+        raise ServiceError("too_many_frames", str(exc) + style_length_hint(model.engine.config.style_frames_max)) from exc
     except EngineError as exc:
         raise from_engine(exc) from exc
 

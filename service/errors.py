@@ -109,6 +109,16 @@ def describe_validation(errors: Sequence[Mapping[str, Any]], limit: int = 5) -> 
     return "; ".join(parts)
 
 
+def _json_media_type(content_type: str | None) -> bool:
+    media = (content_type or "").split(";", 1)[0].strip().lower()
+    return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
+
+
+def _whole_body(error: Mapping[str, Any]) -> bool:
+    """An error about the body as a whole (its type), not about a field in it."""
+    return tuple(error.get("loc", ())) == ("body",)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Every error, including FastAPI's own validation and routing errors, leaves in the envelope."""
 
@@ -129,6 +139,13 @@ def install_error_handlers(app: FastAPI) -> None:
         if invalid:
             detail = (invalid[0].get("ctx") or {}).get("error") or invalid[0].get("msg", "")
             code, message = "invalid_json", f"the request body is not valid JSON: {detail}"
+        elif not _json_media_type(request.headers.get("content-type")) and any(_whole_body(e) for e in errors):
+            # FastAPI reads a body as JSON only when it says it is: anything else arrives as text, "not a dict".
+            sent = request.headers.get("content-type")
+            code = "unsupported_media_type"
+            message = (f"the request body must be JSON sent with Content-Type: application/json; this request has "
+                       f"{'Content-Type: ' + sent[:100] if sent else 'no Content-Type'} (curl: -H 'content-type: "
+                       "application/json')")
         else:
             code, message = "validation_error", describe_validation(errors)
         _count(request, code)

@@ -24,6 +24,7 @@ from service.schemas import (
     StyleList,
 )
 from service.style_book import Caller
+from service.style_hints import builtin_suggestion
 from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(require_access)],
@@ -56,7 +57,8 @@ def _find(registry: Registry, caller: Caller, style_id: str) -> dict:
     if is_builtin(style_id):
         raise ServiceError("unknown_style", f"no model has the built-in style {style_id!r} (GET /v1/styles lists them)")
     raise ServiceError("unknown_style", f"no style {style_id!r} under this API key: register the clip with "
-                                        "POST /v1/styles")
+                                        "POST /v1/styles."
+                                        + builtin_suggestion(style_id, (n for m in registry for n in m.engine.bundle.styles)))
 
 
 @router.get("", response_model=StyleList,
