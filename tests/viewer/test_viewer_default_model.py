@@ -23,12 +23,13 @@ from model.motion.skeleton import Skeleton
 from tests.service.server import Server
 from tests.viewer.conftest import REPO, UPDATE_SCREENSHOTS
 from tests.viewer.test_viewer_browser import V, open_viewer, save
-from tests.viewer.webdriver import Browser
+from tests.viewer.webdriver import Browser, local_requests_only
 
 pytestmark = pytest.mark.slow
 DEFAULT_SCREENSHOT = REPO / "docs" / "images" / "viewer-default.png"
 FOOT_FLOOR_CM = 12.0  # the lower foot joint of a standing or walking person (ankle ~8 cm, toe ~2 cm up)
 LIVE_FOOT_CM = 15.0  # streamed frames: a generated step may lift both feet a little; the old bug floated 20-60 cm
+BUILTIN_NAMES = ("active", "elderly", "exhausted", "feminine", "masculine", "normal", "youthful")
 LIVE_SINK_CM = 3.0  # nor may the feet go into the floor (walks to a target behind sank them 5-10 cm before floor contact)
 
 
@@ -78,9 +79,15 @@ def test_the_first_picture_is_a_person_standing_on_the_floor(default_browser, de
     for f in (0, take["frames"] // 2, take["frames"] - 1):
         pos = b.execute(f"return Array.from({V}.app.take.positions[arguments[0]])", f)
         assert person_problem(pos, r) is None, (f, person_problem(pos, r))
-    styles = b.execute("return Array.from(document.getElementById('style-select').options, (o) => o.value)")
-    assert "id:builtin:normal" in styles and "id:builtin:elderly" in styles, styles
+    for select in ("style-select", "live-style"):  # each built-in style once (GET /v1/styles lists them too)
+        styles = b.execute("return Array.from(document.getElementById(arguments[0]).options, (o) => o.value)", select)
+        builtins = sorted(s for s in styles if s.startswith("id:builtin:"))
+        assert builtins == [f"id:builtin:{n}" for n in BUILTIN_NAMES], (select, styles)
+        assert len(styles) == len(set(styles)), (select, styles)
+    labels = b.execute("return Array.from(document.getElementById('style-select').options, (o) => o.text)")
+    assert len(labels) == len(set(labels)), labels
     assert b.execute(f"return {V}.errors") == []
+    local_requests_only(b, default_server)  # nothing from outside 127.0.0.1 (the page, its modules, its icon)
 
 
 def test_every_generated_take_starts_and_ends_as_a_person(default_server) -> None:

@@ -179,3 +179,15 @@ class Browser:
                 self.driver.wait(10)
             except subprocess.TimeoutExpired:
                 self.driver.kill()
+
+
+def local_requests_only(browser: Browser, server: Any) -> list[str]:
+    """The resources the open page asked for (its resource timing entries, which include requests a
+    Content-Security-Policy blocked), asserting that none went anywhere but ``server``; and that no image on
+    it is broken. Returns their URLs."""
+    entries = browser.execute("return performance.getEntriesByType('resource').map(e => e.name)")
+    outside = [name for name in entries if not name.startswith(server.url + "/") and not name.startswith("data:")]
+    assert outside == [], outside
+    broken = browser.execute("return [...document.images].filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.src)")
+    assert broken == [], broken
+    return entries

@@ -144,8 +144,9 @@ export class StylePicker {
       const keep = sel === select && value ? value : sel.value;
       sel.innerHTML = "";
       for (const b of this.builtins) sel.add(new Option(`${b.name} (built-in, ${b.frames} frames)`, `id:${b.style_id}`));
-      for (const s of this.styles) sel.add(new Option(`${s.name} (${s.frames} frames)`, `id:${s.style_id}`));
-      const registered = new Set(this.styles.map((s) => s.name));
+      // GET /v1/styles lists the built-in styles too ("builtin": true): they are in the list once, above.
+      for (const s of this.styles.filter((s) => !s.builtin)) sel.add(new Option(`${s.name} (${s.frames} frames)`, `id:${s.style_id}`));
+      const registered = new Set([...this.builtins, ...this.styles].map((s) => s.name));
       for (const d of this.demos) {
         if (!registered.has(d.name)) sel.add(new Option(`${d.name} (demo, registered on use)`, `demo:${d.name}`));
       }
