@@ -4,6 +4,7 @@
     rsmt client styles list                 (the models' built-in styles, then yours)
     rsmt client transition --context a.bvh --target b.bvh --frames 40 --style ID -o out.bvh [--seed S]
     rsmt client stream --context a.bvh --target b.bvh --frames 40 --style ID [--binary] [-o out.bvh]
+    rsmt client demo [NAME --out walk.bvh]   (the viewer's demo takes: motion on the model's rig, as BVH)
 
 Every command takes ``--url`` (default http://127.0.0.1:8000, or $RSMT_URL) and ``--api-key``
 (or $RSMT_API_KEY). Results print as JSON lines on stdout; errors print the server's code and
@@ -33,13 +34,15 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 def _motion_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--context", type=Path, required=True, metavar="BVH",
-                        help="the character's recent motion (at least the model's context_frames frames)")
+                        help="the character's recent motion (at least the model's context_frames frames; a whole take "
+                             "is cut to the last of them)")
     parser.add_argument("--target", type=Path, required=True, metavar="BVH",
-                        help="the target: its last frame is the pose to arrive at")
+                        help="the target: its last frame is the pose to arrive at (a whole take is cut to its last two)")
     parser.add_argument("--frames", type=int, required=True, help="frames to generate (the last one arrives)")
     parser.add_argument("--style", required=True, metavar="ID|BVH",
-                        help="a style_id from `rsmt client styles add`, or a style clip .bvh (sent with the request; "
-                             "`stream` registers it over HTTP first)")
+                        help="a style_id from `rsmt client styles add` or builtin:NAME, or a style clip .bvh (sent "
+                             "with the request; `stream` registers it over HTTP first; a clip longer than the model "
+                             "reads is cut to its middle, said on stderr)")
     parser.add_argument("--seed", type=int, help="sampling seed (same inputs + seed give the same frames)")
     parser.add_argument("--deterministic", action="store_true", help="no sampling noise")
     parser.add_argument("--exact-arrival", action="store_true",
@@ -83,6 +86,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     st.add_argument("--quiet", action="store_true", help="no line per frame")
     _common(st)
     st.set_defaults(func=_stream)
+
+    demo = sub.add_parser("demo", help="write one of the viewer's demo takes as BVH (motion on the model's rig), "
+                                       "or list them",
+                          description="The web viewer's demo takes: on the default model, walks it generates itself "
+                                      "from a standing pose in each built-in style (walk-normal, walk-elderly-turn-left, "
+                                      "...). Without NAME: list them.")
+    demo.add_argument("name", nargs="?", help="the demo take (default: list them)")
+    demo.add_argument("-o", "--out", type=Path, metavar="BVH", help="where to write it (default NAME.bvh)")
+    demo.add_argument("--model", help="the model (default: the server's default)")
+    _common(demo)
+    demo.set_defaults(func=_demo)
 
 
 def _skip_httpx_cli() -> None:
@@ -210,4 +224,18 @@ def _stream(args: argparse.Namespace) -> int:
             result.poses(s.joint_names).save_bvh(args.out, s.model)
             summary["out"] = str(args.out)
     _print(summary)
+    return 0
+
+
+@_guard
+def _demo(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        if args.name is None:
+            for d in c.demos(args.model):
+                print(f"{d['name']:<28} {d['description']}")
+            return 0
+        poses = c.demo(args.name, args.model)
+        out = args.out or Path(f"{args.name}.bvh")
+        poses.save_bvh(out, c.model(args.model))
+    _print({"out": str(out), "frames": poses.num_frames, "fps": poses.fps, "model": poses.model})
     return 0

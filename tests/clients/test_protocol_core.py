@@ -33,12 +33,12 @@ def test_transition_asks_for_the_model_once():
     state = ops.ClientState("http://h/")
     op = ops.transition(state, {"bvh": "HIERARCHY"}, {"bvh": "HIERARCHY"}, 2, "sty_a", None, 7, True, None, False)
     first = next(op)
-    assert (first.method, first.path) == ("POST", "/v1/transition")
-    assert first.json["seed"] == 7 and first.json["style_id"] == "sty_a" and "exact_arrival" not in first.json
-    second = op.send(_answer(first, 200, _transition_answer()))
-    assert (second.method, second.path) == ("GET", "/v1/model")  # joint names are not known yet
+    assert (first.method, first.path) == ("GET", "/v1/model")  # joint names and frame limits are not known yet
+    second = op.send(_answer(first, 200, MODEL))
+    assert (second.method, second.path) == ("POST", "/v1/transition")
+    assert second.json["seed"] == 7 and second.json["style_id"] == "sty_a" and "exact_arrival" not in second.json
     with pytest.raises(StopIteration) as done:
-        op.send(_answer(second, 200, MODEL))
+        op.send(_answer(second, 200, _transition_answer()))
     poses = done.value.value
     assert isinstance(poses, Poses) and poses.joints == ("J0", "J1") and poses.timing_ms == {"total": 1.5}
     np.testing.assert_array_equal(poses.root_positions, [[1, 2, 3], [1, 2, 3]])

@@ -139,6 +139,15 @@ class Client(_Settings):
     def styles(self, model: str | None = None) -> list[dict[str, Any]]:
         return self._run(ops.styles(model))
 
+    def demo(self, name: str, model: str | None = None) -> Poses:
+        """A demo take of the web viewer as :class:`Poses` on the model's rig (``poses.save_bvh(path, c.model())``
+        writes it): the default model's are walks it generates itself, ``walk-STYLE[-turn-left|-turn-right]``."""
+        return self._run(ops.demo(self._state, name, model))
+
+    def demos(self, model: str | None = None) -> list[dict[str, Any]]:
+        """The names (and a line each) of the demo takes :meth:`demo` gives."""
+        return self._run(ops.demos(model))
+
     def style(self, style_id: str) -> dict[str, Any]:
         return self._run(ops.style(style_id))
 
@@ -230,6 +239,12 @@ class AsyncClient(_Settings):
 
     async def styles(self, model: str | None = None) -> list[dict[str, Any]]:
         return await self._run(ops.styles(model))
+
+    async def demo(self, name: str, model: str | None = None) -> Poses:
+        return await self._run(ops.demo(self._state, name, model))
+
+    async def demos(self, model: str | None = None) -> list[dict[str, Any]]:
+        return await self._run(ops.demos(model))
 
     async def style(self, style_id: str) -> dict[str, Any]:
         return await self._run(ops.style(style_id))

@@ -26,6 +26,7 @@ from rsmt_client.errors import RsmtError
 
 if TYPE_CHECKING:  # numpy loads with the first motion payload, not with the client (`rsmt client styles list`)
     from rsmt_client.motion import Poses
+    from rsmt_client.motion_cuts import Cutter
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 T = TypeVar("T")
@@ -65,6 +66,8 @@ class ClientState:
     # server keeps styles in memory only (evicted, lost on restart), so an unknown_style for one of them is
     # answered by registering it again.
     registered: OrderedDict[tuple[str | None, str], dict[str, Any]] = field(default_factory=OrderedDict)
+    # What each model reads of a motion (by model name, None for the default), from its description.
+    cutters: dict[str | None, Cutter] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.url = self.url.rstrip("/")
@@ -142,13 +145,45 @@ def model(state: ClientState, name: str | None = None) -> Operation[dict[str, An
     return info
 
 
+def demo(state: ClientState, name: str, model_name: str | None) -> Operation[Poses]:
+    """A demo take of the web viewer (``GET /v1/viewer/demos/{name}``): motion on the model's own rig, e.g. a walk
+    the default model generates in a built-in style (``walk-normal``, ``walk-elderly-turn-left``, ...)."""
+    data = (yield Request("GET", f"/v1/viewer/demos/{name}", params={"model": model_name} if model_name else None)).json()
+    info = state.model_info if model_name is None else None
+    if info is None:
+        info = yield from model(state, model_name)
+    from rsmt_client.motion import Poses
+
+    return Poses(data["root_positions"], data["rotations"], float(data["fps"]),
+                 joints=tuple(j["name"] for j in info["skeleton"]["joints"]), model=info.get("name"))
+
+
+def demos(model_name: str | None) -> Operation[list[dict[str, Any]]]:
+    """The viewer's demo takes (``GET /v1/viewer/demos``): ``[{"name", "kind", "description"}]``."""
+    return (yield Request("GET", "/v1/viewer/demos", params={"model": model_name} if model_name else None)).json()["demos"]
+
+
+def cutter(state: ClientState, model_name: str | None) -> Operation[Cutter]:
+    """What the model reads of a motion (:mod:`rsmt_client.motion_cuts`), asking for its description the first time."""
+    from rsmt_client.motion_cuts import Cutter, ModelLimits
+
+    found = state.cutters.get(model_name)
+    if found is None:
+        info = state.model_info if model_name is None else None
+        if info is None:
+            info = yield from model(state, model_name)
+        found = state.cutters[model_name] = Cutter(ModelLimits.of(info))
+    return found
+
+
 def models() -> Operation[dict[str, Any]]:
     return (yield Request("GET", "/v1/models")).json()
 
 
 def register_style(state: ClientState, motion: Any, name: str | None,
                    model_name: str | None) -> Operation[dict[str, Any]]:
-    body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": motion_payload(motion)}
+    cuts = yield from cutter(state, model_name)
+    body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": cuts.style(motion_payload(motion))}
     if model_name is not None:
         body["model"] = model_name
     info = (yield Request("POST", "/v1/styles", json=body)).json()
@@ -188,8 +223,9 @@ def with_style(state: ClientState, request: Request, style_id: str | None,
 
 def transition(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any,
                seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool) -> Operation[Poses]:
+    cuts = yield from cutter(state, model_name)
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "json", model_name,
-                           exact_arrival)
+                           exact_arrival, cuts)
     data = (yield from with_style(state, Request("POST", "/v1/transition", json=body), style_id, model_name)).json()
     if state.model_info is None and model_name is None:
         yield from model(state)
@@ -203,22 +239,28 @@ def transition(state: ClientState, context: Any, target: Any, frames: int, style
 def transition_bvh(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None,
                    style_motion: Any, seed: int | None, deterministic: bool, model_name: str | None,
                    exact_arrival: bool) -> Operation[str]:
+    cuts = yield from cutter(state, model_name)
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "bvh", model_name,
-                           exact_arrival)
+                           exact_arrival, cuts)
     request = Request("POST", "/v1/transition", json=body)
     return (yield from with_style(state, request, style_id, model_name)).json()["bvh"]
 
 
 def transition_body(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
-                    deterministic: bool, output: str, model_name: str | None, exact_arrival: bool = False) -> dict[str, Any]:
+                    deterministic: bool, output: str, model_name: str | None, exact_arrival: bool = False,
+                    cuts: Cutter | None = None) -> dict[str, Any]:
+    """The request; with ``cuts``, each motion cut to what the model reads (:mod:`rsmt_client.motion_cuts`)."""
     if (style_id is None) == (style_motion is None):
         raise ValueError("give exactly one of style_id or style")
-    body: dict[str, Any] = {"context": motion_payload(context), "target": motion_payload(target), "frames": int(frames),
-                            "deterministic": bool(deterministic), "output": output}
+    from rsmt_client.motion_cuts import Cutter
+
+    cuts = cuts or Cutter(None)
+    body: dict[str, Any] = {"context": cuts.context(motion_payload(context)), "target": cuts.target(motion_payload(target)),
+                            "frames": int(frames), "deterministic": bool(deterministic), "output": output}
     if style_id is not None:
         body["style_id"] = style_id
     else:
-        body["style"] = motion_payload(style_motion)
+        body["style"] = cuts.style(motion_payload(style_motion))
     if seed is not None:
         body["seed"] = int(seed)
     if model_name is not None:

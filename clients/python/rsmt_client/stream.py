@@ -32,6 +32,7 @@ from rsmt_client.frames import Frame, FrameLayout, Message
 from rsmt_client.http import AsyncClient, Client
 from rsmt_client.http_protocol import DEFAULT_URL, default_style_name
 from rsmt_client.motion import Poses, motion_payload
+from rsmt_client.motion_cuts import Cutter, ModelLimits
 from rsmt_client.stream_failover import NO_RESUME_CLOSE_CODES, Actions, Failover, http_url
 from rsmt_client.stream_protocol import (
     MAX_MESSAGE_BYTES,
@@ -66,6 +67,7 @@ class _SessionView:
     _session: StreamSession
     _failover: Failover | None
     _closing: bool
+    _cuts: Cutter | None = None
 
     @property
     def resumes(self) -> int:
@@ -81,6 +83,23 @@ class _SessionView:
         code = getattr(exc.rcvd, "code", None)
         return (self._failover is not None and self._failover.live and not self._closing
                 and code not in NO_RESUME_CLOSE_CODES)
+
+    def _fit(self, message: Message) -> Message:
+        """``message`` cut to what the model reads (a whole take works as context, target or style)."""
+        if self._cuts is None:  # one per client, so a cut style clip is reported once
+            self._cuts = Cutter(ModelLimits.of(self._session.model))
+        return self._session.fitted(message, self._cuts)
+
+    def _too_large_style(self, message: Message) -> bool:
+        """A message whose inline style clip makes it larger than a WebSocket message may be: the clip is
+        registered over HTTP instead and the message names it by id."""
+        return isinstance(message.get("style"), dict) and not self._session.fits(message)
+
+    @staticmethod
+    def _by_id(message: Message, style_id: str) -> Message:
+        out = {k: v for k, v in message.items() if k != "style"}
+        out["style_id"] = style_id
+        return out
 
     def _sending(self, message: Message) -> str:
         text = self._session.encode(message)
@@ -204,15 +223,21 @@ class StreamClient(_SessionView):
               exact_arrival: bool = False) -> str:
         """Send ``start``; returns the character id (``character`` or a new one). Frames follow ``started``."""
         character = character or StreamSession.new_id()
-        self.send(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic, pace,
-                                              character, model, request_id, exact_arrival))
+        message = self._fit(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic,
+                                                        pace, character, model, request_id, exact_arrival))
+        self.send(self._inline_or_registered(message, style))
         return character
 
+    def _inline_or_registered(self, message: Message, style: Any) -> Message:
+        if not self._too_large_style(message):
+            return message
+        return self._by_id(message, self.register_style(message["style"], default_style_name(style), message.get("model")))
+
     def retarget(self, character: str, target: Any = None, frames: int | None = None, request_id: Any = None) -> None:
-        self.send(StreamSession.retarget_message(character, target, frames, request_id))
+        self.send(self._fit(StreamSession.retarget_message(character, target, frames, request_id)))
 
     def set_style(self, character: str, style_id: str | None = None, style: Any = None) -> None:
-        self.send(StreamSession.style_message(character, style_id, style))
+        self.send(self._inline_or_registered(self._fit(StreamSession.style_message(character, style_id, style)), style))
 
     def cancel(self, character: str) -> None:
         self.send(StreamSession.cancel_message(character))
@@ -374,16 +399,24 @@ class AsyncStreamClient(_SessionView):
                     character: str | None = None, model: str | None = None, request_id: Any = None,
                     exact_arrival: bool = False) -> str:
         character = character or StreamSession.new_id()
-        await self.send(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic, pace,
-                                                    character, model, request_id, exact_arrival))
+        message = self._fit(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic,
+                                                        pace, character, model, request_id, exact_arrival))
+        await self.send(await self._inline_or_registered(message, style))
         return character
+
+    async def _inline_or_registered(self, message: Message, style: Any) -> Message:
+        if not self._too_large_style(message):
+            return message
+        style_id = await self.register_style(message["style"], default_style_name(style), message.get("model"))
+        return self._by_id(message, style_id)
 
     async def retarget(self, character: str, target: Any = None, frames: int | None = None,
                        request_id: Any = None) -> None:
-        await self.send(StreamSession.retarget_message(character, target, frames, request_id))
+        await self.send(self._fit(StreamSession.retarget_message(character, target, frames, request_id)))
 
     async def set_style(self, character: str, style_id: str | None = None, style: Any = None) -> None:
-        await self.send(StreamSession.style_message(character, style_id, style))
+        message = self._fit(StreamSession.style_message(character, style_id, style))
+        await self.send(await self._inline_or_registered(message, style))
 
     async def cancel(self, character: str) -> None:
         await self.send(StreamSession.cancel_message(character))

@@ -22,6 +22,7 @@ from rsmt_client._retry import parse_retry_after
 from rsmt_client.errors import RsmtError
 from rsmt_client.frames import Frame, FrameLayout, Message, frame_from_json
 from rsmt_client.motion import Poses, motion_payload
+from rsmt_client.motion_cuts import Cutter
 
 # The largest message both clients accept from the server (a binary frame of a very large rig is far less).
 MAX_MESSAGE_BYTES = 16 << 20
@@ -179,10 +180,27 @@ class StreamSession:
         size = len(text.encode())
         if limit is not None and size > int(limit):
             hint = ("register the style clip with Client.register_style and pass style_id"
-                    if "style" in message else "send fewer context frames")
+                    if "style" in message else "send fewer frames")
             raise RsmtError("message_too_large", f"this {message.get('type')} message is {size} bytes, over the "
                             f"server's limit of {int(limit)} per WebSocket message: {hint}")
         return text
+
+    def fits(self, message: Message) -> bool:
+        """Whether ``message`` is within the server's limit per WebSocket message."""
+        limit = self.hello.get("limits", {}).get("max_message_bytes")
+        return limit is None or len(json.dumps(message, separators=(",", ":")).encode()) <= int(limit)
+
+    def fitted(self, message: Message, cuts: Cutter) -> Message:
+        """``message`` with its context, target and style cut to what the model reads (:mod:`rsmt_client.motion_cuts`).
+
+        ``cuts`` is for hello's model; a message for another model goes as it is."""
+        if message.get("model") not in (None, self.model.get("name")):
+            return message
+        out = dict(message)
+        for key, how in (("context", cuts.context), ("target", cuts.target), ("style", cuts.style)):
+            if isinstance(out.get(key), dict):
+                out[key] = how(out[key])
+        return out
 
     @classmethod
     def new_id(cls) -> str:
