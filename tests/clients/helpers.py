@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[2]
 UNITY = REPO / "clients" / "unity"
 UNREAL = REPO / "clients" / "unreal" / "RsmtLink"
 CORE_SOURCES = ["RsmtJson.cpp", "RsmtMath.cpp", "RsmtConvert.cpp", "RsmtProtocol.cpp", "RsmtReassembler.cpp",
-                "RsmtJitterBuffer.cpp", "RsmtFailover.cpp"]
+                "RsmtJitterBuffer.cpp", "RsmtFailover.cpp", "RsmtMotionCut.cpp"]
 API_KEY = "client-tests-key-0123456789abcdef"
 
 # Hello, then frames: the acceptance seed and length.

@@ -24,11 +24,13 @@ def test_core_selftest(harness_exe):
 
 
 def test_monobehaviour_and_asset_code_type_check(tmp_path):
-    """Runtime/Unity and the sample compile against stand-ins of the UnityEngine types they use."""
+    """Runtime/Unity, the .bvh importer (Editor) and the sample compile against stand-ins of the UnityEngine and
+    UnityEditor types they use."""
     mcs, _ = mono_tools()
-    stubs = UNITY.parents[1] / "tests" / "clients" / "unity_stubs" / "UnityEngine.cs"
+    stubs = UNITY.parents[1] / "tests" / "clients" / "unity_stubs"
     sources = sorted(str(p) for p in (UNITY / "Runtime").rglob("*.cs")) + \
-        sorted(str(p) for p in (UNITY / "Samples~").rglob("*.cs")) + [str(stubs)]
+        sorted(str(p) for p in (UNITY / "Editor").rglob("*.cs")) + \
+        sorted(str(p) for p in (UNITY / "Samples~").rglob("*.cs")) + [str(p) for p in sorted(stubs.glob("*.cs"))]
     run([mcs, "-nologo", "-target:library", "-warnaserror", "-r:System.Net.Http.dll", f"-out:{tmp_path / 'u.dll'}",
          *sources], timeout=300)
     # The core's assembly definition keeps UnityEngine out; the runtime one references the core.
@@ -38,6 +40,11 @@ def test_monobehaviour_and_asset_code_type_check(tmp_path):
     assert all("using UnityEngine" not in p.read_text() for p in (UNITY / "Runtime" / "Core").glob("*.cs"))
     package = json.loads((UNITY / "package.json").read_text())
     assert package["name"] == "com.rsmt.link" and package["samples"][0]["path"] == "Samples~/BasicTransition"
+    # Importing the rig asset (glTF) needs glTFast; the .bvh importer runs in the editor only.
+    assert package["dependencies"]["com.unity.cloud.gltfast"]
+    editor = json.loads((UNITY / "Editor" / "Rsmt.Link.Editor.asmdef").read_text())
+    assert editor["includePlatforms"] == ["Editor"]
+    assert '[ScriptedImporter(1, "bvh")]' in (UNITY / "Editor" / "RsmtBvhImporter.cs").read_text()
 
 
 @pytest.mark.parametrize("encoding", ["json", "binary"])

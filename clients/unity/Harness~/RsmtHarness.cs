@@ -420,7 +420,9 @@ static class RsmtHarness
             };
             client.Start(new RsmtStartOptions
             {
-                Character = "cs1", ContextJson = RsmtMessages.BvhMotion(context), TargetJson = RsmtMessages.BvhMotion(target),
+                // Whole takes are cut to what hello's model reads, as RsmtCharacter does.
+                Character = "cs1", ContextJson = RsmtMessages.BvhMotion(client.Cuts.Context(context)),
+                TargetJson = RsmtMessages.BvhMotion(client.Cuts.Target(target)),
                 Frames = frames, StyleId = style.StyleId, Seed = seed, Deterministic = deterministic, Pace = "asap",
             });
             Pump(client, clock, () => end != null || errors.Count > 0, 60);
@@ -570,10 +572,30 @@ static class RsmtHarness
         return 0;
     }
 
+    /// <summary>cut --what context|target|style --fps F --context-frames N --style-max M --in A.bvh --out B.bvh</summary>
+    static int Cut(string[] argv)
+    {
+        var a = Args(argv);
+        var cutter = new RsmtMotionCutter(new RsmtMotionLimits
+        {
+            Fps = double.Parse(Get(a, "fps"), CultureInfo.InvariantCulture),
+            ContextFrames = int.Parse(Get(a, "context-frames"), CultureInfo.InvariantCulture),
+            StyleMaxFrames = int.Parse(Get(a, "style-max"), CultureInfo.InvariantCulture),
+        });
+        cutter.Notice += note => Console.Error.WriteLine("notice: " + note);
+        string bvh = File.ReadAllText(Get(a, "in")), what = Get(a, "what");
+        if (what == "style") cutter.Style(bvh);  // twice: the notice comes once
+        string cut = what == "context" ? cutter.Context(bvh) : what == "target" ? cutter.Target(bvh) : cutter.Style(bvh);
+        File.WriteAllText(Get(a, "out"), cut);
+        Console.WriteLine("{\"frames\": " + RsmtBvhText.FrameCount(cut) + ", \"bytes\": " + Encoding.UTF8.GetByteCount(cut) + "}");
+        return 0;
+    }
+
     static int Main(string[] args)
     {
         Thread.CurrentThread.CurrentCulture = CultureInfo.InvariantCulture;
         if (args.Length >= 1 && args[0] == "selftest") return SelfTest();
+        if (args.Length >= 1 && args[0] == "cut") return Cut(args);
         if (args.Length >= 1 && (args[0] == "run" || args[0] == "failover"))
         {
             try { return args[0] == "run" ? Run(args) : RunFailover(args); }

@@ -94,6 +94,8 @@ namespace UnityEngine
     public class TextAsset : Object
     {
         public string text = "";
+        public TextAsset() { }
+        public TextAsset(string text) { this.text = text; }
     }
 
     public static class Debug

@@ -85,8 +85,14 @@ namespace Rsmt.Link
             }
         }
 
+        /// <summary>What the model reads of a motion; fetched with GET /v1/model on the first registration when null.</summary>
+        public RsmtMotionCutter Cutter;
+
+        /// <summary>POST /v1/styles. A clip longer than the model reads is cut to its middle (Cutter.Notice says so once).</summary>
         public async Task<RsmtStyleInfo> RegisterStyleAsync(string bvhText, string name)
         {
+            if (Cutter == null) Cutter = new RsmtMotionCutter(RsmtMotionLimits.FromModel(await ModelAsync().ConfigureAwait(false)));
+            bvhText = Cutter.Style(bvhText);
             string body = "{\"name\":" + Json.Quote(name) + ",\"motion\":" + RsmtMessages.BvhMotion(bvhText) + "}";
             var json = await SendAsync(HttpMethod.Post, "/v1/styles", body).ConfigureAwait(false);
             return new RsmtStyleInfo

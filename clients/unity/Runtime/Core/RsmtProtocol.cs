@@ -21,6 +21,7 @@ namespace Rsmt.Link
         public double Fps = 30;
         public int ContextFrames;
         public int MaxTransitionFrames;
+        public int StyleMinFrames, StyleMaxFrames;  // style_clip_frames (0 when the server does not say)
         public RsmtJoint[] Joints = new RsmtJoint[0];
         public string Units = "cm";
         public string UpAxis = "y";
@@ -54,6 +55,12 @@ namespace Rsmt.Link
                 Handedness = skeleton.GetString("handedness", "right"),
                 Joints = new RsmtJoint[joints.Array.Count],
             };
+            var style = model.Get("style_clip_frames");
+            if (style != null && style.Type == JsonType.Object)
+            {
+                info.StyleMinFrames = style.GetInt("min", 0);
+                info.StyleMaxFrames = style.GetInt("max", 0);
+            }
             if (!(info.Fps > 0)) throw new RsmtProtocolException("model.fps must be positive");
             for (int i = 0; i < joints.Array.Count; i++)
             {

@@ -46,6 +46,19 @@ namespace Rsmt.Link
         /// <summary>Metres per model unit, from hello's skeleton.units (0.01 for centimetres).</summary>
         public double MetresPerUnit { get; private set; }
         public RsmtSession Session { get { return session; } }
+        RsmtMotionCutter cuts;
+        /// <summary>
+        /// What hello's model reads of a motion: cut a whole take with Cuts.Context / Target / Style before sending
+        /// it (RsmtCharacter does). Null before hello. A cut style clip raises Cuts.Notice once.
+        /// </summary>
+        public RsmtMotionCutter Cuts
+        {
+            get
+            {
+                if (cuts == null && Hello != null) cuts = new RsmtMotionCutter(RsmtMotionLimits.FromModel(Hello.Model));
+                return cuts;
+            }
+        }
         public RsmtHello Hello { get { return session.Hello; } }
         public bool IsOpen { get { return transport.IsOpen; } }
         /// <summary>Why the connection closed (set once it did).</summary>
@@ -95,6 +108,7 @@ namespace Rsmt.Link
             if (baseUrl == null) throw new InvalidOperationException("ConnectAsync first");
             using (var http = new RsmtHttpClient(baseUrl, apiKey))
             {
+                if (Hello != null) bvhText = Cuts.Style(bvhText);  // else the HTTP client asks for the model and cuts
                 var info = await http.RegisterStyleAsync(bvhText, name).ConfigureAwait(false);
                 RememberStyle(info.StyleId, bvhText, name);
                 return info;

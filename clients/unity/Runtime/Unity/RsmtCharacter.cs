@@ -54,7 +54,11 @@ namespace Rsmt.Link.Unity
                 if (styleClip != null && string.IsNullOrEmpty(styleId))
                 {
                     using (var http = new RsmtHttpClient(serverUrl, apiKey))
+                    {
+                        http.Cutter = new RsmtMotionCutter(RsmtMotionLimits.FromModel(await http.ModelAsync()));
+                        http.Cutter.Notice += note => Debug.LogWarning("RSMT: " + note, this);  // a whole take as style clip
                         styleId = (await http.RegisterStyleAsync(styleClip.text, styleClip.name)).StyleId;
+                    }
                     client.RememberStyle(styleId, styleClip.text, styleClip.name);  // registered again after a failover if needed
                 }
                 await client.ConnectAsync(serverUrl, apiKey, binaryFrames);
@@ -88,10 +92,14 @@ namespace Rsmt.Link.Unity
             return null;
         }
 
-        /// <summary>Start a transition from the context (>= context_frames frames) to the target's last frame.</summary>
+        /// <summary>
+        /// Start a transition from the context (>= context_frames frames) to the target's last frame. Whole takes
+        /// are fine: the context is cut to the frames the model reads, the target to its last two.
+        /// </summary>
         public void StartTransition(string contextBvh, string targetBvh, int frames, long? seed = null, bool deterministic = false)
         {
-            StartMotion(RsmtMessages.BvhMotion(contextBvh), RsmtMessages.BvhMotion(targetBvh), frames, seed, deterministic);
+            StartMotion(() => RsmtMessages.BvhMotion(client.Cuts.Context(contextBvh)),
+                        () => RsmtMessages.BvhMotion(client.Cuts.Target(targetBvh)), frames, seed, deterministic);
         }
 
         /// <summary>
@@ -116,10 +124,16 @@ namespace Rsmt.Link.Unity
         /// <summary>A start message with Motion payloads (RsmtMessages.BvhMotion / PoseMotion / RsmtPoseHistory.MotionJson).</summary>
         public void StartMotion(string contextMotionJson, string targetMotionJson, int frames, long? seed = null, bool deterministic = false)
         {
-            // Built when sent, so a style registered meanwhile (styleClip) is used.
+            StartMotion(() => contextMotionJson, () => targetMotionJson, frames, seed, deterministic);
+        }
+
+        void StartMotion(System.Func<string> contextMotionJson, System.Func<string> targetMotionJson, int frames, long? seed,
+                         bool deterministic)
+        {
+            // Built when sent, so a style registered meanwhile (styleClip) is used, and hello's limits cut the motions.
             System.Func<string> message = () => RsmtMessages.Start(new RsmtStartOptions
             {
-                Character = characterId, ContextJson = contextMotionJson, TargetJson = targetMotionJson,
+                Character = characterId, ContextJson = contextMotionJson(), TargetJson = targetMotionJson(),
                 Frames = frames, StyleId = styleId, Seed = seed, Deterministic = deterministic,
             });
             if (Ready && !string.IsNullOrEmpty(styleId)) client.Send(message());
@@ -129,7 +143,10 @@ namespace Rsmt.Link.Unity
         /// <summary>A new target (and/or length, frames > 0) from the next frame on.</summary>
         public void Retarget(string targetBvh, int frames = 0)
         {
-            if (client != null) client.Retarget(characterId, targetBvh == null ? null : RsmtMessages.BvhMotion(targetBvh), frames);
+            if (client == null) return;
+            var cuts = client.Cuts;  // null before hello: the target goes as it is
+            string target = targetBvh == null ? null : RsmtMessages.BvhMotion(cuts == null ? targetBvh : cuts.Target(targetBvh));
+            client.Retarget(characterId, target, frames);
         }
 
         /// <summary>A new target given as poses in the model's axes and units.</summary>

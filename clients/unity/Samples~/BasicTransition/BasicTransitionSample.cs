@@ -1,5 +1,6 @@
 // Sample: press Space to start a transition from the context clip to the target clip; press R to retarget it
-// to the second target while it plays. Put it next to an RsmtCharacter and assign the BVH TextAssets.
+// to the second target while it plays. Put it next to an RsmtCharacter and assign .bvh files (imported as
+// TextAssets by the package's RsmtBvhImporter); whole takes are fine, they are cut to what the model reads.
 using UnityEngine;
 using Rsmt.Link.Unity;
 

@@ -118,6 +118,10 @@ bool ReadHello(const JsonValue& json, Hello& out, std::string* error) {
     m.fps = model->NumberOr("fps", 30.0);
     m.contextFrames = IntOr(*model, "context_frames", 0);
     m.maxTransitionFrames = IntOr(*model, "max_transition_frames", 0);
+    if (const JsonValue* style = model->Find("style_clip_frames")) {
+        m.styleMinFrames = IntOr(*style, "min", 0);
+        m.styleMaxFrames = IntOr(*style, "max", 0);
+    }
     m.units = skeleton->StringOr("units", "cm");
     m.upAxis = skeleton->StringOr("up_axis", "y");
     m.handedness = skeleton->StringOr("handedness", "right");

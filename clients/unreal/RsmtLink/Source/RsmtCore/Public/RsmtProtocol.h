@@ -28,6 +28,8 @@ struct ModelInfo {
     double fps = 30.0;
     int contextFrames = 0;
     int maxTransitionFrames = 0;
+    int styleMinFrames = 0;  // style_clip_frames (0 when the server does not say)
+    int styleMaxFrames = 0;
     std::vector<Joint> joints;
     std::string units = "cm";
     std::string upAxis = "y";

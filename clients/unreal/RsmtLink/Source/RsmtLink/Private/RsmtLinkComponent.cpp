@@ -253,6 +253,8 @@ void URsmtLinkComponent::HandleMessage(rsmt::Message& Message)
 		}
 		CmPerUnit = rsmt::CentimetresPerUnit(Model.units);
 		Buffer.SetFps(Model.fps);
+		Cuts = rsmt::MotionCutter(rsmt::LimitsOf(Model));
+		Cuts.SetNotice([](const std::string& Note) { UE_LOG(LogRsmtLink, Warning, TEXT("%s"), *FromStd(Note)); });
 		TArray<FName> Names;
 		TArray<int32> Parents;
 		RestTransforms.Reset();
@@ -282,6 +284,12 @@ void URsmtLinkComponent::HandleMessage(rsmt::Message& Message)
 		{
 			SendText(PendingStart);
 			PendingStart.clear();
+		}
+		if (PendingBvhStart)
+		{
+			TFunction<void()> Start = MoveTemp(PendingBvhStart);
+			PendingBvhStart = nullptr;
+			Start();
 		}
 		break;
 	}
@@ -348,7 +356,17 @@ void URsmtLinkComponent::SendText(const std::string& Text)
 void URsmtLinkComponent::StartTransition(const FString& ContextBvh, const FString& TargetBvh, int32 Frames, int32 Seed,
 	bool bDeterministic)
 {
-	StartTransitionMotion(BvhMotion(ContextBvh), BvhMotion(TargetBvh), Frames, Seed, bDeterministic);
+	if (!Session.HasHello() && !bResumeOnHello)
+	{
+		// The model's limits come with hello: cut and send the motions then.
+		PendingBvhStart = [this, ContextBvh, TargetBvh, Frames, Seed, bDeterministic]()
+		{
+			StartTransition(ContextBvh, TargetBvh, Frames, Seed, bDeterministic);
+		};
+		return;
+	}
+	StartTransitionMotion(FromStd(rsmt::BvhMotionJson(Cuts.Context(ToStd(ContextBvh)))),
+		FromStd(rsmt::BvhMotionJson(Cuts.Target(ToStd(TargetBvh)))), Frames, Seed, bDeterministic);
 }
 
 FString URsmtLinkComponent::BvhMotion(const FString& BvhText)
@@ -398,7 +416,7 @@ void URsmtLinkComponent::StartTransitionMotion(const FString& ContextMotionJson,
 
 void URsmtLinkComponent::Retarget(const FString& TargetBvh, int32 Frames)
 {
-	RetargetMotion(TargetBvh.IsEmpty() ? FString() : BvhMotion(TargetBvh), Frames);
+	RetargetMotion(TargetBvh.IsEmpty() ? FString() : FromStd(rsmt::BvhMotionJson(Cuts.Target(ToStd(TargetBvh)))), Frames);
 }
 
 void URsmtLinkComponent::Cancel()
@@ -412,7 +430,7 @@ void URsmtLinkComponent::Cancel()
 
 void URsmtLinkComponent::RegisterStyle(const FString& StyleBvh, const FString& Name)
 {
-	PostStyle("{\"name\":" + rsmt::JsonQuote(ToStd(Name)) + ",\"motion\":" + rsmt::BvhMotionJson(ToStd(StyleBvh)) + "}", 0);
+	PostStyle("{\"name\":" + rsmt::JsonQuote(ToStd(Name)) + ",\"motion\":" + rsmt::BvhMotionJson(Cuts.Style(ToStd(StyleBvh))) + "}", 0);
 }
 
 // POST /v1/styles; Then (a re-registration after unknown_style) is sent once the style is registered.

@@ -14,6 +14,7 @@
 // RsmtCore headers are plain C++ (no Unreal types); they are included here so the members below are complete.
 #include "RsmtFailover.h"
 #include "RsmtJitterBuffer.h"
+#include "RsmtMotionCut.h"
 #include "RsmtProtocol.h"
 #include "RsmtReassembler.h"
 
@@ -88,10 +89,16 @@ public:
 	void Connect();
 	UFUNCTION(BlueprintCallable, Category = "RSMT")
 	void Disconnect();
-	/** POST /v1/styles with a BVH clip; OnStyleRegistered gives the id (also stored in StyleId). Retries 429/503. */
+	/**
+	 * POST /v1/styles with a BVH clip; OnStyleRegistered gives the id (also stored in StyleId). Retries 429/503.
+	 * Once connected (after OnConnected), a clip longer than the model reads is cut to its middle (logged once).
+	 */
 	UFUNCTION(BlueprintCallable, Category = "RSMT")
 	void RegisterStyle(const FString& StyleBvh, const FString& Name);
-	/** Start a transition from the context (>= context_frames frames) to the target's last frame, in Frames frames. */
+	/**
+	 * Start a transition from the context (>= context_frames frames) to the target's last frame, in Frames frames.
+	 * Whole takes are fine: the context is cut to the frames the model reads, the target to its last two.
+	 */
 	UFUNCTION(BlueprintCallable, Category = "RSMT")
 	void StartTransition(const FString& ContextBvh, const FString& TargetBvh, int32 Frames, int32 Seed = -1,
 		bool bDeterministic = false);
@@ -140,6 +147,8 @@ private:
 	rsmt::MessageAssembler Assembler;  // 1 MiB per message at most
 	rsmt::JitterBuffer Buffer;
 	std::string PendingStart;  // a start requested before hello arrived
+	TFunction<void()> PendingBvhStart;  // a StartTransition before hello: cut and sent when hello has come
+	rsmt::MotionCutter Cuts{rsmt::MotionLimits()};  // what hello's model reads (passes motions through before hello)
 	rsmt::Failover Failover;   // resume state (bFailover)
 	bool bResumeOnHello = false;
 	int32 ReconnectAttempt = 0;
