@@ -18,7 +18,8 @@ PARENT = {j["name"]: (NAMES[j["parent"]] if j["parent"] >= 0 else None) for j in
 
 def path_down(start: str, end: str) -> list[str]:
     """The joints from ``start`` to its descendant ``end`` (both included), or [] when ``end`` is not below it."""
-    walk, at = [], end
+    walk: list[str] = []
+    at: str | None = end
     while at is not None:
         walk.append(at)
         if at == start:

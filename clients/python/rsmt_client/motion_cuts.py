@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +28,9 @@ from rsmt_client.bvh import BvhFile
 
 log = logging.getLogger("rsmt_client")
 TARGET_FRAMES = 2  # the target pose and the frame before it (its velocity)
+# The header lines that say how long a take is: read without parsing the frames (most payloads are sent whole).
+_FRAMES = re.compile(r"^\s*frames\s*:\s*(\d{1,18})\s*$", re.I | re.M)
+_FRAME_TIME = re.compile(r"^\s*frame\s+time\s*:\s*(\S+)\s*$", re.I | re.M)
 
 
 @dataclass(frozen=True)
@@ -79,17 +83,30 @@ class Window:
     total: int
 
 
-def payload_frames(payload: Mapping[str, Any], default_fps: float) -> tuple[int, float, BvhFile | None]:
-    """A payload's frame count, its fps and, for BVH text, the parsed file."""
+def payload_frames(payload: Mapping[str, Any], default_fps: float) -> tuple[int, float]:
+    """A payload's frame count and fps (for BVH text, from its ``Frames:`` and ``Frame Time:`` lines when they read
+    plainly, else from the parsed file)."""
+    if "bvh" in payload:
+        text = str(payload["bvh"])
+        frames, frame_time = _FRAMES.search(text), _FRAME_TIME.search(text)
+        try:
+            seconds = float(frame_time.group(1)) if frame_time else 0.0
+        except ValueError:
+            seconds = 0.0
+        if frames is None or not (math.isfinite(seconds) and seconds > 0):
+            bvh = BvhFile.parse(text)
+            return bvh.num_frames, bvh.fps
+        fps, whole = 1.0 / seconds, round(1.0 / seconds)
+        return int(frames.group(1)), float(whole) if whole >= 1 and abs(fps - whole) <= 1e-4 * fps else fps
+    return len(payload.get("rotations") or ()), float(payload.get("fps") or default_fps)
+
+
+def cut(payload: Mapping[str, Any], window: Window) -> dict[str, Any]:
+    """The payload's frames in ``window`` (BVH values kept exactly as read)."""
     if "bvh" in payload:
         bvh = BvhFile.parse(str(payload["bvh"]))
-        return bvh.num_frames, bvh.fps, bvh
-    return len(payload.get("rotations") or ()), float(payload.get("fps") or default_fps), None
-
-
-def cut(payload: Mapping[str, Any], window: Window, bvh: BvhFile | None) -> dict[str, Any]:
-    """The payload's frames in ``window`` (BVH values kept exactly as read)."""
-    if bvh is not None:
+        if bvh.num_frames != window.total:
+            raise ValueError(f"the BVH holds {bvh.num_frames} frames but its Frames: line says {window.total}")
         return {**payload, "bvh": bvh.window(window.start, window.frames).format(precision=None)}
     stop = window.start + window.frames
     return {**payload, "root_positions": list(payload["root_positions"])[window.start:stop],
@@ -113,17 +130,17 @@ class Cutter:
         lim = self.limits
         if lim is None or not _has_frames(payload):
             return dict(payload)
-        total, fps, bvh = payload_frames(payload, lim.fps)
+        total, fps = payload_frames(payload, lim.fps)
         keep = frames_for(int(want(lim)), fps, lim.fps)
         if total <= keep:
             return dict(payload)
-        return cut(payload, Window(total - keep, keep, total), bvh)
+        return cut(payload, Window(total - keep, keep, total))
 
     def style(self, payload: Mapping[str, Any]) -> dict[str, Any]:
         lim = self.limits
         if lim is None or not _has_frames(payload):
             return dict(payload)
-        total, fps, bvh = payload_frames(payload, lim.fps)
+        total, fps = payload_frames(payload, lim.fps)
         if resampled_frames(total, fps, lim.fps) <= lim.style_max:
             return dict(payload)
         keep = frames_within(lim.style_max, fps, lim.fps)
@@ -134,7 +151,7 @@ class Cutter:
                         "middle %d (frames %d-%d). Cut it yourself to choose the part (rsmt client styles add "
                         "--start S --frames N, or rsmt_client.bvh.BvhFile.window); said once per client.",
                         total, fps, lim.style_max, lim.fps, keep, window.start, window.start + keep - 1)
-        return cut(payload, window, bvh)
+        return cut(payload, window)
 
 
 def _has_frames(payload: Mapping[str, Any]) -> bool:
