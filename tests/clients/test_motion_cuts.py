@@ -19,6 +19,7 @@ from model.data.synthetic import synthetic_walk
 from model.motion.bvh_clip import dump_clip
 from tests.clients.helpers import build_core_test, run, run_harness
 
+pytestmark = pytest.mark.slow  # builds the C# harness and the C++ tool
 LIMITS = ModelLimits(fps=30.0, context_frames=10, style_min=16, style_max=240)
 REAL_TAKE = "dataset-2_walk_elderly_001.bvh"
 

@@ -19,6 +19,9 @@ from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
 
+pytestmark = pytest.mark.slow  # a server of its own (about 20 s to start on 2 cores)
+
+
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory):
     path: Path = Bundle.create(synthetic_skeleton(), seed=0).save(tmp_path_factory.mktemp("hints") / "rsmt")
