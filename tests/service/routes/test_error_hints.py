@@ -18,7 +18,6 @@ from tests.service.conftest import bvh, transition_body, walk
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
-
 pytestmark = pytest.mark.slow  # a server of its own (about 20 s to start on 2 cores)
 
 
