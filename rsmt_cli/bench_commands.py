@@ -45,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
     path = args.model or DEFAULT_BUNDLE
     bundle = Bundle.load(path)
     probe = machine_probe()
-    engine = Engine(bundle, **output_overrides(args))
+    engine = Engine(bundle, overrides=output_overrides(args))
     label = engine_label(engine, path)
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     paired = None

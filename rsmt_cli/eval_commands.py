@@ -76,7 +76,7 @@ def eval_command(args: argparse.Namespace) -> int:
         raise ValueError("--limit must be at least 1")
     data = require_data_dir(args.data)
     overrides = output_overrides(args)
-    methods = [resolve_method(spec, args.batch, args.exact_arrival, **overrides) for spec in args.model]
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     judge = StyleJudge.load(args.judge) if args.judge else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)

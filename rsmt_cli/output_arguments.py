@@ -3,19 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from typing import TypedDict
 
-
-class OutputOverrides(TypedDict):
-    """Keyword arguments of :class:`model.inference.engine.Engine` (None keeps the bundle's own setting)."""
-
-    smoothing: float | None
-    root_smoothing: float | None
-    foot_lock: bool | None
-    int8_lstm: bool | None
-    steering: int | None
-    floor: bool | None
-    stride_warp: float | None
+from model.inference.overrides import Overrides
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
@@ -43,8 +32,8 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
                         "own setting)")
 
 
-def output_overrides(args: argparse.Namespace) -> OutputOverrides:
-    """The flags as :class:`model.inference.engine.Engine` keyword arguments (None: the bundle's own), checked
+def output_overrides(args: argparse.Namespace) -> Overrides:
+    """The flags as the engine's :class:`~model.inference.overrides.Overrides` (None: the bundle's own), checked
     here so that an error names the flag."""
     for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
         if value is not None and not 0.0 <= value < 1.0:
@@ -53,7 +42,7 @@ def output_overrides(args: argparse.Namespace) -> OutputOverrides:
         raise ValueError("--steering must be 0 (off) or more frames")
     if args.stride_warp is not None and not 0.0 <= args.stride_warp <= 4.0:
         raise ValueError("--stride-warp must be in [0, 4]")
-    return {"steering": args.steering, "smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
-            "foot_lock": None if args.foot_lock is None else args.foot_lock == "on",
-            "floor": None if args.floor is None else args.floor == "on", "stride_warp": args.stride_warp,
-            "int8_lstm": None if args.int8_lstm is None else args.int8_lstm == "on"}
+    return Overrides(steering=args.steering, smoothing=args.smoothing, root_smoothing=args.root_smoothing,
+                     foot_lock=None if args.foot_lock is None else args.foot_lock == "on",
+                     floor=None if args.floor is None else args.floor == "on", stride_warp=args.stride_warp,
+                     int8_lstm=None if args.int8_lstm is None else args.int8_lstm == "on")

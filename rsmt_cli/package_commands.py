@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 
 if TYPE_CHECKING:
-    from model.inference.steering import SteeringConfig
+    from model.inference.output.steering import SteeringConfig
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -93,11 +93,9 @@ def _run(args: argparse.Namespace) -> int:
     # Adapters (fine-tuned styles) keep their own codes; they fit the copy only if its weights are the same.
     kept = {n: s for n, s in bundle.styles.items() if not s.weights}
     bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
-    bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
-                                                 overrides["foot_lock"], overrides["steering"], overrides["floor"],
-                                                 overrides["stride_warp"])
+    bundle.output = overrides.output(bundle.output)
     bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
-    bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
+    bundle.inference = overrides.inference(bundle.inference)
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
     if (args.out / "styles").is_dir():  # never leave a copy with the codes of some earlier weights
@@ -163,6 +161,7 @@ def _read_styles(folder: Path, bundle: Any) -> list[Any]:
 def _add_styles(args: argparse.Namespace) -> int:
     from model.data.style_picks import pick_style_clips
     from model.inference.bundle import Bundle
+    from model.inference.bundle_styles import StyleClip, clip_on_rig
     from model.inference.style_packing import write_builtin_styles
 
     # Checks the folder is a bundle and gives its rig and fps; its styles/ folder is not read (it may be of an
@@ -174,7 +173,9 @@ def _add_styles(args: argparse.Namespace) -> int:
         lo, hi = bundle.config.style_frames_min, bundle.config.style_frames_max
         if not lo <= args.frames <= hi:
             raise ValueError(f"--frames must be between {lo} and {hi} (the model's style clip lengths)")
-        clips = pick_style_clips(args.from_data, bundle.skeleton, bundle.config.fps, frames=args.frames)
+        fps = bundle.config.fps
+        clips = [StyleClip(p.style, clip_on_rig(p.clip, bundle.skeleton, fps, p.take_id), p.source)
+                 for p in pick_style_clips(args.from_data, fps, frames=args.frames)]
     folder, styles = write_builtin_styles(args.bundle, clips)
     print(json.dumps({"bundle": str(args.bundle), "styles_folder": str(folder), "version": bundle.version,
                       "styles": [{"style_id": f"builtin:{s.name}", "frames": s.frames, "source": s.source}
