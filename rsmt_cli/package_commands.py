@@ -25,9 +25,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
+from rsmt_cli.renamed_flags import add_renamed
 
 if TYPE_CHECKING:
     from model.inference.output.steering import SteeringConfig
+
+# The parts of steering rsmt package sets, by their names in the bundle (steering.NAME; the flag: dashes).
+STEERING_PARTS = ("turn_window", "height_window", "retarget_turn_window", "max_step_cm", "retarget_max_turn_deg")
+# Their flags before they took those names: they still work until the next release, with a warning.
+RENAMED_STEERING_FLAGS = (("--steer-facing", "--turn-window", int), ("--steer-height", "--height-window", int),
+                          ("--retarget-facing", "--retarget-turn-window", int), ("--steer-cap", "--max-step-cm", float),
+                          ("--retarget-turn-cap", "--retarget-max-turn-deg", float))
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,20 +53,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "or one folder per style (its first BVH); the copy stores their codes, served as style ids "
                         "builtin:NAME")
     add_output_arguments(p, "the bundle")
-    p.add_argument("--steer-facing", type=int, default=None, metavar="FRAMES",
+    # The parts of steering, each flag named as its setting in the bundle (steering.NAME).
+    p.add_argument("--turn-window", type=int, default=None, metavar="FRAMES",
                    help="turn the body toward the target's facing over the last FRAMES frames (0: off; default: the "
                         "bundle's own setting)")
-    p.add_argument("--steer-height", type=int, default=None, metavar="FRAMES",
+    p.add_argument("--height-window", type=int, default=None, metavar="FRAMES",
                    help="bring the root to the target's height over the last FRAMES frames (0: off; default: the "
                         "bundle's own setting)")
-    p.add_argument("--retarget-facing", type=int, default=None, metavar="FRAMES",
+    p.add_argument("--retarget-turn-window", type=int, default=None, metavar="FRAMES",
                    help="for a character retargeted mid-stream, turn the body toward the new target's facing over "
                         "the last FRAMES frames instead (0: as the others; default: the bundle's own setting)")
-    p.add_argument("--steer-cap", type=float, default=None, metavar="CM",
+    p.add_argument("--max-step-cm", type=float, default=None, metavar="CM",
                    help="the most steering moves the body in one frame, cm (default: the bundle's own setting)")
-    p.add_argument("--retarget-turn-cap", type=float, default=None, metavar="DEG",
+    p.add_argument("--retarget-max-turn-deg", type=float, default=None, metavar="DEG",
                    help="the most a retargeted character's facing turns in one frame, degrees (default: the "
                         "bundle's own setting)")
+    for old, new, kind in RENAMED_STEERING_FLAGS:
+        add_renamed(p, old, new, kind)
     p.set_defaults(func=_run)
 
     b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles in place (weights untouched)")
@@ -124,24 +135,19 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _check_finishing(args: argparse.Namespace) -> None:
-    for flag, frames in (("--steer-facing", args.steer_facing), ("--steer-height", args.steer_height),
-                         ("--retarget-facing", args.retarget_facing)):
+    for flag, frames in (("--turn-window", args.turn_window), ("--height-window", args.height_window),
+                         ("--retarget-turn-window", args.retarget_turn_window)):
         if frames is not None and frames < 0:
             raise ValueError(f"{flag} must be 0 (off) or more frames")
-    if args.retarget_turn_cap is not None and not args.retarget_turn_cap > 0:
-        raise ValueError("--retarget-turn-cap must be a positive number of degrees")
-    if args.steer_cap is not None and not args.steer_cap > 0:
-        raise ValueError("--steer-cap must be a positive number of cm")
+    if args.retarget_max_turn_deg is not None and not args.retarget_max_turn_deg > 0:
+        raise ValueError("--retarget-max-turn-deg must be a positive number of degrees")
+    if args.max_step_cm is not None and not args.max_step_cm > 0:
+        raise ValueError("--max-step-cm must be a positive number of cm")
 
 
 def _finishing_steering(args: argparse.Namespace, steering: SteeringConfig) -> SteeringConfig:
-    """``steering`` with the windows of ``--steer-facing`` / ``--steer-height`` / ``--retarget-facing`` and the
-    caps of ``--steer-cap`` and ``--retarget-turn-cap`` (unset: kept)."""
-    changes = {name: value for name, value in (
-        ("turn_window", args.steer_facing), ("height_window", args.steer_height),
-        ("retarget_turn_window", args.retarget_facing), ("retarget_max_turn_deg", args.retarget_turn_cap),
-        ("max_step_cm", args.steer_cap))
-        if value is not None}
+    """``steering`` with the flags of its parts (``--turn-window`` ... ``--max-step-cm``; unset: kept)."""
+    changes = {name: value for name in STEERING_PARTS if (value := getattr(args, name)) is not None}
     return dataclasses.replace(steering, **changes)
 
 

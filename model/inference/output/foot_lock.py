@@ -124,7 +124,7 @@ class FootLock:
                 shift, so the lock holds the foot while the body is carried over it.
             chains: world ``(positions [N, K, 3], rotations [N, K, 4])`` of :attr:`kinematics`' joints
                 for these rotations and roots, where the caller has them (the frame output does).
-            warp: ``[N, 2, 3]`` where the stride warp (:mod:`model.inference.output.stride_warp`) moves each
+            warp: ``[N, 2, 3]`` where the stride warp (the step before, in the output pipeline) moves each
                 ankle: the lock treats the moved ankles as the generated ones, and one IK reaches both.
         """
         c = self.config

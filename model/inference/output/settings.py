@@ -62,6 +62,17 @@ class OutputConfig:
                             self.floor if floor is None else bool(floor),
                             self.stride_warp if stride_warp is None else float(stride_warp))
 
+    def in_words(self) -> str:
+        """These settings as a short phrase, e.g. ``smoothing 0.3/0.3, foot lock on, steering 40 (facing 5),
+        floor contact, stride warp 2`` (a part that is off is left out; the stride warp needs steering)."""
+        steer = self.steering
+        finish = ", ".join(f"{part} {frames}" for part, frames in (("facing", steer.turn_window),
+                                                                   ("height", steer.height_window)) if frames)
+        steering = f", steering {steer.window}{f' ({finish})' if finish else ''}" if steer.on else ""
+        return (f"smoothing {self.smoothing:g}/{self.root_strength:g}, foot lock {'on' if self.foot_lock else 'off'}"
+                f"{steering}{', floor contact' if self.floor else ''}"
+                f"{f', stride warp {self.stride_warp:g}' if self.stride_warp and steer.on else ''}")
+
     def to_dict(self) -> dict:
         return asdict(self)
 
