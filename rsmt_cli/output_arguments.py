@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import fields
+from typing import TYPE_CHECKING
 
-from model.inference.overrides import Overrides
+if TYPE_CHECKING:  # imported where used: `rsmt --help` loads no torch
+    from model.inference.overrides import Overrides
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
@@ -43,6 +45,8 @@ def _flag(name: str) -> str:
 def output_overrides(args: argparse.Namespace) -> Overrides:
     """The flags as the engine's :class:`~model.inference.overrides.Overrides` (None: the bundle's own), checked
     here so that an error names the flag. Each flag is its setting's name with dashes."""
+    from model.inference.overrides import Overrides
+
     given = {}
     for f in fields(Overrides):
         value = getattr(args, f.name)
@@ -56,6 +60,8 @@ def output_overrides(args: argparse.Namespace) -> Overrides:
 
 def output_flags(args: argparse.Namespace) -> list[str]:
     """The flags given, as a command line that repeats them."""
+    from model.inference.overrides import Overrides
+
     parts: list[str] = []
     for f in fields(Overrides):
         value = getattr(args, f.name)

@@ -58,8 +58,11 @@ def test_import_builds_nothing_and_model_stays_free_of_web_code():
 
 def test_the_old_smoothing_names_still_work_with_a_warning(monkeypatch):
     monkeypatch.setenv("RSMT_OUTPUT_SMOOTHING", "0.2")
-    with pytest.warns(DeprecationWarning, match="RSMT_OUTPUT_SMOOTHING.*RSMT_SMOOTHING"):
+    with pytest.warns(DeprecationWarning) as caught:
         s = Settings(output_root_smoothing=0.1)
+    said = [str(w.message) for w in caught]
+    assert any("RSMT_OUTPUT_SMOOTHING" in m and "use smoothing (RSMT_SMOOTHING)" in m for m in said), said
+    assert any("output_root_smoothing" in m and "use root_smoothing" in m for m in said), said
     assert (s.smoothing, s.root_smoothing) == (0.2, 0.1)
     assert s.overrides().given() == {"smoothing": 0.2, "root_smoothing": 0.1}
 
