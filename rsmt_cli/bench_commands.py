@@ -45,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
     path = args.model or DEFAULT_BUNDLE
     bundle = Bundle.load(path)
     probe = machine_probe()
-    engine = Engine(bundle, **output_overrides(args))
+    engine = Engine(bundle, overrides=output_overrides(args))
     label = engine_label(engine, path)
     results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
     paired = None
@@ -68,12 +68,4 @@ def _run(args: argparse.Namespace) -> int:
 
 def engine_label(engine: Any, path: Path) -> str:
     """The bench table's name for ``engine`` (loaded from ``path``): its model and the settings it runs with."""
-    out = engine.output
-    steer = out.steering
-    finish = ", ".join(f"{part} {frames}" for part, frames in (("facing", steer.turn_window),
-                                                               ("height", steer.height_window)) if frames)
-    steering = f", steering {steer.window}{f' ({finish})' if finish else ''}" if steer.on else ""
-    return (f"{engine.name} ({path.name}; smoothing {out.smoothing:g}/{out.root_strength:g}, "
-            f"foot lock {'on' if out.foot_lock else 'off'}{steering}{', floor contact' if out.floor else ''}"
-            f"{f', stride warp {out.stride_warp:g}' if out.stride_warp and steer.on else ''}"
-            f"{', int8 LSTM' if engine.inference.int8_lstm else ''})")
+    return f"{engine.name} ({path.name}; {engine.output.in_words()}{', int8 LSTM' if engine.inference.int8_lstm else ''})"

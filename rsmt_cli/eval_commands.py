@@ -8,7 +8,7 @@ import shlex
 from pathlib import Path
 
 from model.data.location import find_data_dir, require_data_dir
-from rsmt_cli.output_arguments import add_output_arguments, output_overrides
+from rsmt_cli.output_arguments import add_output_arguments, output_flags, output_overrides
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -76,7 +76,7 @@ def eval_command(args: argparse.Namespace) -> int:
         raise ValueError("--limit must be at least 1")
     data = require_data_dir(args.data)
     overrides = output_overrides(args)
-    methods = [resolve_method(spec, args.batch, args.exact_arrival, **overrides) for spec in args.model]
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     judge = StyleJudge.load(args.judge) if args.judge else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
@@ -138,11 +138,7 @@ def _command(args: argparse.Namespace) -> str:
         parts.append("--exact-arrival")
     if args.stream_retarget:
         parts.append("--stream-retarget")
-    for flag, setting in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing),
-                          ("--foot-lock", args.foot_lock), ("--steering", args.steering), ("--floor", args.floor),
-                          ("--stride-warp", args.stride_warp), ("--int8-lstm", args.int8_lstm)):
-        if setting is not None:
-            parts += [flag, f"{setting:g}" if isinstance(setting, float) else str(setting)]
+    parts += output_flags(args)
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),
                                  ("--diversity-samples", args.diversity_samples, 10)):
         if value != default:

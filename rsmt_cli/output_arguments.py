@@ -3,19 +3,11 @@
 from __future__ import annotations
 
 import argparse
-from typing import TypedDict
+from dataclasses import fields
+from typing import TYPE_CHECKING
 
-
-class OutputOverrides(TypedDict):
-    """Keyword arguments of :class:`model.inference.engine.Engine` (None keeps the bundle's own setting)."""
-
-    smoothing: float | None
-    root_smoothing: float | None
-    foot_lock: bool | None
-    int8_lstm: bool | None
-    steering: int | None
-    floor: bool | None
-    stride_warp: float | None
+if TYPE_CHECKING:  # imported where used: `rsmt --help` loads no torch
+    from model.inference.overrides import Overrides
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
@@ -43,17 +35,36 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
                         "own setting)")
 
 
-def output_overrides(args: argparse.Namespace) -> OutputOverrides:
-    """The flags as :class:`model.inference.engine.Engine` keyword arguments (None: the bundle's own), checked
-    here so that an error names the flag."""
-    for flag, value in (("--smoothing", args.smoothing), ("--root-smoothing", args.root_smoothing)):
-        if value is not None and not 0.0 <= value < 1.0:
-            raise ValueError(f"{flag} must be in [0, 1)")
-    if args.steering is not None and args.steering < 0:
-        raise ValueError("--steering must be 0 (off) or more frames")
-    if args.stride_warp is not None and not 0.0 <= args.stride_warp <= 4.0:
-        raise ValueError("--stride-warp must be in [0, 4]")
-    return {"steering": args.steering, "smoothing": args.smoothing, "root_smoothing": args.root_smoothing,
-            "foot_lock": None if args.foot_lock is None else args.foot_lock == "on",
-            "floor": None if args.floor is None else args.floor == "on", "stride_warp": args.stride_warp,
-            "int8_lstm": None if args.int8_lstm is None else args.int8_lstm == "on"}
+SWITCHES = ("foot_lock", "floor", "int8_lstm")  # the settings given as on / off
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def output_overrides(args: argparse.Namespace) -> Overrides:
+    """The flags as the engine's :class:`~model.inference.overrides.Overrides` (None: the bundle's own), checked
+    here so that an error names the flag. Each flag is its setting's name with dashes."""
+    from model.inference.overrides import Overrides
+
+    given = {}
+    for f in fields(Overrides):
+        value = getattr(args, f.name)
+        given[f.name] = value == "on" if f.name in SWITCHES and value is not None else value
+    try:
+        return Overrides(**given)
+    except ValueError as exc:  # "NAME must be ..., got X": the flag's name instead
+        name = str(exc).split(" ", 1)[0]
+        raise ValueError(str(exc).replace(name, _flag(name), 1).split(", got ")[0]) from exc
+
+
+def output_flags(args: argparse.Namespace) -> list[str]:
+    """The flags given, as a command line that repeats them."""
+    from model.inference.overrides import Overrides
+
+    parts: list[str] = []
+    for f in fields(Overrides):
+        value = getattr(args, f.name)
+        if value is not None:
+            parts += [_flag(f.name), f"{value:g}" if isinstance(value, float) else str(value)]
+    return parts

@@ -25,9 +25,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
+from rsmt_cli.renamed_flags import add_renamed
 
 if TYPE_CHECKING:
-    from model.inference.steering import SteeringConfig
+    from model.inference.output.steering import SteeringConfig
+
+# The parts of steering rsmt package sets, by their names in the bundle (steering.NAME; the flag: dashes).
+STEERING_PARTS = ("turn_window", "height_window", "retarget_turn_window", "max_step_cm", "retarget_max_turn_deg")
+# Their flags before they took those names: they still work until the next release, with a warning.
+RENAMED_STEERING_FLAGS = (("--steer-facing", "--turn-window", int), ("--steer-height", "--height-window", int),
+                          ("--retarget-facing", "--retarget-turn-window", int), ("--steer-cap", "--max-step-cm", float),
+                          ("--retarget-turn-cap", "--retarget-max-turn-deg", float))
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,20 +53,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "or one folder per style (its first BVH); the copy stores their codes, served as style ids "
                         "builtin:NAME")
     add_output_arguments(p, "the bundle")
-    p.add_argument("--steer-facing", type=int, default=None, metavar="FRAMES",
+    # The parts of steering, each flag named as its setting in the bundle (steering.NAME).
+    p.add_argument("--turn-window", type=int, default=None, metavar="FRAMES",
                    help="turn the body toward the target's facing over the last FRAMES frames (0: off; default: the "
                         "bundle's own setting)")
-    p.add_argument("--steer-height", type=int, default=None, metavar="FRAMES",
+    p.add_argument("--height-window", type=int, default=None, metavar="FRAMES",
                    help="bring the root to the target's height over the last FRAMES frames (0: off; default: the "
                         "bundle's own setting)")
-    p.add_argument("--retarget-facing", type=int, default=None, metavar="FRAMES",
+    p.add_argument("--retarget-turn-window", type=int, default=None, metavar="FRAMES",
                    help="for a character retargeted mid-stream, turn the body toward the new target's facing over "
                         "the last FRAMES frames instead (0: as the others; default: the bundle's own setting)")
-    p.add_argument("--steer-cap", type=float, default=None, metavar="CM",
+    p.add_argument("--max-step-cm", type=float, default=None, metavar="CM",
                    help="the most steering moves the body in one frame, cm (default: the bundle's own setting)")
-    p.add_argument("--retarget-turn-cap", type=float, default=None, metavar="DEG",
+    p.add_argument("--retarget-max-turn-deg", type=float, default=None, metavar="DEG",
                    help="the most a retargeted character's facing turns in one frame, degrees (default: the "
                         "bundle's own setting)")
+    for old, new, kind in RENAMED_STEERING_FLAGS:
+        add_renamed(p, old, new, kind)
     p.set_defaults(func=_run)
 
     b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles in place (weights untouched)")
@@ -93,11 +104,9 @@ def _run(args: argparse.Namespace) -> int:
     # Adapters (fine-tuned styles) keep their own codes; they fit the copy only if its weights are the same.
     kept = {n: s for n, s in bundle.styles.items() if not s.weights}
     bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
-    bundle.output = bundle.output.with_overrides(overrides["smoothing"], overrides["root_smoothing"],
-                                                 overrides["foot_lock"], overrides["steering"], overrides["floor"],
-                                                 overrides["stride_warp"])
+    bundle.output = overrides.output(bundle.output)
     bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
-    bundle.inference = bundle.inference.with_overrides(overrides["int8_lstm"])
+    bundle.inference = overrides.inference(bundle.inference)
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
     if (args.out / "styles").is_dir():  # never leave a copy with the codes of some earlier weights
@@ -126,24 +135,19 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _check_finishing(args: argparse.Namespace) -> None:
-    for flag, frames in (("--steer-facing", args.steer_facing), ("--steer-height", args.steer_height),
-                         ("--retarget-facing", args.retarget_facing)):
+    for flag, frames in (("--turn-window", args.turn_window), ("--height-window", args.height_window),
+                         ("--retarget-turn-window", args.retarget_turn_window)):
         if frames is not None and frames < 0:
             raise ValueError(f"{flag} must be 0 (off) or more frames")
-    if args.retarget_turn_cap is not None and not args.retarget_turn_cap > 0:
-        raise ValueError("--retarget-turn-cap must be a positive number of degrees")
-    if args.steer_cap is not None and not args.steer_cap > 0:
-        raise ValueError("--steer-cap must be a positive number of cm")
+    if args.retarget_max_turn_deg is not None and not args.retarget_max_turn_deg > 0:
+        raise ValueError("--retarget-max-turn-deg must be a positive number of degrees")
+    if args.max_step_cm is not None and not args.max_step_cm > 0:
+        raise ValueError("--max-step-cm must be a positive number of cm")
 
 
 def _finishing_steering(args: argparse.Namespace, steering: SteeringConfig) -> SteeringConfig:
-    """``steering`` with the windows of ``--steer-facing`` / ``--steer-height`` / ``--retarget-facing`` and the
-    caps of ``--steer-cap`` and ``--retarget-turn-cap`` (unset: kept)."""
-    changes = {name: value for name, value in (
-        ("turn_window", args.steer_facing), ("height_window", args.steer_height),
-        ("retarget_turn_window", args.retarget_facing), ("retarget_max_turn_deg", args.retarget_turn_cap),
-        ("max_step_cm", args.steer_cap))
-        if value is not None}
+    """``steering`` with the flags of its parts (``--turn-window`` ... ``--max-step-cm``; unset: kept)."""
+    changes = {name: value for name in STEERING_PARTS if (value := getattr(args, name)) is not None}
     return dataclasses.replace(steering, **changes)
 
 
@@ -163,6 +167,7 @@ def _read_styles(folder: Path, bundle: Any) -> list[Any]:
 def _add_styles(args: argparse.Namespace) -> int:
     from model.data.style_picks import pick_style_clips
     from model.inference.bundle import Bundle
+    from model.inference.bundle_styles import StyleClip, clip_on_rig
     from model.inference.style_packing import write_builtin_styles
 
     # Checks the folder is a bundle and gives its rig and fps; its styles/ folder is not read (it may be of an
@@ -174,7 +179,9 @@ def _add_styles(args: argparse.Namespace) -> int:
         lo, hi = bundle.config.style_frames_min, bundle.config.style_frames_max
         if not lo <= args.frames <= hi:
             raise ValueError(f"--frames must be between {lo} and {hi} (the model's style clip lengths)")
-        clips = pick_style_clips(args.from_data, bundle.skeleton, bundle.config.fps, frames=args.frames)
+        fps = bundle.config.fps
+        clips = [StyleClip(p.style, clip_on_rig(p.clip, bundle.skeleton, fps, p.take_id), p.source)
+                 for p in pick_style_clips(args.from_data, fps, frames=args.frames)]
     folder, styles = write_builtin_styles(args.bundle, clips)
     print(json.dumps({"bundle": str(args.bundle), "styles_folder": str(folder), "version": bundle.version,
                       "styles": [{"style_id": f"builtin:{s.name}", "frames": s.frames, "source": s.source}

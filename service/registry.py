@@ -179,10 +179,7 @@ def load_registry(settings: Settings) -> Registry:
         except BundleError as exc:
             raise NoModelError(f"cannot load the model bundle {path}: {exc}") from exc
         engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
-                        cache_bytes=settings.style_cache_bytes, smoothing=settings.output_smoothing,
-                        foot_lock=settings.foot_lock, root_smoothing=settings.output_root_smoothing,
-                        int8_lstm=settings.int8_lstm, steering=settings.steering, floor=settings.floor,
-                        stride_warp=settings.stride_warp,
+                        cache_bytes=settings.style_cache_bytes, overrides=settings.overrides(),
                         compiled=not settings.eager)
         name = engine.name if engine.name not in names else path.name
         if name in names:

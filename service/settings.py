@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import os
+import warnings
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+if TYPE_CHECKING:
+    from model.inference.overrides import Overrides
+
+# Settings renamed to the one name the bundle and the CLI use; the old names still work until the next release.
+RENAMED = {"output_smoothing": "smoothing", "output_root_smoothing": "root_smoothing"}
 
 
 def _default_models() -> Path:
@@ -41,11 +49,12 @@ class Settings(BaseSettings):
         default=1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
     warmup_max_batch: int = Field(
         default=64, ge=1, description="warm the batched step at 1, 2, 4, ... up to this many characters")
-    output_smoothing: float | None = Field(
+    # The output steps and the int8 LSTM: one name each, as in a bundle's config and the CLI flags (Overrides).
+    smoothing: float | None = Field(
         default=None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
-    output_root_smoothing: float | None = Field(
+    root_smoothing: float | None = Field(
         default=None, ge=0, lt=1,
-        description="output filter strength for the root (default: as output_smoothing if set, else the bundle's)")
+        description="output filter strength for the root (default: as smoothing if set, else the bundle's)")
     foot_lock: bool | None = Field(
         default=None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
     floor: bool | None = Field(
@@ -184,6 +193,32 @@ class Settings(BaseSettings):
             raise ValueError("API keys must be at least 16 characters long (make one with "
                              "`python -c 'import secrets; print(secrets.token_urlsafe(24))'`)")
         return keys
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_names(cls, data: object) -> object:
+        """``output_smoothing`` / ``RSMT_OUTPUT_SMOOTHING`` (and the root's) still set their new names, with a warning."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        for old, new in RENAMED.items():
+            value = data.pop(old, None)
+            if value is None:
+                value = os.environ.get(f"RSMT_{old.upper()}")
+            if value is None:
+                continue
+            warnings.warn(f"the setting {old} (RSMT_{old.upper()}) is deprecated and goes in the next release: "
+                          f"use {new} (RSMT_{new.upper()})", DeprecationWarning, stacklevel=2)
+            data.setdefault(new, value)
+        return data
+
+    def overrides(self) -> Overrides:
+        """What these settings change of every bundle's output steps and inference settings."""
+        from model.inference.overrides import Overrides
+
+        return Overrides(smoothing=self.smoothing, root_smoothing=self.root_smoothing, foot_lock=self.foot_lock,
+                         steering=self.steering, floor=self.floor, stride_warp=self.stride_warp,
+                         int8_lstm=self.int8_lstm)
 
     @model_validator(mode="after")
     def _resolve_models(self) -> Settings:

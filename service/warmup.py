@@ -27,7 +27,7 @@ from typing import Any
 
 import torch
 
-from model.inference.engine import Character, CharacterBatch, EncodedStyle, Engine
+from model.inference.engine import Character, CharacterBatch, Engine
 from model.inference.style_codes import CacheStats
 from model.motion.clip import Clip
 from service.motion import dumps, frames_bvh, frames_json
@@ -72,13 +72,6 @@ def _warm_requests(model: LoadedModel) -> tuple[dict[str, float], Character]:
     return out, ch
 
 
-def _replica(template: Character, character_id: str, style: EncodedStyle) -> Character:
-    """A replica of one prepared character (its deferred warm-up inputs or its state are shared, never mutated)."""
-    ch = Character(id=character_id, style=style, frames_total=template.frames_total)
-    ch._row, ch._init, ch._frame, ch._post = template._row, template._init, template._frame, template._post
-    return ch
-
-
 def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict[str, float]:
     engine = model.engine
     out: dict[str, float] = {}
@@ -86,7 +79,7 @@ def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict
     while True:
         batch = CharacterBatch(engine)
         for i in range(n):
-            batch.add(_replica(template, f"warm{i}", template.style))
+            batch.add(template.replica(f"warm{i}"))
         started = time.perf_counter()
         batch.step()
         first = time.perf_counter() - started
@@ -99,7 +92,7 @@ def _warm_steps(model: LoadedModel, template: Character, max_batch: int) -> dict
         n = min(2 * n, max_batch)
     for name in (w for w in engine.weight_sets if w):  # each style adapter's own traced step, at batch 1
         batch = CharacterBatch(engine)
-        batch.add(_replica(template, "warm-adapter", replace(template.style, weights=name)))
+        batch.add(template.replica("warm-adapter", replace(template.style, weights=name)))
         started = time.perf_counter()
         batch.step()
         out[f"first_step_1_{name}_ms"] = round((time.perf_counter() - started) * 1e3, 3)

@@ -88,6 +88,35 @@ def test_dependencies_point_one_way(low, high):
     assert not wrong, f"{low} must not import {high}: {'; '.join(wrong)}"
 
 
+# Inside model/: the layers, bottom up, and what each must never import (model.<layer> and anything in it).
+MODEL_LAYERS = {
+    "motion": {"nets", "data", "inference", "evaluation", "train", "bench"},  # nothing of the project
+    "nets": {"data", "inference", "evaluation", "train", "bench"},  # motion only
+    "data": {"inference", "evaluation", "train", "bench"},
+    "inference": {"data", "evaluation", "train", "bench"},
+}
+
+
+def _model_layer(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if parts[0] == "model" and len(parts) > 1 else None
+
+
+@pytest.mark.parametrize("layer", sorted(MODEL_LAYERS))
+def test_model_layers_point_down(layer):
+    banned = MODEL_LAYERS[layer]
+    wrong = sorted(f"{name} -> {dep}" for name, deps in GRAPH.items() if _model_layer(name) == layer
+                   for dep in deps if _model_layer(dep) in banned or dep.split(".")[0] != "model")
+    assert not wrong, f"model.{layer} must not import {', '.join(sorted(banned))} (nor outside model): {'; '.join(wrong)}"
+
+
+def test_the_model_layers_are_known():
+    """Every part of model/ is a layer the rules name, or one of the layers above them (evaluation, train,
+    the bench), so a new folder has to be placed."""
+    parts = {_model_layer(name) for name in GRAPH} - {None}
+    assert parts <= set(MODEL_LAYERS) | {"evaluation", "train", "bench", "default_bundle"}, parts
+
+
 def test_the_client_imports_no_torch():
     names = set()
     for name, path in MODULES.items():

@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from model.evaluation.baselines import interpolate, zero_velocity
 from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
+from model.inference.overrides import Overrides
 from model.motion.clip import Clip
 
 Tensor = torch.Tensor
@@ -96,16 +97,13 @@ class BundleMethod(Method):
     stochastic = True
 
     def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
-                 smoothing: float | None = None, foot_lock: bool | None = None, root_smoothing: float | None = None,
-                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None,
-                 stride_warp: float | None = None) -> None:
+                 overrides: Overrides | None = None) -> None:
         from model.inference.bundle import Bundle
         from model.inference.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)
-        self.engine = Engine(self.bundle, smoothing=smoothing, foot_lock=foot_lock, root_smoothing=root_smoothing,
-                             int8_lstm=int8_lstm, steering=steering, floor=floor, stride_warp=stride_warp)
+        self.engine = Engine(self.bundle, overrides=overrides)
         self.name = name or self.path.name
         self.batch = batch
         self.exact_arrival = exact_arrival
@@ -153,14 +151,12 @@ class BundleMethod(Method):
         return torch.stack(rots).float(), torch.stack(roots).float()
 
 
-def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smoothing: float | None = None,
-                   foot_lock: bool | None = None, root_smoothing: float | None = None,
-                   int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None,
-                   stride_warp: float | None = None) -> Method:
+def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False,
+                   overrides: Overrides | None = None) -> Method:
     """``interp``, ``zerovel``, ``gt`` or the path of a model bundle.
 
-    ``exact_arrival``, ``smoothing``, ``root_smoothing``, ``foot_lock``, ``int8_lstm``, ``steering``, ``floor``
-    and ``stride_warp`` (None: the bundle's own) are the engine's options for bundles.
+    ``exact_arrival`` and ``overrides`` (:class:`model.inference.overrides.Overrides`; None: the bundle's own
+    settings) are the engine's options for bundles.
     """
     if spec in BASELINES:
         return BaselineMethod(spec)
@@ -169,6 +165,4 @@ def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False, smo
     path = Path(spec)
     if not path.is_dir():
         raise FileNotFoundError(f"--model {spec!r} is neither {', '.join([*BASELINES, GROUND_TRUTH])} nor a bundle folder")
-    return BundleMethod(path, batch, exact_arrival=exact_arrival, smoothing=smoothing, foot_lock=foot_lock,
-                        root_smoothing=root_smoothing, int8_lstm=int8_lstm, steering=steering, floor=floor,
-                        stride_warp=stride_warp)
+    return BundleMethod(path, batch, exact_arrival=exact_arrival, overrides=overrides)

@@ -1,1 +1,1 @@
-"""Running a trained bundle: the engine, bundles, the per-frame steps, arrival, foot lock, output filter, style codes."""
+"""Running a trained bundle: bundles, the engine and its batch, the per-frame step, the output pipeline (output/), style codes."""

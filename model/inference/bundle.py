@@ -26,7 +26,7 @@ from safetensors.torch import load_file, save_file
 
 from model.inference.bundle_adapters import AdapterError, StyleAdapter, load_adapters, save_adapters
 from model.inference.bundle_styles import BuiltinStyle, StyleFolderError, load_styles, save_styles
-from model.inference.output_settings import OutputConfig
+from model.inference.output.settings import OutputConfig
 from model.inference.settings import InferenceConfig
 from model.inference.weights_hash import weights_hash
 from model.motion.skeleton import Skeleton

@@ -3,11 +3,11 @@ and the poses of a batch step (:mod:`model.inference.engine` runs them)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
-from model.inference.arrival import ArrivalState
+from model.inference.output.arrival import ArrivalMemory
 from model.inference.traced_step import CompiledStep
 from model.motion.features import CanonicalFrame
 from model.nets.pose_state import PoseState
@@ -39,9 +39,24 @@ class WeightSet:
     version: str
 
 
+@dataclass(frozen=True)
+class PreparedStart:
+    """What :meth:`Engine.prepare` leaves for the recurrent warm-up, run batched when the character joins a
+    batch (:meth:`Engine.begin`): the context's and the target's states in the transition's frame, its
+    length, its noise ``[1, 2W]``, and whether the target's velocity is known."""
+
+    context: PoseState
+    target: PoseState
+    frames: int
+    noise: Tensor
+    velocity_known: bool
+
+
 @dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
 class Character:
-    """One transition in progress. The engine's batch owns its tensors while it is live."""
+    """One transition in progress. The engine's batch owns its tensors while it is live: out of a batch,
+    the character holds them itself (``row``, ``frame``, ``memory``), and before its first frame it holds
+    what its warm-up needs (``prepared``)."""
 
     id: str
     style: EncodedStyle
@@ -50,15 +65,24 @@ class Character:
     cancelled: bool = False
     slot: int = 0
     retargeted: bool = False  # given a new target mid-stream (its facing is finished by the retarget window)
-    _row: SamplerState | None = field(default=None, repr=False)
-    _frame: CanonicalFrame | None = field(default=None, repr=False)
-    # Exact arrival (see model.inference.arrival): its per-character state and the target pose in world space.
-    arrival: ArrivalState | None = None
-    _target_pose: tuple[Tensor, Tensor] | None = field(default=None, repr=False)
-    # Memory of the output steps (smoothing, foot lock) while out of a batch: named rows [1, ...].
-    _post: dict[str, Tensor] | None = field(default=None, repr=False)
-    # Inputs of the recurrent warm-up, run batched when the character joins a batch.
-    _init: tuple[PoseState, PoseState, int, Tensor, bool] | None = field(default=None, repr=False)
+    row: SamplerState | None = field(default=None, repr=False)  # its sampler state while out of a batch
+    frame: CanonicalFrame | None = field(default=None, repr=False)  # its transition's frame, fixed when it starts
+    # Exact arrival (see model.inference.output.arrival): the target pose in world space and its state.
+    arrival: ArrivalMemory | None = None
+    # Memory of the output pipeline's frame steps while out of a batch: named rows [1, ...].
+    memory: dict[str, Tensor] | None = field(default=None, repr=False)
+    prepared: PreparedStart | None = field(default=None, repr=False)
+
+    def replica(self, character_id: str, style: EncodedStyle | None = None) -> Character:
+        """Another character in this one's place (its prepared start or its state shared, never mutated by
+        a batch, which copies what it joins), e.g. for warming a batch of many up."""
+        return replace(self, id=character_id, style=self.style if style is None else style, seq=0, cancelled=False)
+
+    def canonical_frame(self) -> CanonicalFrame:
+        """:attr:`frame`, which every prepared character has."""
+        if self.frame is None:
+            raise ValueError("character was not prepared by Engine.prepare")
+        return self.frame
 
     @property
     def remaining(self) -> int:

@@ -6,8 +6,8 @@ from typing import Protocol
 
 import torch
 
-from model.inference.arrival import ArrivalCorrector
 from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
+from model.inference.output.pipeline import OutputPipeline
 from model.inference.traced_step import CompiledFrameOutput
 from model.motion.features import CanonicalFrame
 from model.nets.sampler import SamplerState, StyleContext
@@ -19,8 +19,8 @@ Tensor = torch.Tensor
 def restyle_held(ch: Character, style: EncodedStyle, ws: WeightSet) -> None:
     """Switch the style of a character outside a batch; ``ws``: the new style's weights. A row it holds is
     re-encoded by them when they change (one not begun yet is encoded by :meth:`Engine.begin`)."""
-    if style.weights != ch.style.weights and ch._row is not None:
-        ch._row.target_emb = ws.sampler.target_encoder(ch._row.target_vec)
+    if style.weights != ch.style.weights and ch.row is not None:
+        ch.row.target_emb = ws.sampler.target_encoder(ch.row.target_vec)
     ch.style = style
 
 
@@ -28,7 +28,7 @@ class BatchEngine(Protocol):
     """What a batch needs of its engine (:class:`model.inference.engine.Engine`)."""
 
     output_fn: CompiledFrameOutput
-    arrival: ArrivalCorrector
+    pipeline: OutputPipeline
 
     def begin(self, characters: list[Character]) -> SamplerState: ...
 
@@ -64,8 +64,8 @@ class CharacterBatch:
         self._style: StyleContext | None = None
         self._yaw: Tensor | None = None
         self._origin: Tensor | None = None
-        # The output steps' memory, a row per member (see Engine.prepare for the names).
-        self._post: dict[str, Tensor] | None = None
+        # The output pipeline's memory, a row per member (model.inference.output.pipeline.FrameSteps.keys).
+        self._memory: dict[str, Tensor] | None = None
         self._pending: list[Character] = []
         self._style_dirty = False
         # The members by weight set: (weights, their rows, their style context); with several sets, the
@@ -77,31 +77,32 @@ class CharacterBatch:
         return len(self.members) + len(self._pending)
 
     def add(self, ch: Character) -> None:
-        if ch._row is None and ch._init is None:
+        if ch.row is None and ch.prepared is None:
             raise ValueError("character was not prepared by Engine.prepare")
         self._pending.append(ch)
 
     def _sync(self) -> None:
         if self._pending:
-            fresh = [c for c in self._pending if c._row is None]
-            resumed = [c for c in self._pending if c._row is not None]
+            fresh = [c for c in self._pending if c.row is None]
+            resumed = [(c, c.row) for c in self._pending if c.row is not None]
             rows = [self._state] if self._state is not None else []
             if fresh:
                 rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
-            rows += [c._row for c in resumed]  # type: ignore[misc]
-            joined = fresh + resumed
+            rows += [row for _, row in resumed]
+            joined = fresh + [c for c, _ in resumed]
             held = [CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None and self._origin is not None else []
-            frames = held + [c._frame for c in joined]
+            frames = held + [c.canonical_frame() for c in joined]
             self._state = SamplerState.stack(rows)
-            self._yaw = torch.cat([f.yaw for f in frames])  # type: ignore[union-attr]
-            self._origin = torch.cat([f.origin for f in frames])  # type: ignore[union-attr]
-            posts = ([self._post] if self._post is not None else []) + [c._post for c in joined]
-            if any(p is None for p in posts):
+            self._yaw = torch.cat([f.yaw for f in frames])
+            self._origin = torch.cat([f.origin for f in frames])
+            memories = ([self._memory] if self._memory is not None else []) + [c.memory for c in joined]
+            held_memories = [m for m in memories if m is not None]
+            if len(held_memories) < len(memories):
                 raise ValueError("character was not prepared by Engine.prepare")
-            self._post = {k: torch.cat([p[k] for p in posts]) for k in posts[0]}  # type: ignore[index, union-attr]
+            self._memory = {k: torch.cat([m[k] for m in held_memories]) for k in held_memories[0]}
             for c in joined:
-                c._row = None
-                c._post = None
+                c.row = None
+                c.memory = None
             self.members.extend(joined)
             self._pending = []
             self._style_dirty = True
@@ -158,10 +159,10 @@ class CharacterBatch:
         i = self.members.index(ch)
         assert self._state is not None and self._yaw is not None and self._origin is not None
         row = torch.tensor([i])
-        ch._row = self._state.index(row)  # a copy: later steps never write into it
-        ch._frame = CanonicalFrame(self._yaw[row], self._origin[row])
-        assert self._post is not None
-        ch._post = {k: v[i : i + 1].clone() for k, v in self._post.items()}
+        ch.row = self._state.index(row)  # a copy: later steps never write into it
+        ch.frame = CanonicalFrame(self._yaw[row], self._origin[row])
+        assert self._memory is not None
+        ch.memory = {k: v[i : i + 1].clone() for k, v in self._memory.items()}
         self._keep([m for m in self.members if m is not ch])
 
     def drop_finished(self) -> list[Character]:
@@ -176,14 +177,14 @@ class CharacterBatch:
             return
         if not keep:
             self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
-            self._post = None
+            self._memory = None
             return
         idx = torch.tensor([self.members.index(k) for k in keep])
         assert self._state is not None and self._yaw is not None and self._origin is not None
         self._state = self._state.index(idx)
         self._yaw, self._origin = self._yaw[idx], self._origin[idx]
-        assert self._post is not None
-        self._post = {k: v[idx] for k, v in self._post.items()}
+        assert self._memory is not None
+        self._memory = {k: v[idx] for k, v in self._memory.items()}
         self.members = keep
         self._style_dirty = True
 
@@ -203,23 +204,13 @@ class CharacterBatch:
                      for ws, idx, style in self._groups]
             self._state = SamplerState.stack([p[0] for p in parts]).index(self._inverse)
             shifts = [p[1] for p in parts]
-            shift = None if shifts[0] is None else torch.cat(shifts)[self._inverse]  # type: ignore[arg-type]
-        post = self._post
-        assert post is not None
+            shift = None if shifts[0] is None else torch.cat([s for s in shifts if s is not None])[self._inverse]
+        memory = self._memory
+        assert memory is not None and self._yaw is not None and self._origin is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])
-        local, root, memory = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, post,  # type: ignore[arg-type]
-                                                    shift)
-        post.update(memory)
-        exact = [i for i, m in enumerate(self.members) if m.arrival is not None]
-        if exact:
-            idx = torch.tensor(exact)
-            chars = [self.members[i] for i in exact]
-            t_rot = torch.stack([c._target_pose[0] for c in chars])  # type: ignore[index]
-            t_root = torch.stack([c._target_pose[1] for c in chars])  # type: ignore[index]
-            fixed_rot, fixed_root = self.engine.arrival.apply(local[idx], root[idx], t_rot, t_root, remaining[idx],
-                                                              [c.arrival for c in chars])  # type: ignore[misc]
-            local, root = local.clone(), root.clone()
-            local[idx], root[idx] = fixed_rot, fixed_root
+        local, root, new = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, memory, shift)
+        memory.update(new)
+        local, root = self.engine.pipeline.arrival(local, root, remaining, [m.arrival for m in self.members])
         seq = []
         for m in self.members:
             seq.append(m.seq)

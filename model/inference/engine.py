@@ -15,21 +15,18 @@ import time
 
 import torch
 
-from model.inference.arrival import ArrivalCorrector, ArrivalState
 from model.inference.bundle import Bundle
-from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
+from model.inference.character import Character, EncodedStyle, PreparedStart, StepOutput, WeightSet
 from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restyle_held
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
-from model.inference.floor_contact import FloorContact
-from model.inference.foot_lock import FootLock
 from model.inference.int8_step import int8_lstm_sampler
-from model.inference.leg_chains import LegChains
-from model.inference.stride_warp import StrideWarp, StrideWarpConfig
+from model.inference.output.pipeline import OutputPipeline
+from model.inference.overrides import Overrides
 from model.inference.style_codes import LRUCache, clip_content_hash
-from model.inference.traced_step import CompiledFrameOutput, CompiledStep, FrameOutput
+from model.inference.traced_step import CompiledFrameOutput, CompiledStep
 from model.motion.clip import Clip
 from model.motion.features import CanonicalFrame, FacingChains, local_frame_features
-from model.motion.kinematics import feet_kinematics, forward_kinematics, global_to_local_rotations
+from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
 from model.nets.pose_state import PoseState, state_from_positions
@@ -44,22 +41,14 @@ class Engine:
     """Serves one bundle. Thread settings are process-wide torch settings, applied here once."""
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
-                 cache_bytes: int = 256 << 20, compiled: bool = True, smoothing: float | None = None,
-                 foot_lock: bool | None = None, root_smoothing: float | None = None,
-                 int8_lstm: bool | None = None, steering: int | None = None, floor: bool | None = None,
-                 stride_warp: float | None = None) -> None:
-        """``smoothing`` and ``root_smoothing`` (the output filter's strengths for joint rotations and
-        the root, :mod:`model.inference.output_filter`) and ``foot_lock`` (:mod:`model.inference.foot_lock`) override the
-        bundle's output settings; None keeps them. A ``smoothing`` given alone applies to the root too.
-        ``steering`` overrides the steering window of the bundle's output settings (frames; 0: off;
-        :mod:`model.inference.steering`), ``floor`` its floor contact (:mod:`model.inference.floor_contact`),
-        ``stride_warp`` its stride warp's reach (0: off; :mod:`model.inference.stride_warp`).
-        ``int8_lstm`` overrides the bundle's inference setting
-        (:mod:`model.inference.int8_step`).
+                 cache_bytes: int = 256 << 20, compiled: bool = True, overrides: Overrides | None = None) -> None:
+        """``overrides``: a caller's changes to the bundle's output steps and inference settings
+        (:class:`model.inference.overrides.Overrides`; None keeps them all).
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
-        self.output = bundle.output.with_overrides(smoothing, root_smoothing, foot_lock, steering, floor, stride_warp)
-        self.inference = bundle.inference.with_overrides(int8_lstm)
+        overrides = overrides or Overrides()
+        self.output = overrides.output(bundle.output)
+        self.inference = overrides.inference(bundle.inference)
         if threads:
             torch.set_num_threads(threads)
         self.bundle = bundle
@@ -70,7 +59,9 @@ class Engine:
         self.config = bundle.config
         self.styles: LRUCache[EncodedStyle] = LRUCache(cache_entries, cache_bytes, size_of=lambda s: s.nbytes)
         self._offsets = self.skeleton.offsets_tensor()
-        self.arrival = ArrivalCorrector(self.skeleton)
+        # Every step a frame goes through before it leaves (model.inference.output.pipeline): steering in the
+        # per-frame step, the frame steps in one traced graph, exact arrival after it.
+        self.pipeline = OutputPipeline(self.skeleton, self.config.fps, self.output)
         # One weight set per style adapter beside the bundle's own; a character runs on its style's.
         self._compiled = compiled
         self._facing = FacingChains.of(self.skeleton)
@@ -78,16 +69,7 @@ class Engine:
         for name, adapter in sorted(bundle.adapters.items()):
             self.weight_sets[name] = self._weight_set(name, adapter.apply(self.sampler), adapter.version)
         self.step_fn = self.weight_sets[""].step_fn
-        # What happens to a frame before it leaves (world space, filter, floor contact, foot lock), traced as one
-        # graph; floor contact and the lock read the legs through one kinematics object, computed once a frame.
-        legs = feet_kinematics(self.skeleton)
-        self.foot_lock = FootLock(self.skeleton, self.config.fps, kinematics=legs) if self.output.foot_lock else None
-        self.floor = FloorContact(self.skeleton, kinematics=legs) if self.output.floor else None
-        warp_legs = self.foot_lock.legs if self.foot_lock is not None else LegChains(self.skeleton, legs)
-        self.warp = (StrideWarp(warp_legs, self.config.fps, StrideWarpConfig(self.output.stride_warp))
-                     if self.output.stride_warp > 0 and self.output.steering.window > 0 else None)
-        self.output_fn = CompiledFrameOutput(FrameOutput(self.skeleton, self.output, self.foot_lock, self.floor, self.warp),
-                                             traced=compiled)
+        self.output_fn = CompiledFrameOutput(self.pipeline.frame, traced=compiled)
         self._ids = itertools.count()
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
@@ -100,7 +82,7 @@ class Engine:
                 self.inference = self.inference.with_overrides(int8_lstm=False)
             else:
                 stepper = quantized
-        step = CompiledStep(stepper, self.skeleton.roles.root, self.output.steering, traced=self._compiled,
+        step = CompiledStep(stepper, self.skeleton.roles.root, self.pipeline.steering, traced=self._compiled,
                             facing=self._facing)
         return WeightSet(name, sampler, step, version)
 
@@ -200,7 +182,7 @@ class Engine:
         """Validate a transition request and build its (unbatched) initial state.
 
         With ``exact_arrival`` the last frames are bent so the arrival frame equals the target pose
-        exactly (:mod:`model.inference.arrival`); otherwise the network's own arrival is returned.
+        exactly (:mod:`model.inference.output.arrival`); otherwise the network's own arrival is returned.
         ``retargeted`` starts the character as one retargeted mid-stream (its facing is finished by the
         retarget window): a stream resumed on another server after a retarget, from the frames received.
         """
@@ -222,36 +204,28 @@ class Engine:
         if not deterministic:
             gen = torch.Generator().manual_seed(int(seed) if seed is not None else int(time.time_ns() % (2**62)))
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
-        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames, retargeted=retargeted)
-        ch._init, ch._frame = (cstate, tstate, frames, noise, known), frame
-        crot = quat_normalize(context.rotations)
-        ch._post = {"prev_rot": crot[-1:], "prev_root": context.root_positions[-1:]}
-        if self.floor is not None:
-            ch._post["floor"] = self.floor.floor(crot, context.root_positions)
-        if self.warp is not None:
-            ch._post.update(self.warp.start())
-        if self.foot_lock is not None:
-            lock = self.foot_lock.start(crot, context.root_positions)
-            ch._post.update(lock.memory())
-        if exact_arrival:
-            ch.arrival = ArrivalState()
-            ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
-        return ch
+        arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
+                   if exact_arrival else None)
+        return Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
+                         retargeted=retargeted, frame=frame, arrival=arrival,
+                         memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions),
+                         prepared=PreparedStart(cstate, tstate, frames, noise, known))
 
     @torch.inference_mode()
     def begin(self, characters: list[Character]) -> SamplerState:
         """Warm the recurrent core of prepared characters on their contexts, all in one batch."""
-        inits = [c._init for c in characters]
+        inits = [c.prepared for c in characters]
         if any(i is None for i in inits):
             raise ValueError("character was not prepared by Engine.prepare, or has begun already")
-        ctx = PoseState.cat([i[0] for i in inits])  # type: ignore[index]
-        tgt = PoseState.cat([i[1] for i in inits])  # type: ignore[index]
-        frames = torch.tensor([i[2] for i in inits])  # type: ignore[index]
-        noise = torch.cat([i[3] for i in inits])  # type: ignore[index]
-        known = torch.tensor([i[4] for i in inits])  # type: ignore[index]
+        starts = [i for i in inits if i is not None]
+        ctx = PoseState.cat([i.context for i in starts])
+        tgt = PoseState.cat([i.target for i in starts])
+        frames = torch.tensor([i.frames for i in starts])
+        noise = torch.cat([i.noise for i in starts])
+        known = torch.tensor([i.velocity_known for i in starts])
         style = StyleContext.stack([c.style.context for c in characters])
         for c in characters:
-            c._init = None
+            c.prepared = None
         groups = by_weights(characters)
         if len(groups) == 1:
             return self.weights(groups[0][0]).sampler.begin(ctx, tgt, frames, noise, style, velocity_known=known)
@@ -277,14 +251,13 @@ class Engine:
         """Change where and/or when a live character arrives, from its next frame on."""
         if frames is not None and not 1 <= frames <= self.max_frames:
             raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
-        if batch is None and ch._row is None:
-            ch._row = self.begin([ch])
-        assert ch._frame is not None
+        if batch is None and ch.row is None:
+            ch.row = self.begin([ch])
         if target is not None:
             target = self.conform(target, "target")
             if ch.arrival is not None:
-                ch._target_pose = (quat_normalize(target.rotations[-1]), target.root_positions[-1])
-            tstate, known = self._target_state(target, ch._frame)
+                ch.arrival.rotations, ch.arrival.root = quat_normalize(target.rotations[-1]), target.root_positions[-1]
+            tstate, known = self._target_state(target, ch.canonical_frame())
             sampler = self.weights(ch.style.weights).sampler
             with torch.inference_mode():
                 vec = sampler.target_input(tstate, torch.tensor([known]))
@@ -300,7 +273,7 @@ class Engine:
             batch.update_row(ch, updates)
         else:
             for k, v in updates.items():
-                setattr(ch._row, k, v)
+                setattr(ch.row, k, v)
 
     @torch.inference_mode()
     def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:

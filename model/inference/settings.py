@@ -1,4 +1,4 @@
-"""How the engine runs a bundle's network: a bundle setting, like the output steps (:mod:`model.inference.output_settings`).
+"""How the engine runs a bundle's network: a bundle setting, like the output steps (:mod:`model.inference.output.settings`).
 
 A bundle saved without this section runs its network in float32 throughout.
 """

@@ -1,5 +1,5 @@
-"""The sampler's per-frame step (with root steering), and what happens to each frame before it leaves (world space,
-output filter, foot lock), traced to TorchScript: the fastest path measured on this CPU.
+"""The sampler's per-frame step (with root steering), and the output pipeline's frame steps
+(:mod:`model.inference.output.pipeline`), traced to TorchScript: the fastest path measured on this CPU.
 
 At batch 1 a step is a few dozen small operations, so Python dispatch costs as much as the
 arithmetic: tracing halves it (0.70 -> 0.36 ms per step on the 2-core development machine, with
@@ -19,16 +19,9 @@ from collections.abc import Callable
 
 import torch
 
-from model.inference.floor_contact import FloorContact
-from model.inference.foot_lock import FootLock, FootLockState
-from model.inference.output_filter import smooth_frame, smoothing_weight
-from model.inference.output_settings import OutputConfig
-from model.inference.steering import SteeringConfig, steer
-from model.inference.stride_warp import StrideWarp
-from model.motion.features import CanonicalFrame, FacingChains
-from model.motion.kinematics import global_to_local_rotations
-from model.motion.rotations import sixd_to_quat
-from model.motion.skeleton import Skeleton
+from model.inference.output.pipeline import FrameSteps
+from model.inference.output.steering import SteeringConfig, steer
+from model.motion.features import FacingChains
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
 
@@ -39,7 +32,7 @@ Tensor = torch.Tensor
 def step_and_steer(sampler: TransitionSampler, state: SamplerState, style: StyleContext, root: int,
                    steering: SteeringConfig, facing: FacingChains | None = None,
                    late: Tensor | None = None) -> tuple[SamplerState, Tensor | None]:
-    """One frame of the sampler, then root steering where it is on (:mod:`model.inference.steering`;
+    """One frame of the sampler, then root steering where it is on (:mod:`model.inference.output.steering`;
     ``facing``: the skeleton's, for steering the facing; ``late [N]``: the rows retargeted mid-stream):
     the new state and the ground shift steering gave each row (None when off)."""
     new, _ = sampler.step(state, style)
@@ -146,99 +139,21 @@ class CompiledStep(_TracedOnFirstUse):
                              state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)
 
 
-def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int], root: int) -> tuple[Tensor, Tensor]:
-    """A generated pose (canonical frame) in world space: local quaternions ``[N, J, 4]`` and root
-    positions ``[N, 3]``, for each row's :class:`CanonicalFrame` ``yaw [N]`` and ``origin [N, 3]``."""
-    frame = CanonicalFrame(yaw, origin)
-    grot = frame.rotations_from(sixd_to_quat(pose.rot))
-    root_pos = frame.positions_from(pose.positions()[:, root])
-    return global_to_local_rotations(grot, parents), root_pos
-
-
-class FrameOutput:
-    """What happens to a generated frame before it leaves, for one skeleton and output settings:
-    to world space, the output filter (:mod:`model.inference.output_filter`), floor contact
-    (:mod:`model.inference.floor_contact`), the stride warp (:mod:`model.inference.stride_warp`),
-    then the foot lock.
-
-    Each character's memory is a dict of named rows ``[N, ...]`` (:attr:`keys`): the previous
-    emitted frame for the filter, the floor, the stride warp's and the lock's state. Eager and
-    traced paths share this code.
-    """
-
-    def __init__(self, skeleton: Skeleton, output: OutputConfig, lock: FootLock | None,
-                 floor: FloorContact | None = None, warp: StrideWarp | None = None) -> None:
-        self.parents, self.root = list(skeleton.parents), skeleton.roles.root
-        self.output, self.lock, self.floor, self.warp = output, lock, floor, warp
-        self.keys = (("prev_rot", "prev_root") + (("floor",) if floor else ())
-                     + (StrideWarp.MEMORY_KEYS if warp else ()) + (FootLockState.MEMORY_KEYS if lock else ()))
-
-    def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
-                 skip_idle: bool = True, shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """Local rotations ``[N, J, 4]``, root positions ``[N, 3]`` and the new memory, for rows with
-        ``remaining [N]`` frames after this one; ``shift [N, 2]`` is the ground shift steering gave each
-        row's body this frame (canonical x, z; :mod:`model.inference.steering`), which the stride warp
-        takes up and the foot lock discounts."""
-        local, root = world_pose(pose, yaw, origin, self.parents, self.root)
-        out = self.output
-        if out.smooths:
-            fade = smoothing_weight(1.0, remaining)
-            local, root = smooth_frame(local, root, memory["prev_rot"], memory["prev_root"], out.smoothing * fade,
-                                       out.root_strength * fade)
-        # Remembered before the foot lock (and the engine's exact arrival) bend the frame: the filter
-        # follows the network's motion.
-        new = {"prev_rot": local, "prev_root": root}
-        # Floor contact comes first, so the feet the lock holds are where the body was lifted to. Given
-        # one kinematics object (the engine does), the legs' forward kinematics runs once for both: a lift
-        # moves every joint up alike.
-        chains = None
-        if self.floor is not None:
-            legs = self.floor.kinematics(local, root)
-            up = self.floor.lift_of(legs[0], memory["floor"])
-            root = root + up
-            if self.lock is not None and self.lock.kinematics is self.floor.kinematics:
-                chains = (legs[0] + up.unsqueeze(-2), legs[1])
-            new["floor"] = memory["floor"]
-        world_shift = moved = None
-        if shift is not None and (self.lock is not None or self.warp is not None):
-            turn = CanonicalFrame(yaw, torch.zeros_like(origin))
-            world_shift = turn.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], -1))
-            if self.warp is not None:
-                # The network's own root velocity: its state's, less the shift steering added to it.
-                velocity = turn.positions_from(pose.vel[:, self.root]) - world_shift
-                warp_memory = {k: memory[k] for k in StrideWarp.MEMORY_KEYS}
-                if self.lock is None:
-                    local, world_shift, warped = self.warp.apply(local, root, remaining, velocity, world_shift,
-                                                                 warp_memory, chains=chains)
-                else:  # the lock's IK reaches the warped ankles: the legs are solved once
-                    chains = self.warp.legs.kinematics(local, root) if chains is None else chains
-                    legs_pos = self.warp.legs.poses(local, root, chains)[0]
-                    moved, world_shift, warped = self.warp.offsets(legs_pos, root, remaining, velocity, world_shift,
-                                                                   warp_memory)
-                new.update(warped)
-        elif self.warp is not None:  # not steered this frame: nothing to warp, the memory kept
-            new.update({k: memory[k] for k in StrideWarp.MEMORY_KEYS})
-        if self.lock is not None:
-            local, state = self.lock.apply(local, root, remaining, FootLockState.from_memory(memory), skip_idle=skip_idle,
-                                           shift=world_shift, chains=chains, warp=moved)
-            new.update(state.memory())
-        return local, root, new
-
-
 class _FlatFrameOutput(torch.nn.Module):
-    def __init__(self, fn: FrameOutput) -> None:
+    def __init__(self, fn: FrameSteps) -> None:
         super().__init__()
         self.fn = fn
 
     def forward(self, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, yaw: Tensor, origin: Tensor,
                 remaining: Tensor, shift: Tensor, *memory: Tensor) -> tuple[Tensor, ...]:
         local, root, new = self.fn(PoseState(rel, vel, rot, root_xz), yaw, origin, remaining,
-                                   dict(zip(self.fn.keys, memory)), skip_idle=False, shift=shift)
+                                   dict(zip(self.fn.keys, memory)), eager=False, shift=shift)
         return (local, root, *(new[k] for k in self.fn.keys))
 
 
 class CompiledFrameOutput(_TracedOnFirstUse):
-    """:class:`FrameOutput` through one graph traced on first use (eager if tracing fails or
+    """The output pipeline's frame steps (:class:`model.inference.output.pipeline.FrameSteps`) through one graph
+    traced on first use (eager if tracing fails or
     ``traced`` is False).
 
     At batch 1 these steps are a few hundred small operations, bound by dispatch: eager they cost as
@@ -249,7 +164,7 @@ class CompiledFrameOutput(_TracedOnFirstUse):
     than the dispatch it saves.
     """
 
-    def __init__(self, fn: FrameOutput, traced: bool = True) -> None:
+    def __init__(self, fn: FrameSteps, traced: bool = True) -> None:
         super().__init__(traced)
         self.fn = fn
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -44,6 +45,20 @@ class ChainStage:
             raise ValueError(f"stage label {self.label!r} must be a plain folder name")
 
 
+# Package settings renamed to their names in the bundle; a chain with the old ones still loads until the next release.
+RENAMED_PACKAGE_KEYS = {"steer_facing": "turn_window", "steer_height": "height_window",
+                        "retarget_facing": "retarget_turn_window", "retarget_turn_cap": "retarget_max_turn_deg",
+                        "steer_cap": "max_step_cm"}
+
+
+def _renamed_package_keys(recipe: str, package: dict[str, Any]) -> dict[str, Any]:
+    old = sorted(k for k in package if k in RENAMED_PACKAGE_KEYS)
+    if old:
+        warnings.warn(f"recipe {recipe!r}: the package settings {', '.join(old)} are deprecated and go in the next "
+                      f"release: use {', '.join(RENAMED_PACKAGE_KEYS[k] for k in old)}", DeprecationWarning, stacklevel=3)
+    return {RENAMED_PACKAGE_KEYS.get(k, k): v for k, v in package.items()}
+
+
 @dataclass(frozen=True)
 class PackageSettings:
     """The ``rsmt package`` step that ends a recipe; None keeps the trained bundle's own setting."""
@@ -54,13 +69,13 @@ class PackageSettings:
     foot_lock: bool | None = None
     int8_lstm: bool | None = None
     steering: int | None = None
-    steer_facing: int | None = None
-    steer_height: int | None = None
-    retarget_facing: int | None = None
-    retarget_turn_cap: float | None = None
+    turn_window: int | None = None  # the parts of steering by their names in the bundle (steering.NAME)
+    height_window: int | None = None
+    retarget_turn_window: int | None = None
+    retarget_max_turn_deg: float | None = None
     floor: bool | None = None
     stride_warp: float | None = None
-    steer_cap: float | None = None
+    max_step_cm: float | None = None
 
     def arguments(self) -> list[str]:
         """These settings as ``rsmt package`` options."""
@@ -72,12 +87,13 @@ class PackageSettings:
         for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm), ("--floor", self.floor)):
             if value is not None:
                 args += [flag, "on" if value else "off"]
-        for flag, frames in (("--steering", self.steering), ("--steer-facing", self.steer_facing),
-                             ("--steer-height", self.steer_height), ("--retarget-facing", self.retarget_facing)):
+        for flag, frames in (("--steering", self.steering), ("--turn-window", self.turn_window),
+                             ("--height-window", self.height_window),
+                             ("--retarget-turn-window", self.retarget_turn_window)):
             if frames is not None:
                 args += [flag, str(frames)]
-        for flag, amount in (("--retarget-turn-cap", self.retarget_turn_cap), ("--stride-warp", self.stride_warp),
-                             ("--steer-cap", self.steer_cap)):
+        for flag, amount in (("--retarget-max-turn-deg", self.retarget_max_turn_deg), ("--stride-warp", self.stride_warp),
+                             ("--max-step-cm", self.max_step_cm)):
             if amount is not None:
                 args += [flag, repr(amount)]
         return args
@@ -107,7 +123,7 @@ class Recipe:
         labels = [s.label for s in stages]
         if len(set(labels)) != len(labels):
             raise ValueError(f"recipe {name!r}: stage labels must differ, got {labels}")
-        package = data.get("package", {})
+        package = _renamed_package_keys(name, data.get("package", {}))
         _check_keys("package", package, {f.name for f in fields(PackageSettings)})
         changes = data.get("changes", {})
         if not isinstance(changes, dict):

@@ -56,7 +56,7 @@ class SamplerStageConfig:
     # Moved targets also move up to this far (cm) across the window's travel (the evaluation's 1 m sideways).
     control_side: float = 0.0
     # With steering_window above 0, the changed-control windows are steered as the engine steers a bundle
-    # with that window (model.inference.steering): the shift carries no gradient, so their losses (feet,
+    # with that window (model.inference.output.steering): the shift carries no gradient, so their losses (feet,
     # target, critics) train the gait that goes with being carried toward the target.
     steering_window: int = 0
     # Time-warped windows per step (model.train.time_warp), scored against their ground truth like the batch's

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
-from model.inference.steering import SteeringConfig, shifted, steering_shift
+from model.inference.output.steering import SteeringConfig, shifted, steering_shift
 from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_mul, quat_rotate, quat_to_sixd, sixd_to_quat, yaw_quat
 from model.nets.pose_state import PoseState
@@ -107,7 +107,7 @@ def rollout(model: TransitionSampler, tensors: MotionTensors, batch: WindowBatch
     for _ in range(steps):
         state, aux = model.step(state, style)
         if steering is not None:
-            # The engine's steering (model.inference.steering), as a push from outside: no gradient
+            # The engine's steering (model.inference.output.steering), as a push from outside: no gradient
             # flows through the shift, so the losses teach the gait that goes with being carried.
             # Changed-control windows only: steering the windows scored against the capture frame by
             # frame degraded every loss within 200 steps (docs/experiments/2026-11-25-steering.md).

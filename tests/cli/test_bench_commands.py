@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
+from model.inference.overrides import Overrides
 from rsmt_cli.bench_commands import engine_label
 
 
@@ -12,7 +13,7 @@ def test_the_label_names_every_output_step_the_engine_runs():
     label = engine_label(Engine(bundle, threads=1), DEFAULT_BUNDLE)
     assert label == (f"{bundle.meta.name} (default_bundle; smoothing 0.3/0.3, foot lock on, steering 40 (facing 5, "
                      "height 5), floor contact, stride warp 2, int8 LSTM)")
-    plain = engine_label(Engine(bundle, threads=1, steering=0, smoothing=0.0, foot_lock=False, floor=False,
-                                int8_lstm=False), DEFAULT_BUNDLE)
+    plain = engine_label(Engine(bundle, threads=1, overrides=Overrides(
+        steering=0, smoothing=0.0, foot_lock=False, floor=False, int8_lstm=False)), DEFAULT_BUNDLE)
     assert plain == f"{bundle.meta.name} (default_bundle; smoothing 0/0, foot lock off)"  # no steering: no warp
 

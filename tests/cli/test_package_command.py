@@ -46,35 +46,43 @@ def test_package_keeps_unset_settings_and_refuses_bad_ones(tmp_path, capsys):
     assert "--smoothing must be in [0, 1)" in capsys.readouterr().err and not (tmp_path / "x").exists()
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "trained")]) == 2
     assert "must not be the --model folder" in capsys.readouterr().err
-    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "x"), "--steer-facing", "-1"]) == 2
-    assert "--steer-facing must be 0 (off) or more frames" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "x"), "--turn-window", "-1"]) == 2
+    assert "--turn-window must be 0 (off) or more frames" in capsys.readouterr().err and not (tmp_path / "x").exists()
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "x"),
-                 "--retarget-turn-cap", "0"]) == 2
-    assert "--retarget-turn-cap must be a positive" in capsys.readouterr().err and not (tmp_path / "x").exists()
+                 "--retarget-max-turn-deg", "0"]) == 2
+    assert "--retarget-max-turn-deg must be a positive" in capsys.readouterr().err and not (tmp_path / "x").exists()
 
 
 def test_package_sets_the_facing_and_height_steering(tmp_path, capsys):
     tiny_bundle(5).save(tmp_path / "trained")
     assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "a"), "--steering", "40",
-                 "--steer-facing", "10", "--steer-height", "8"]) == 0
+                 "--turn-window", "10", "--height-window", "8"]) == 0
     steering = Bundle.load(tmp_path / "a").output.steering
     assert (steering.window, steering.turn_window, steering.height_window) == (40, 10, 8)
     # Unset flags keep the copied bundle's own; 0 switches a part off.
-    assert main(["package", "--model", str(tmp_path / "a"), "--out", str(tmp_path / "b"), "--steer-height", "0"]) == 0
+    assert main(["package", "--model", str(tmp_path / "a"), "--out", str(tmp_path / "b"), "--height-window", "0"]) == 0
     steering = Bundle.load(tmp_path / "b").output.steering
     assert (steering.window, steering.turn_window, steering.height_window) == (40, 10, 0)
     assert (steering.retarget_turn_window, steering.retarget_max_turn_deg) == (0, 4.0)  # off unless asked
-    assert main(["package", "--model", str(tmp_path / "b"), "--out", str(tmp_path / "c"), "--retarget-facing", "20",
-                 "--retarget-turn-cap", "10"]) == 0
+    assert main(["package", "--model", str(tmp_path / "b"), "--out", str(tmp_path / "c"), "--retarget-turn-window", "20",
+                 "--retarget-max-turn-deg", "10"]) == 0
     steering = Bundle.load(tmp_path / "c").output.steering
     assert (steering.turn_window, steering.retarget_turn_window, steering.retarget_max_turn_deg) == (10, 20, 10.0)
-    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "d"), "--steer-cap", "15",
+    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "d"), "--max-step-cm", "15",
                  "--stride-warp", "2"]) == 0
     copy = Bundle.load(tmp_path / "d")
     assert (copy.output.steering.max_step_cm, copy.output.steering.turn_window, copy.output.stride_warp) == (15.0, 10, 2.0)
-    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "e"), "--steer-cap", "0"]) == 2
-    assert "--steer-cap must be a positive" in capsys.readouterr().err and not (tmp_path / "e").exists()
-    capsys.readouterr()
+    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "e"), "--max-step-cm", "0"]) == 2
+    assert "--max-step-cm must be a positive" in capsys.readouterr().err and not (tmp_path / "e").exists()
+    # The flags' old names still work for one release, and say so.
+    assert main(["package", "--model", str(tmp_path / "c"), "--out", str(tmp_path / "f"), "--steer-cap", "12",
+                 "--steer-facing", "6", "--steer-height", "3", "--retarget-facing", "15", "--retarget-turn-cap", "8"]) == 0
+    err = capsys.readouterr().err
+    assert "--steer-cap is deprecated and goes in the next release: use --max-step-cm" in err
+    assert "--retarget-turn-cap is deprecated" in err
+    steering = Bundle.load(tmp_path / "f").output.steering
+    assert (steering.max_step_cm, steering.turn_window, steering.height_window, steering.retarget_turn_window,
+            steering.retarget_max_turn_deg) == (12.0, 6, 3, 15, 8.0)
 
 
 def test_package_stores_builtin_styles_and_add_styles_changes_only_the_styles(tmp_path, capsys):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from rsmt_client.motion import load_bvh_poses
 
-from model.inference.arrival import DEFAULT_WINDOW
+from model.inference.output.arrival import DEFAULT_WINDOW
 from tests.clients.conftest import serve_command
 from tests.clients.helpers import API_KEY
 from tests.service.server import Server

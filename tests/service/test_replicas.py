@@ -22,7 +22,7 @@ import httpx
 import numpy as np
 import pytest
 
-from model.inference.arrival import DEFAULT_WINDOW
+from model.inference.output.arrival import DEFAULT_WINDOW
 from tests.service.conftest import bvh, context_clip, target_clip, transition_body, walk
 from tests.service.processes import need
 from tests.service.server import Server

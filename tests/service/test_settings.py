@@ -56,28 +56,40 @@ def test_import_builds_nothing_and_model_stays_free_of_web_code():
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
 
 
+def test_the_old_smoothing_names_still_work_with_a_warning(monkeypatch):
+    monkeypatch.setenv("RSMT_OUTPUT_SMOOTHING", "0.2")
+    with pytest.warns(DeprecationWarning) as caught:
+        s = Settings(output_root_smoothing=0.1)
+    said = [str(w.message) for w in caught]
+    assert any("RSMT_OUTPUT_SMOOTHING" in m and "use smoothing (RSMT_SMOOTHING)" in m for m in said), said
+    assert any("output_root_smoothing" in m and "use root_smoothing" in m for m in said), said
+    assert (s.smoothing, s.root_smoothing) == (0.2, 0.1)
+    assert s.overrides().given() == {"smoothing": 0.2, "root_smoothing": 0.1}
+
+
 def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     from service.registry import load_registry
 
-    monkeypatch.setenv("RSMT_OUTPUT_SMOOTHING", "0.25")
+    monkeypatch.setenv("RSMT_SMOOTHING", "0.25")
     monkeypatch.setenv("RSMT_FOOT_LOCK", "true")
     s = Settings(models=DEFAULT_BUNDLE)
-    assert (s.output_smoothing, s.foot_lock) == (0.25, True)
+    assert (s.smoothing, s.foot_lock) == (0.25, True)
     engine = _engine_of(load_registry(s))
-    assert engine.output.smoothing == 0.25 and engine.foot_lock is not None
-    monkeypatch.setenv("RSMT_OUTPUT_SMOOTHING", "1")
+    assert engine.output.smoothing == 0.25 and engine.pipeline.step("foot_lock") is not None
+    monkeypatch.setenv("RSMT_SMOOTHING", "1")
     with pytest.raises(ValidationError):
         Settings()
-    monkeypatch.delenv("RSMT_OUTPUT_SMOOTHING")
+    monkeypatch.delenv("RSMT_SMOOTHING")
     monkeypatch.delenv("RSMT_FOOT_LOCK")
     engine = _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE)))
     assert engine.output == engine.bundle.output  # unset: the bundle's own
     assert engine.inference.int8_lstm and engine.bundle.inference.int8_lstm  # the default bundle's setting
     monkeypatch.setenv("RSMT_INT8_LSTM", "false")
     assert not _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).inference.int8_lstm
-    assert engine.floor is not None  # the default bundle's floor contact, and the setting that turns it off
+    # the default bundle's floor contact, and the setting that turns it off
+    assert engine.pipeline.step("floor_contact") is not None
     monkeypatch.setenv("RSMT_FLOOR", "false")
-    assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).floor is None
+    assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).pipeline.step("floor_contact") is None
 
 
 def test_eager_reaches_the_engines(monkeypatch):

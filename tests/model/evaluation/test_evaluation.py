@@ -18,6 +18,7 @@ from model.evaluation.reference import reference_stats
 from model.evaluation.report import markdown
 from model.evaluation.style_scores import matched_reference
 from model.inference.bundle import Bundle
+from model.inference.overrides import Overrides
 from model.nets.style_classifier import StyleClassifierConfig
 from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
 from rsmt_cli.main import main
@@ -259,15 +260,16 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     from model.evaluation.methods import Request
 
     cs = CaseSet.load(cache, build_cases(cache, cache.split.test, limit=2))
-    raw = BundleMethod(bundle_dir, smoothing=0.0, foot_lock=False)
-    smooth = BundleMethod(bundle_dir, smoothing=0.5, foot_lock=True)
+    raw = BundleMethod(bundle_dir, overrides=Overrides(smoothing=0.0, foot_lock=False))
+    smooth = BundleMethod(bundle_dir, overrides=Overrides(smoothing=0.5, foot_lock=True))
     steering = {"window": 0, "momentum": 1.0, "max_step_cm": 10.0, "turn_window": 0, "max_turn_deg": 4.0,
                 "height_window": 0, "max_rise_cm": 2.0, "retarget_turn_window": 0, "retarget_max_turn_deg": 4.0}
     assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None,
                                            "steering": steering, "floor": False, "stride_warp": 0.0}
-    assert BundleMethod(bundle_dir, steering=12).describe()["output"]["steering"] == {**steering, "window": 12}
-    assert BundleMethod(bundle_dir, floor=True).describe()["output"]["floor"] is True
-    assert BundleMethod(bundle_dir, stride_warp=1.5).describe()["output"]["stride_warp"] == 1.5
+    steered = BundleMethod(bundle_dir, overrides=Overrides(steering=12))
+    assert steered.describe()["output"]["steering"] == {**steering, "window": 12}
+    assert BundleMethod(bundle_dir, overrides=Overrides(floor=True)).describe()["output"]["floor"] is True
+    assert BundleMethod(bundle_dir, overrides=Overrides(stride_warp=1.5)).describe()["output"]["stride_warp"] == 1.5
     a = raw.generate(cs, Request(variant("gap10")))
     b = smooth.generate(cs, Request(variant("gap10")))
     assert not torch.allclose(a[1][:, :5], b[1][:, :5], atol=1e-4)  # filtered along the way

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
-from model.inference.arrival import arrival_weight, exact_arrival
+from model.inference.output.arrival import arrival_weight, exact_arrival
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import axis_angle_to_quat, quat_angle
 

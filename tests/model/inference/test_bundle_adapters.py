@@ -120,9 +120,9 @@ def test_a_style_switch_to_other_weights_reencodes_the_target(adapted, walk):
         batch.step()
     # Out of a batch (a parked stream), the row it holds is re-encoded the same way.
     ch2 = _chars(engine, walk, [limp])[0]
-    ch2._row = engine.begin([ch2])
+    ch2.row = engine.begin([ch2])
     engine.set_style(ch2, slow)
-    assert torch.allclose(ch2._row.target_emb, engine.sampler.target_encoder(ch2._row.target_vec))
+    assert torch.allclose(ch2.row.target_emb, engine.sampler.target_encoder(ch2.row.target_vec))
     with pytest.raises(ValueError, match="no weights 'gone'"):
         engine.weights("gone")
 

@@ -11,6 +11,7 @@ from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
 from model.inference.engine import CharacterBatch, Engine
 from model.inference.errors import EngineError, SkeletonMismatch, TooFewFrames, TooManyFrames
+from model.inference.overrides import Overrides
 from model.motion.clip import Clip
 from model.motion.skeleton import Skeleton
 from model.nets.manifold import ManifoldConfig
@@ -170,8 +171,8 @@ def test_traced_step_matches_eager(walk):
     bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
     results = []
     for compiled in (False, True):
-        eng = Engine(bundle, compiled=compiled, foot_lock=True, floor=True, steering=6)
-        assert eng.floor is not None and eng.output.steering.on
+        eng = Engine(bundle, compiled=compiled, overrides=Overrides(foot_lock=True, floor=True, steering=6))
+        assert eng.pipeline.step("floor_contact") is not None and eng.output.steering.on
         short, _ = eng.encode_style(walk.window(0, 40))
         long, _ = eng.encode_style(walk.window(10, 150))
         # Traced at batch 1 with one style length, then run at batch 3 with mixed lengths.
@@ -182,9 +183,9 @@ def test_traced_step_matches_eager(walk):
         if compiled:
             assert not eng.step_fn.eager and eng.step_fn._graph is not None
             # The frame's way out (world space, filter, floor contact, foot lock) too.
-            assert not eng.output_fn.eager and eng.output_fn._graph is not None and eng.foot_lock is not None
+            assert not eng.output_fn.eager and eng.output_fn._graph is not None and eng.pipeline.step("foot_lock") is not None
         else:
-            assert eng.output_fn._graph is None and eng.foot_lock is not None
+            assert eng.output_fn._graph is None and eng.pipeline.step("foot_lock") is not None
     (e1, e3), (c1, c3) = results
     for a, b in zip(e1 + e3, c1 + c3):
         assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-3)
@@ -200,7 +201,7 @@ def test_a_failed_trace_falls_back_to_eager_and_says_why(walk, monkeypatch, capl
     cfg = SamplerConfig(joints=J, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=40)
     man = ManifoldConfig(joints=J, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
     bundle = Bundle.create(synthetic_skeleton(), cfg, man, seed=2)
-    eng = Engine(bundle, compiled=True, foot_lock=True)
+    eng = Engine(bundle, compiled=True, overrides=Overrides(foot_lock=True))
     assert not eng.step_fn.eager  # wanted traced, not tried yet
     with caplog.at_level("WARNING"):
         rot, root = _run(eng, walk, frames=6)
@@ -208,7 +209,7 @@ def test_a_failed_trace_falls_back_to_eager_and_says_why(walk, monkeypatch, capl
     for fn in (eng.step_fn, eng.output_fn):
         assert fn.traced and fn.trace_failed and fn.eager and fn._graph is None
     assert "no tracing here" in caplog.text
-    eager = Engine(bundle, compiled=False, foot_lock=True)
+    eager = Engine(bundle, compiled=False, overrides=Overrides(foot_lock=True))
     e_rot, e_root = _run(eager, walk, frames=6)
     assert torch.equal(rot, e_rot) and torch.equal(root, e_root)
     assert eager.step_fn.eager and not eager.step_fn.trace_failed

@@ -8,10 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from model.data.synthetic import synthetic_walk
-from model.inference.floor_contact import FloorContact
-from model.inference.foot_lock import FootLock
-from model.inference.output_settings import OutputConfig
-from model.inference.traced_step import CompiledFrameOutput, FrameOutput
+from model.inference.output.floor_contact import FloorContact, FloorStep
+from model.inference.output.foot_lock import FootLock
+from model.inference.output.pipeline import FrameSteps
+from model.inference.output.settings import OutputConfig
+from model.inference.traced_step import CompiledFrameOutput
 from model.motion.kinematics import ChainKinematics, feet_kinematics, forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
@@ -56,7 +57,7 @@ def test_the_traced_way_out_lifts_as_eager_does(walk) -> None:
     gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
     states = state_from_positions(gpos.transpose(0, 1), quat_to_sixd(grot).transpose(0, 1), sk.roles.root)
     floor = FloorContact(sk)
-    output = FrameOutput(sk, OutputConfig(floor=True), None, floor)
+    output = FrameSteps(sk, {"floor_contact": FloorStep(floor)})
     assert "floor" in output.keys
     traced = CompiledFrameOutput(output)
     yaw, origin = torch.zeros(2), torch.zeros(2, 3)

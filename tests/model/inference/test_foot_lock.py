@@ -7,10 +7,11 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
-from model.inference.floor_contact import FloorContact
-from model.inference.foot_lock import FootLock, FootLockConfig, FootLockState
-from model.inference.output_settings import OutputConfig
-from model.inference.traced_step import CompiledFrameOutput, FrameOutput
+from model.inference.output.floor_contact import FloorContact, FloorStep
+from model.inference.output.foot_lock import FootLock, FootLockConfig, FootLockState, FootLockStep
+from model.inference.output.pipeline import FrameSteps
+from model.inference.output.smoothing import Smoothing
+from model.inference.traced_step import CompiledFrameOutput
 from model.motion.kinematics import feet_kinematics, forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
@@ -95,10 +96,9 @@ def test_traced_output_matches_eager_at_any_batch():
     gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
     states = state_from_positions(gpos.transpose(0, 1), quat_to_sixd(grot).transpose(0, 1), sk.roles.root)  # [3, T]
     yaw, origin = torch.zeros(3), torch.zeros(3, 3)
-    output = FrameOutput(sk, OutputConfig(smoothing=0.2, foot_lock=True), FootLock(sk, 30.0, MECHANICS))
+    lock = FootLock(sk, 30.0, MECHANICS)
+    output = FrameSteps(sk, {"smoothing": Smoothing(0.2, 0.2), "foot_lock": FootLockStep(lock)})
     eager, traced = output, CompiledFrameOutput(output)
-    lock = output.lock
-    assert lock is not None
 
     def memory(rows: slice) -> dict[str, torch.Tensor]:
         starts = [lock.start(rot[:10, i], root[:10, i]) for i in range(3)[rows]]
@@ -163,7 +163,7 @@ def test_a_foot_carried_by_steering_stays_locked():
 
 @pytest.mark.parametrize("shared", [True, False])
 def test_floor_contact_and_the_lock_in_the_frame_output_give_what_each_gives_alone(shared: bool):
-    # Given one kinematics object, FrameOutput computes the legs' forward kinematics once for floor
+    # Given one kinematics object, the frame steps compute the legs' forward kinematics once for floor
     # contact and the lock (the lift moves every leg joint up alike); given two, each computes its own.
     # Run apart, each computes its own. A sinking, sliding body.
     sk, rot, root = _sliding_pose(30, speed_cm=1.0, still=9)
@@ -173,7 +173,7 @@ def test_floor_contact_and_the_lock_in_the_frame_output_give_what_each_gives_alo
     legs = feet_kinematics(sk) if shared else None
     lock, floor = FootLock(sk, 30.0, MECHANICS, kinematics=legs), FloorContact(sk, kinematics=legs)
     assert (lock.kinematics is floor.kinematics) == shared
-    output = FrameOutput(sk, OutputConfig(smoothing=0.0, foot_lock=True, floor=True), lock, floor)
+    output = FrameSteps(sk, {"floor_contact": FloorStep(floor), "foot_lock": FootLockStep(lock)})
     mem = {"prev_rot": rot[9:10], "prev_root": root[9:10], "floor": floor.floor(rot[:10], root[:10]),
            **lock.start(rot[:10], root[:10]).memory()}
     state = lock.start(rot[:10], root[:10])
@@ -182,7 +182,7 @@ def test_floor_contact_and_the_lock_in_the_frame_output_give_what_each_gives_alo
     for t in range(10, 30):
         remaining = torch.tensor([29 - t])
         shared_rot, shared_root, mem = output(states.index((slice(None), t)), torch.zeros(1), torch.zeros(1, 3),
-                                              remaining, mem, skip_idle=False)
+                                              remaining, mem, eager=False)
         lifted = floor.lift(rot[t:t + 1], root[t:t + 1], ground)
         alone_rot, state = lock.apply(rot[t:t + 1], lifted, remaining, state, skip_idle=False)
         lifted_any |= bool(lifted[0, 1] > root[t, 1] + 1.0)

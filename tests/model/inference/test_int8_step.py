@@ -12,6 +12,7 @@ from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle, BundleError
 from model.inference.engine import Engine
 from model.inference.int8_step import int8_lstm_sampler
+from model.inference.overrides import Overrides
 from model.inference.settings import InferenceConfig
 from model.motion.clip import Clip
 from model.nets.manifold import ManifoldConfig
@@ -45,8 +46,8 @@ def test_only_the_lstm_cell_is_quantised_and_the_original_is_untouched(bundle):
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_int8_lstm_frames_stay_close_to_float32_and_differ_from_them(bundle, walk, compiled):
-    rot32, root32 = _generate(Engine(bundle, compiled=compiled, int8_lstm=False), walk)
-    engine = Engine(bundle, compiled=compiled, int8_lstm=True)
+    rot32, root32 = _generate(Engine(bundle, compiled=compiled, overrides=Overrides(int8_lstm=False)), walk)
+    engine = Engine(bundle, compiled=compiled, overrides=Overrides(int8_lstm=True))
     assert engine.inference.int8_lstm
     rot8, root8 = _generate(engine, walk)
     assert not torch.equal(root8, root32)  # the quantised cell really runs
@@ -55,7 +56,7 @@ def test_int8_lstm_frames_stay_close_to_float32_and_differ_from_them(bundle, wal
     angle = 2 * torch.acos((rot8 * rot32).sum(-1).abs().clamp(max=1.0))
     assert angle.max() < 0.02
     # Seeded int8 runs repeat exactly.
-    again = _generate(Engine(bundle, compiled=compiled, int8_lstm=True), walk)
+    again = _generate(Engine(bundle, compiled=compiled, overrides=Overrides(int8_lstm=True)), walk)
     assert torch.equal(again[0], rot8) and torch.equal(again[1], root8)
 
 
@@ -63,7 +64,7 @@ def test_the_setting_is_saved_with_the_bundle_and_overridable(bundle, tmp_path):
     replace(bundle, inference=InferenceConfig(int8_lstm=True)).save(tmp_path / "b")
     loaded = Bundle.load(tmp_path / "b")
     assert loaded.inference == InferenceConfig(True)
-    assert Engine(loaded).inference.int8_lstm and not Engine(loaded, int8_lstm=False).inference.int8_lstm
+    assert Engine(loaded).inference.int8_lstm and not Engine(loaded, overrides=Overrides(int8_lstm=False)).inference.int8_lstm
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
     for bad in ({"int8_lstm": "yes"}, {"int8": True}):
         cfg["inference"] = bad
@@ -81,6 +82,6 @@ def test_a_pytorch_without_quantisation_keeps_float32(bundle, monkeypatch, caplo
         raise RuntimeError("no quantized engine")
 
     monkeypatch.setattr(torch.ao.quantization, "quantize_dynamic", broken)
-    engine = Engine(bundle, int8_lstm=True)
+    engine = Engine(bundle, overrides=Overrides(int8_lstm=True))
     assert not engine.inference.int8_lstm
     assert "int8 LSTM unavailable" in caplog.text

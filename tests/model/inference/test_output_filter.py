@@ -8,8 +8,9 @@ import torch
 from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
 from model.inference.engine import CharacterBatch, Engine
-from model.inference.output_filter import smooth_frame, smoothing_weight
-from model.inference.output_settings import OutputConfig
+from model.inference.output.settings import OutputConfig
+from model.inference.output.smoothing import smooth_frame, smoothing_weight
+from model.inference.overrides import Overrides
 from model.motion.clip import Clip
 from model.motion.rotations import quat_normalize
 from model.nets.manifold import ManifoldConfig
@@ -62,7 +63,7 @@ def test_strength_is_validated(bundle):
     with pytest.raises(ValueError, match="output smoothing"):
         OutputConfig(smoothing=1.0)
     with pytest.raises(ValueError, match="smoothing"):
-        Engine(bundle, smoothing=-0.1)
+        Engine(bundle, overrides=Overrides(smoothing=-0.1))
 
 
 def _generate(engine: Engine, walk: Clip, frames: int = 20):
@@ -73,8 +74,8 @@ def _generate(engine: Engine, walk: Clip, frames: int = 20):
 def test_engine_filters_its_own_frames_causally(bundle, walk):
     """Filtered frames are the raw ones run through the filter from the last context frame: the
     network's state never sees the filter, and the arrival frame is the network's own."""
-    raw = _generate(Engine(bundle, smoothing=0.0), walk)
-    smoothed = _generate(Engine(bundle, smoothing=0.5), walk)
+    raw = _generate(Engine(bundle, overrides=Overrides(smoothing=0.0)), walk)
+    smoothed = _generate(Engine(bundle, overrides=Overrides(smoothing=0.5)), walk)
     assert Engine(bundle).output.smoothing == bundle.output.smoothing == 0.0
     prev_rot, prev_root = quat_normalize(walk.rotations[9]), walk.root_positions[9]
     n = raw[0].shape[0]
@@ -89,15 +90,15 @@ def test_engine_filters_its_own_frames_causally(bundle, walk):
 
 
 def test_foot_lock_in_the_engine_keeps_the_arrival_frame(bundle, walk):
-    plain = _generate(Engine(bundle, smoothing=0.0, foot_lock=False), walk, frames=30)
-    locked = _generate(Engine(bundle, smoothing=0.0, foot_lock=True), walk, frames=30)
+    plain = _generate(Engine(bundle, overrides=Overrides(smoothing=0.0, foot_lock=False)), walk, frames=30)
+    locked = _generate(Engine(bundle, overrides=Overrides(smoothing=0.0, foot_lock=True)), walk, frames=30)
     assert torch.equal(locked[1], plain[1])  # roots are never moved
     assert torch.allclose(locked[0][-1], plain[0][-1], atol=1e-6)
 
 
 def test_output_memory_survives_detach_and_batch_changes(bundle, walk):
     """The filter's and the foot lock's per-character memory follow a character out of a batch and back."""
-    engine = Engine(bundle, smoothing=0.4, foot_lock=True)
+    engine = Engine(bundle, overrides=Overrides(smoothing=0.4, foot_lock=True))
     style, _ = engine.encode_style(walk.window(30, 150))
 
     def prepare(i: int):
@@ -135,7 +136,7 @@ def test_output_settings_are_saved_with_the_bundle(bundle, tmp_path):
     b = replace(bundle, output=OutputConfig(smoothing=0.3, foot_lock=True))
     b.save(tmp_path / "b")
     assert Bundle.load(tmp_path / "b").output == OutputConfig(0.3, True)
-    assert Engine(Bundle.load(tmp_path / "b")).foot_lock is not None
+    assert Engine(Bundle.load(tmp_path / "b")).pipeline.step("foot_lock") is not None
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
     cfg["output"] = {"smoothing": 2.0}
     (tmp_path / "b" / "config.json").write_text(json.dumps(cfg))
@@ -158,6 +159,6 @@ def test_root_has_its_own_strength_and_overrides_combine(bundle):
 
     b = replace(bundle, output=OutputConfig(smoothing=0.5, root_smoothing=0.2))
     assert Engine(b).output.root_strength == 0.2
-    assert Engine(b, smoothing=0.0).output == OutputConfig(0.0)  # one override turns the whole filter off
-    assert Engine(b, root_smoothing=0.1).output == OutputConfig(0.5, root_smoothing=0.1)
-    assert not Engine(b, smoothing=0.0).output.smooths
+    assert Engine(b, overrides=Overrides(smoothing=0.0)).output == OutputConfig(0.0)  # one override turns the whole filter off
+    assert Engine(b, overrides=Overrides(root_smoothing=0.1)).output == OutputConfig(0.5, root_smoothing=0.1)
+    assert not Engine(b, overrides=Overrides(smoothing=0.0)).output.smooths

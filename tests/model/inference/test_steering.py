@@ -9,12 +9,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
-from model.inference.arrival import arrival_weight
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.character_batch import CharacterBatch
 from model.inference.engine import Engine
-from model.inference.output_settings import OutputConfig
-from model.inference.steering import (
+from model.inference.output.arrival import arrival_weight
+from model.inference.output.settings import OutputConfig
+from model.inference.output.steering import (
     SteeringConfig,
     finishing_rise,
     finishing_turn,
@@ -22,6 +22,7 @@ from model.inference.steering import (
     steering_shift,
     turned_and_raised,
 )
+from model.inference.overrides import Overrides
 from model.inference.traced_step import CompiledStep
 from model.motion.clip import Clip
 from model.motion.features import FacingChains, facing_yaw
@@ -133,8 +134,8 @@ def _far_arrival(engine: Engine, walk: Clip, frames: int) -> float:
 def test_a_random_network_is_steered_onto_a_far_target():
     bundle = _small_bundle(1)
     walk = synthetic_walk(frames=160)
-    off = _far_arrival(Engine(bundle, steering=0), walk, 30)
-    on = _far_arrival(Engine(bundle, steering=30), walk, 30)
+    off = _far_arrival(Engine(bundle, overrides=Overrides(steering=0)), walk, 30)
+    on = _far_arrival(Engine(bundle, overrides=Overrides(steering=30)), walk, 30)
     assert off > 50.0
     assert on < 1.0
 
@@ -144,7 +145,7 @@ def test_the_default_model_steers_by_its_own_settings():
     steering = bundle.output.steering
     assert (steering.window, steering.turn_window, steering.height_window) == (40, 5, 5)
     walk = synthetic_walk(frames=160)
-    off = _far_arrival(Engine(bundle, steering=0, threads=1), walk, 40)
+    off = _far_arrival(Engine(bundle, threads=1, overrides=Overrides(steering=0)), walk, 40)
     on = _far_arrival(Engine(bundle, threads=1), walk, 40)
     assert on < 0.25 * off
 
@@ -245,7 +246,7 @@ def test_a_random_network_arrives_facing_the_target_at_its_height():
     finish = OutputConfig(0.0, False, steering=SteeringConfig(window=30, turn_window=10, max_turn_deg=45.0,
                                                               height_window=10, max_rise_cm=5.0))
     bundle.output = finish
-    plain = Engine(bundle, steering=0, threads=1)
+    plain = Engine(bundle, threads=1, overrides=Overrides(steering=0))
     for compiled in (True, False):
         angle, height = _turned_arrival(Engine(bundle, threads=1, compiled=compiled), walk, 30)
         assert angle < 1.0 and height < 0.5, (compiled, angle, height)

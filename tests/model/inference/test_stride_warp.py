@@ -8,11 +8,13 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
-from model.inference.foot_lock import FootLock, FootLockConfig
-from model.inference.leg_chains import LegChains
-from model.inference.output_settings import OutputConfig
-from model.inference.stride_warp import StrideWarp, StrideWarpConfig
-from model.inference.traced_step import CompiledFrameOutput, FrameOutput, world_pose
+from model.inference.output.foot_lock import FootLock, FootLockConfig, FootLockStep
+from model.inference.output.frame import world_pose
+from model.inference.output.leg_chains import LegChains
+from model.inference.output.pipeline import FrameSteps
+from model.inference.output.settings import OutputConfig
+from model.inference.output.stride_warp import StrideWarp, StrideWarpConfig, StrideWarpStep
+from model.inference.traced_step import CompiledFrameOutput
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
@@ -128,7 +130,7 @@ def test_traced_frame_output_gives_the_eager_frames():
     gpos, grot = forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)
     states = state_from_positions(gpos.unsqueeze(0), quat_to_sixd(grot).unsqueeze(0), sk.roles.root)
     warp = StrideWarp(LegChains(sk), FPS, StrideWarpConfig(reach=1.0))
-    output = FrameOutput(sk, OutputConfig(stride_warp=1.0), None, None, warp)
+    output = FrameSteps(sk, {"stride_warp": StrideWarpStep(warp, lock_follows=False)})
     traced = CompiledFrameOutput(output, traced=True)
     eager_mem = {"prev_rot": rot[:1], "prev_root": root[:1], **warp.start()}
     traced_mem = dict(eager_mem)
@@ -153,7 +155,7 @@ def test_with_the_lock_the_legs_are_solved_once_for_what_warp_then_lock_give():
     states = state_from_positions(gpos.unsqueeze(0), quat_to_sixd(grot).unsqueeze(0), sk.roles.root)
     warp = StrideWarp(LegChains(sk), FPS, StrideWarpConfig(reach=0.3))
     lock = FootLock(sk, FPS, FootLockConfig(contact_cm=3.0, lift_cm=5.0, release_cm=10.0))
-    output = FrameOutput(sk, OutputConfig(foot_lock=True, stride_warp=0.3), lock, None, warp)
+    output = FrameSteps(sk, {"stride_warp": StrideWarpStep(warp, lock_follows=True), "foot_lock": FootLockStep(lock)})
     mem = {"prev_rot": rot[:1], "prev_root": root[:1], **warp.start(), **lock.start(rot[:2], root[:2]).memory()}
     warp_mem, lock_state = warp.start(), lock.start(rot[:2], root[:2])
     shift2 = torch.tensor([[0.8, 0.0]])
@@ -162,7 +164,7 @@ def test_with_the_lock_the_legs_are_solved_once_for_what_warp_then_lock_give():
     for t in range(2, 14):
         remaining = torch.tensor([13 - t])
         pose = states.index((slice(None), t))
-        one, _, mem = output(pose, torch.zeros(1), torch.zeros(1, 3), remaining, mem, skip_idle=False, shift=shift2)
+        one, _, mem = output(pose, torch.zeros(1), torch.zeros(1, 3), remaining, mem, eager=False, shift=shift2)
         velocity = pose.vel[:, sk.roles.root] - shift3
         local, world_root = world_pose(pose, torch.zeros(1), torch.zeros(1, 3), list(sk.parents), sk.roles.root)
         warped, left, warp_mem = warp.apply(local, world_root, remaining, velocity, shift3, warp_mem)

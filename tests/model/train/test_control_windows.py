@@ -141,14 +141,14 @@ def test_the_engine_tells_a_flagged_model_whether_the_target_came_with_its_veloc
     style, _ = engine.encode_style(walk.window(20, 60))
     one = engine.prepare(walk.window(0, 10), walk.window(39, 40), 12, style, deterministic=True)
     two = engine.prepare(walk.window(0, 10), walk.window(38, 40), 12, style, deterministic=True)
-    assert one._init is not None and two._init is not None
-    assert one._init[4] is False and two._init[4] is True
+    assert one.prepared is not None and two.prepared is not None
+    assert one.prepared.velocity_known is False and two.prepared.velocity_known is True
     row = engine.begin([one, two])
     assert row.target_vec[:, -1].tolist() == [0.0, 1.0]
     assert torch.equal(row.target_vec[0, 3 * J:6 * J], torch.zeros(3 * J))
     ch = engine.prepare(walk.window(0, 10), walk.window(38, 40), 12, style, deterministic=True)
     engine.retarget(ch, target=walk.window(50, 51))
-    assert ch._row is not None and ch._row.target_vec[0, -1].item() == 0.0
+    assert ch.row is not None and ch.row.target_vec[0, -1].item() == 0.0
     rot, _ = engine.generate([engine.prepare(walk.window(0, 10), walk.window(39, 40), 12, style, deterministic=True)])[0]
     assert rot.shape[0] == 12
 

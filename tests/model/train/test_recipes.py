@@ -44,9 +44,19 @@ def test_every_recipe_loads_and_names_presets_that_exist():
         ("E1", "sampler", "cross-style-1-critics"), ("E2", "sampler", "cross-style-2-arrival"),
         ("E3", "sampler", "cross-style-3-accuracy"), ("F", "sampler", "control-1-one-frame")]
     assert shipped.package == PackageSettings(name="rsmt-default", float16=True, smoothing=0.3, foot_lock=True,
-                                              int8_lstm=True, steering=40, steer_facing=5, steer_height=5,
-                                              retarget_facing=20, retarget_turn_cap=10.0, floor=True,
-                                              stride_warp=2.0, steer_cap=15.0)
+                                              int8_lstm=True, steering=40, turn_window=5, height_window=5,
+                                              retarget_turn_window=20, retarget_max_turn_deg=10.0, floor=True,
+                                              stride_warp=2.0, max_step_cm=15.0)
+
+
+def test_chains_with_the_old_package_names_still_load():
+    old = {"about": "x", "stages": [{"label": "A", "command": "all", "preset": "smoke"}],
+           "package": {"steer_facing": 5, "steer_height": 4, "retarget_facing": 20, "retarget_turn_cap": 10.0,
+                       "steer_cap": 15.0}}
+    with pytest.warns(DeprecationWarning, match="steer_cap.*max_step_cm"):
+        package = Recipe.from_dict("r", old).package
+    assert package == PackageSettings(turn_window=5, height_window=4, retarget_turn_window=20,
+                                      retarget_max_turn_deg=10.0, max_step_cm=15.0)
 
 
 def test_recipe_files_are_checked():
@@ -67,19 +77,19 @@ def test_recipe_files_are_checked():
 
 def test_package_settings_are_the_package_command_options():
     settings = PackageSettings(name="shipped", float16=True, smoothing=0.3, foot_lock=True, int8_lstm=False, steering=40,
-                               steer_facing=10, steer_height=0, retarget_facing=20, retarget_turn_cap=7.5, floor=True,
-                               stride_warp=1.5, steer_cap=12.0)
+                               turn_window=10, height_window=0, retarget_turn_window=20, retarget_max_turn_deg=7.5,
+                               floor=True, stride_warp=1.5, max_step_cm=12.0)
     options = settings.arguments()
     assert options == ["--float16", "--name", "shipped", "--smoothing", "0.3", "--foot-lock", "on", "--int8-lstm", "off",
-                       "--floor", "on", "--steering", "40", "--steer-facing", "10", "--steer-height", "0",
-                       "--retarget-facing", "20", "--retarget-turn-cap", "7.5", "--stride-warp", "1.5",
-                       "--steer-cap", "12.0"]
+                       "--floor", "on", "--steering", "40", "--turn-window", "10", "--height-window", "0",
+                       "--retarget-turn-window", "20", "--retarget-max-turn-deg", "7.5", "--stride-warp", "1.5",
+                       "--max-step-cm", "12.0"]
     parser = argparse.ArgumentParser()
     package_commands.register(parser.add_subparsers())
     args = parser.parse_args(["package", "--model", "m", "--out", "o", *options])
-    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm, args.steering, args.steer_facing,
-            args.steer_height, args.floor) == ("shipped", True, 0.3, "on", "off", 40, 10, 0, "on")
-    assert (args.retarget_facing, args.retarget_turn_cap, args.stride_warp, args.steer_cap) == (20, 7.5, 1.5, 12.0)
+    assert (args.name, args.float16, args.smoothing, args.foot_lock, args.int8_lstm, args.steering, args.turn_window,
+            args.height_window, args.floor) == ("shipped", True, 0.3, "on", "off", 40, 10, 0, "on")
+    assert (args.retarget_turn_window, args.retarget_max_turn_deg, args.stride_warp, args.max_step_cm) == (20, 7.5, 1.5, 12.0)
     assert PackageSettings().arguments() == []
 
 

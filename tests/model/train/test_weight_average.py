@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from model.inference.bundle import Bundle, BundleError
-from model.inference.output_settings import OutputConfig
+from model.inference.output.settings import OutputConfig
 from model.nets.sampler import SamplerConfig
 from model.train.weight_average import average_bundles
 from rsmt_cli.main import main

@@ -10,8 +10,8 @@ import pytest
 
 from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
-from model.inference.output_settings import OutputConfig
-from model.inference.steering import SteeringConfig
+from model.inference.output.settings import OutputConfig
+from model.inference.output.steering import SteeringConfig
 from tests.service.conftest import bvh, target_clip, walk
 from tests.service.server import Server
 from tests.service.wsclient import Ws, poses_of, start_message

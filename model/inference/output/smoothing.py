@@ -14,8 +14,11 @@ reached. The first frame blends with the last context frame, so the seam stays c
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 
+from model.inference.output.frame import Frame, StepParts
 from model.motion.rotations import quat_normalize
 
 Tensor = torch.Tensor
@@ -46,3 +49,28 @@ def smooth_frame(rotations: Tensor, roots: Tensor, previous_rotations: Tensor, p
     rot = quat_normalize(torch.lerp(rotations, sign * previous_rotations, w.unsqueeze(-1)))
     wr = w if root_weight is None else root_weight.to(roots.dtype).view(-1, 1)
     return rot, torch.lerp(roots, previous_roots, wr)
+
+
+class Smoothing:
+    """The filter as a frame step (:mod:`model.inference.output.frame`): its memory is the previous emitted
+    frame, remembered before the later steps (and exact arrival) bend it, so the filter follows the network."""
+
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root")
+
+    def __init__(self, strength: float, root_strength: float) -> None:
+        self.strength, self.root_strength = strength, root_strength
+
+    @classmethod
+    def build(cls, parts: StepParts) -> Smoothing | None:
+        out = parts.settings
+        return cls(out.smoothing, out.root_strength) if out.smooths else None
+
+    def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
+        """The last context frame: the first generated frame blends with it, so the seam stays continuous."""
+        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:]}
+
+    def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
+        fade = smoothing_weight(1.0, frame.remaining)
+        frame.local, frame.root = smooth_frame(frame.local, frame.root, memory["prev_rot"], memory["prev_root"],
+                                               self.strength * fade, self.root_strength * fade)
+        new["prev_rot"], new["prev_root"] = frame.local, frame.root

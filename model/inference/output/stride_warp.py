@@ -1,6 +1,6 @@
 """Stride warping: longer (or shorter) strides where steering carries the body faster than the gait.
 
-Steering (:mod:`model.inference.steering`) moves the whole body toward a target the network's gait
+Steering (:mod:`model.inference.output.steering`) moves the whole body toward a target the network's gait
 would not reach in time, so a foot the network plants is carried along and slides; the foot lock can
 hold it only as far as the leg reaches. Engines meet the same problem (a capsule moving faster than
 its animation) by placing the feet further from the hips along the motion. Here, each frame, with
@@ -8,7 +8,7 @@ its animation) by placing the feet further from the hips along the motion. Here,
 less the shift), each ankle moves on the ground by ``(r . v/|v|) u / |v|``, ``r`` being its ground
 offset from the root. A planted foot's offset shrinks by ``|v|`` a frame, so its move changes by
 ``-u``: it stays where it is in the world while the body is carried, and a swinging foot lands
-further along. The legs reach the moved ankles by two-bone IK (:mod:`model.inference.leg_chains`).
+further along. The legs reach the moved ankles by two-bone IK (:mod:`model.inference.output.leg_chains`).
 
 ``|u| / |v|`` is capped at ``reach`` (the longest stride is ``1 + reach`` times the network's); the
 warp fades in with the root's speed (none for a character standing or turning on the spot) and out
@@ -22,10 +22,12 @@ returned for the foot lock, which then judges planted feet against that part onl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 
-from model.inference.leg_chains import LegChains
+from model.inference.output.frame import Frame, StepParts
+from model.inference.output.leg_chains import LegChains
 
 Tensor = torch.Tensor
 
@@ -102,7 +104,7 @@ class StrideWarp:
               ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """Warp the strides of one frame of ``N`` characters: new local rotations, the part of
         ``shift`` the warp left (``[N, 3]``) and the new memory. With the foot lock on, the frame
-        output hands :meth:`offsets` to the lock instead, so both legs are solved once.
+        warp step hands :meth:`offsets` to the lock instead, so both legs are solved once.
 
         Args:
             rotations, roots: ``[N, J, 4]`` local rotations and ``[N, 3]`` roots (world).
@@ -118,3 +120,46 @@ class StrideWarp:
         offset, left, new = self.offsets(pos, roots, remaining, velocity, shift, memory)
         move = offset.norm(dim=-1) > 1e-4  # [N, 2]
         return self.legs.bend(rotations, pos, grot, pos[:, -1] + offset, move), left, new
+
+
+class StrideWarpStep:
+    """The stride warp as a frame step (:mod:`model.inference.output.frame`), on where steering's ground part
+    is. With the foot lock after it, it leaves the ankles' moves to the lock (one IK reaches both); alone,
+    it bends the legs itself. Either way it leaves the rest of steering's shift to the steps after it."""
+
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = StrideWarp.MEMORY_KEYS
+
+    def __init__(self, warp: StrideWarp, lock_follows: bool) -> None:
+        self.warp, self.lock_follows = warp, lock_follows
+
+    @classmethod
+    def build(cls, parts: StepParts) -> StrideWarpStep | None:
+        out = parts.settings
+        if out.stride_warp <= 0 or out.steering.window <= 0:
+            return None
+        return cls(StrideWarp(parts.legs, parts.fps, StrideWarpConfig(out.stride_warp)), out.foot_lock)
+
+    def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
+        return self.warp.start()
+
+    def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
+        shift = frame.world_shift()
+        if shift is None:  # not steered this frame: nothing to warp, the memory kept
+            new.update({k: memory[k] for k in self.MEMORY_KEYS})
+            return
+        # The network's own root velocity: its state's, less the shift steering added to it.
+        velocity = frame.turn.positions_from(frame.pose.vel[:, frame.root_joint]) - shift
+        own = {k: memory[k] for k in self.MEMORY_KEYS}
+        legs = self.warp.legs
+        if self.lock_follows:
+            chains = frame.chains_of(legs.kinematics)
+            if chains is None:
+                chains = legs.kinematics(frame.local, frame.root)
+                frame.set_chains(legs.kinematics, chains)
+            pos = legs.poses(frame.local, frame.root, chains)[0]
+            frame.ankle_moves, left, warped = self.warp.offsets(pos, frame.root, frame.remaining, velocity, shift, own)
+        else:  # its own legs' kinematics, as the warp has always computed them alone
+            frame.local, left, warped = self.warp.apply(frame.local, frame.root, frame.remaining, velocity, shift, own)
+            frame.set_chains(legs.kinematics, None)  # the legs were bent
+        frame.leave_shift(left)
+        new.update(warped)

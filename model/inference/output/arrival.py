@@ -14,7 +14,7 @@ Works frame by frame with explicit per-character state, so streaming and whole t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -116,6 +116,45 @@ class ArrivalCorrector:
             rot[rows] = sub
             pos[rows], grot[rows] = forward_kinematics(rot[rows], root[rows], self.offsets, sk.parents)
         return rot, root
+
+
+@dataclass
+class ArrivalMemory:
+    """One character's exact arrival: its target pose in world space (local rotations ``[J, 4]``, root ``[3]``)
+    and the corrector's state."""
+
+    rotations: Tensor
+    root: Tensor
+    state: ArrivalState = field(default_factory=ArrivalState)
+
+
+class ExactArrival:
+    """Exact arrival as an output step: it runs after the frame steps' graph, on the rows whose request asked
+    for it (per character, so it stays out of the traced graph)."""
+
+    def __init__(self, corrector: ArrivalCorrector) -> None:
+        self.corrector = corrector
+
+    def start(self, rotations: Tensor, root: Tensor) -> ArrivalMemory:
+        """A character's memory for arriving exactly at the pose ``rotations [J, 4]``, ``root [3]`` (world)."""
+        return ArrivalMemory(rotations, root)
+
+    def __call__(self, rotations: Tensor, roots: Tensor, remaining: Tensor,
+                 memories: list[ArrivalMemory | None]) -> tuple[Tensor, Tensor]:
+        """A batch's frame (``[N, J, 4]``, ``[N, 3]``; ``remaining [N]``) with the rows whose memory is not None
+        bent toward their targets; the others as they are."""
+        exact = [i for i, m in enumerate(memories) if m is not None]
+        if not exact:
+            return rotations, roots
+        idx = torch.tensor(exact)
+        chosen = [m for m in memories if m is not None]
+        t_rot = torch.stack([m.rotations for m in chosen])
+        t_root = torch.stack([m.root for m in chosen])
+        fixed_rot, fixed_root = self.corrector.apply(rotations[idx], roots[idx], t_rot, t_root, remaining[idx],
+                                                     [m.state for m in chosen])
+        rotations, roots = rotations.clone(), roots.clone()
+        rotations[idx], roots[idx] = fixed_rot, fixed_root
+        return rotations, roots
 
 
 def exact_arrival(rotations: Tensor, roots: Tensor, target_rotation: Tensor, target_root: Tensor, skeleton: Skeleton,

@@ -10,8 +10,11 @@ so a game's own ground level is kept, whatever it is.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 
+from model.inference.output.frame import Frame, StepParts
 from model.motion.kinematics import ChainKinematics, feet_kinematics
 from model.motion.skeleton import Skeleton
 
@@ -26,7 +29,7 @@ class FloorContact:
     def __init__(self, skeleton: Skeleton, tolerance_cm: float = TOLERANCE_CM,
                  kinematics: ChainKinematics | None = None) -> None:
         """``kinematics``: the feet's chains (:func:`feet_kinematics`) to use, e.g. one the foot lock uses
-        too, so that FrameOutput computes them once for both; by default its own."""
+        too, so that the frame output computes them once for both; by default its own."""
         if tolerance_cm < 0:
             raise ValueError(f"the floor tolerance must be 0 or more, got {tolerance_cm}")
         self.tolerance = tolerance_cm
@@ -55,3 +58,28 @@ class FloorContact:
         ``positions [N, K, 3]``, so no foot joint is more than the tolerance under each row's ``floor [N]``."""
         up = (floor - self.tolerance - self.heights_of(positions).amin(dim=-1)).clamp_min(0.0)
         return torch.stack([torch.zeros_like(up), up, torch.zeros_like(up)], dim=-1)
+
+
+class FloorStep:
+    """Floor contact as a frame step (:mod:`model.inference.output.frame`): its memory is the floor of the
+    character's context. It runs before the feet are moved, so the feet the lock holds are where the body was
+    lifted to; it leaves the lifted legs' kinematics on the frame (a lift moves every joint up alike)."""
+
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("floor",)
+
+    def __init__(self, contact: FloorContact) -> None:
+        self.contact = contact
+
+    @classmethod
+    def build(cls, parts: StepParts) -> FloorStep | None:
+        return cls(FloorContact(parts.skeleton, kinematics=parts.kinematics)) if parts.settings.floor else None
+
+    def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
+        return {"floor": self.contact.floor(rotations, roots)}
+
+    def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
+        legs = self.contact.kinematics(frame.local, frame.root)
+        up = self.contact.lift_of(legs[0], memory["floor"])
+        frame.root = frame.root + up
+        frame.set_chains(self.contact.kinematics, (legs[0] + up.unsqueeze(-2), legs[1]))
+        new["floor"] = memory["floor"]

@@ -1,7 +1,7 @@
 """Both legs of a skeleton as two-bone chains: their world poses, and bending them onto ankle targets.
 
-What the output steps that move feet share (:mod:`model.inference.foot_lock`,
-:mod:`model.inference.stride_warp`): the chains from the root to each ankle, their forward kinematics
+What the output steps that move feet share (the foot lock and the stride warp,
+:mod:`model.inference.output.pipeline`): the chains from the root to each ankle, their forward kinematics
 through one :class:`~model.motion.kinematics.ChainKinematics` (so floor contact, the stride warp and
 the lock can read one computation), and a two-bone IK that keeps each foot's world rotation.
 """

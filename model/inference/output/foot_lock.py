@@ -18,10 +18,12 @@ and the offset fades to 0, so the arrival frame is the network's own.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 
-from model.inference.leg_chains import LegChains
+from model.inference.output.frame import Frame, StepParts
+from model.inference.output.leg_chains import LegChains
 from model.motion.kinematics import ChainKinematics
 from model.motion.skeleton import Skeleton
 
@@ -80,12 +82,13 @@ class FootLock:
     """Batched foot locking for one skeleton (Y up, cm) at ``fps``: both legs in one pass, no per-row branches."""
 
     def __init__(self, skeleton: Skeleton, fps: float, config: FootLockConfig | None = None,
-                 kinematics: ChainKinematics | None = None) -> None:
+                 kinematics: ChainKinematics | None = None, legs: LegChains | None = None) -> None:
         """``kinematics``: the feet's chains (:func:`model.motion.kinematics.feet_kinematics`) to
-        use, e.g. the one floor contact uses, so that FrameOutput computes them once for both."""
+        use, e.g. the one floor contact uses, so that the frame output computes them once for both;
+        ``legs``: the skeleton's legs over them, where the caller has them."""
         self.config = config or FootLockConfig()
         self.fps = fps
-        self.legs = LegChains(skeleton, kinematics)
+        self.legs = LegChains(skeleton, kinematics) if legs is None else legs
 
     @property
     def kinematics(self) -> ChainKinematics:
@@ -115,13 +118,13 @@ class FootLock:
             remaining: ``[N]`` frames left after this one (0 on the arrival frame).
             skip_idle: return early when no foot needs moving (eager use); False keeps the
                 operations independent of the data, as a traced graph needs.
-            shift: ``[N, 3]`` how far the engine's steering (:mod:`model.inference.steering`) moved
+            shift: ``[N, 3]`` how far the engine's steering (:mod:`model.inference.output.steering`) moved
                 the whole body this frame. A foot the network keeps still is then still in the
                 network's motion, not in the world: planting and drift are judged without the
                 shift, so the lock holds the foot while the body is carried over it.
             chains: world ``(positions [N, K, 3], rotations [N, K, 4])`` of :attr:`kinematics`' joints
-                for these rotations and roots, where the caller has them (FrameOutput does).
-            warp: ``[N, 2, 3]`` where the stride warp (:mod:`model.inference.stride_warp`) moves each
+                for these rotations and roots, where the caller has them (the frame output does).
+            warp: ``[N, 2, 3]`` where the stride warp (the step before, in the output pipeline) moves each
                 ankle: the lock treats the moved ankles as the generated ones, and one IK reaches both.
         """
         c = self.config
@@ -147,3 +150,27 @@ class FootLock:
         if skip_idle and not bool(move.any()):
             return rotations, new_state
         return self.legs.bend(rotations, pos, grot, ank + offset, move), new_state
+
+
+class FootLockStep:
+    """The foot lock as a frame step (:mod:`model.inference.output.frame`), last of the steps that move feet:
+    it reads the legs the steps before computed, reaches the ankles the stride warp moved, and judges
+    planted feet against what the warp left of steering's shift."""
+
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = FootLockState.MEMORY_KEYS
+
+    def __init__(self, lock: FootLock) -> None:
+        self.lock = lock
+
+    @classmethod
+    def build(cls, parts: StepParts) -> FootLockStep | None:
+        return cls(FootLock(parts.skeleton, parts.fps, legs=parts.legs)) if parts.settings.foot_lock else None
+
+    def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
+        return self.lock.start(rotations, roots).memory()
+
+    def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
+        frame.local, state = self.lock.apply(frame.local, frame.root, frame.remaining, FootLockState.from_memory(memory),
+                                             skip_idle=frame.eager, shift=frame.world_shift(),
+                                             chains=frame.chains_of(self.lock.kinematics), warp=frame.ankle_moves)
+        new.update(state.memory())

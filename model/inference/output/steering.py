@@ -8,7 +8,7 @@ inside the recurrent loop, in the transition's canonical frame, frame by frame:
   frame) is predicted to end at ``p + m r v`` (``m``: ``momentum``, how much of its current speed
   the character is expected to keep);
 * the predicted miss, spread over the frames left, ``miss / (r + 1)``, moves the whole body
-  (weighted by exact arrival's smoothstep, :func:`model.inference.arrival.arrival_weight`: 0 more
+  (weighted by exact arrival's smoothstep, :func:`model.inference.output.arrival.arrival_weight`: 0 more
   than ``window`` frames before arrival, 1 on it);
 * the shift is written into the sampler's own state (root position and every joint's velocity), so
   the next step sees where the character now is and how fast it went, and its gait follows.
@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass, replace
 
 import torch
 
-from model.inference.arrival import arrival_weight
+from model.inference.output.arrival import arrival_weight
 from model.motion.features import FacingChains
 from model.motion.rotations import quat_rotate, yaw_quat
 from model.nets.pose_state import PoseState

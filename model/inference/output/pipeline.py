@@ -1,0 +1,101 @@
+"""The output pipeline: every step a generated frame goes through before it leaves, in the order they run.
+
+:data:`STEPS` is the list. Most steps run on the whole batch's frame, in one traced graph
+(``FRAME``: :class:`FrameSteps`, traced by :mod:`model.inference.traced_step`); steering runs inside
+the recurrent step (``LOOP``: it moves the sampler's own state, so the next step sees it), and exact
+arrival after the graph, on the rows that asked for it (``AFTER``). Each step's module owns its
+settings, its per-character memory and its start (:mod:`model.inference.output.frame` says what a frame
+step is). To add a step: write its module, and add its line here.
+
+Every step is causal and per character, so whole transitions and streams get the same frames.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import torch
+
+from model.inference.output.arrival import ArrivalCorrector, ExactArrival
+from model.inference.output.floor_contact import FloorStep
+from model.inference.output.foot_lock import FootLockStep
+from model.inference.output.frame import Frame, FrameStep, StepParts
+from model.inference.output.settings import OutputConfig
+from model.inference.output.smoothing import Smoothing
+from model.inference.output.steering import SteeringConfig
+from model.inference.output.stride_warp import StrideWarpStep
+from model.motion.skeleton import Skeleton
+from model.nets.pose_state import PoseState
+
+Tensor = torch.Tensor
+Where = Literal["loop", "frame", "after"]
+
+
+@dataclass(frozen=True)
+class Step:
+    """One line of :data:`STEPS`: its name, where it runs, and how it is built for a bundle's settings (None: off)."""
+
+    name: str
+    where: Where
+    build: Callable[[StepParts], Any]
+
+
+STEPS: tuple[Step, ...] = (
+    Step("steering", "loop", lambda parts: parts.settings.steering),  # in CompiledStep (model.inference.traced_step)
+    Step("smoothing", "frame", Smoothing.build),  # to world space first: Frame
+    Step("floor_contact", "frame", FloorStep.build),
+    Step("stride_warp", "frame", StrideWarpStep.build),
+    Step("foot_lock", "frame", FootLockStep.build),
+    Step("exact_arrival", "after", lambda parts: ExactArrival(ArrivalCorrector(parts.skeleton))),  # per request
+)
+
+
+class FrameSteps:
+    """The ``frame`` steps of :data:`STEPS` that a bundle's settings switch on, run in order on one frame.
+
+    Each character's memory is a dict of named rows ``[N, ...]`` (:attr:`keys`: each step's, in order).
+    Eager and traced paths share this code.
+    """
+
+    def __init__(self, skeleton: Skeleton, steps: dict[str, FrameStep]) -> None:
+        self.parents, self.root = list(skeleton.parents), skeleton.roles.root
+        self.steps = steps
+        self.keys: tuple[str, ...] = tuple(k for step in steps.values() for k in step.MEMORY_KEYS)
+
+    def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
+        """One character's memory of every step, from its context ``[T, J, 4]`` (unit quaternions), ``[T, 3]``."""
+        memory: dict[str, Tensor] = {}
+        for step in self.steps.values():
+            memory.update(step.start(rotations, roots))
+        return memory
+
+    def __call__(self, pose: PoseState, yaw: Tensor, origin: Tensor, remaining: Tensor, memory: dict[str, Tensor],
+                 eager: bool = True, shift: Tensor | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Local rotations ``[N, J, 4]``, root positions ``[N, 3]`` (world) and the new memory, for rows with
+        ``remaining [N]`` frames after this one; ``shift [N, 2]``: the ground shift steering gave each row's
+        body this frame (canonical x, z; :mod:`model.inference.output.steering`)."""
+        frame = Frame(pose, yaw, origin, remaining, shift, self.parents, self.root, eager)
+        new: dict[str, Tensor] = {}
+        for step in self.steps.values():
+            step(frame, memory, new)
+        return frame.local, frame.root, new
+
+
+class OutputPipeline:
+    """:data:`STEPS` built for one skeleton, fps and output settings: steering's settings for the recurrent
+    step, the frame steps, and exact arrival."""
+
+    def __init__(self, skeleton: Skeleton, fps: float, settings: OutputConfig) -> None:
+        parts = StepParts(skeleton, fps, settings)
+        built = {s.name: (s.where, s.build(parts)) for s in STEPS}
+        self.settings = settings
+        self.steering: SteeringConfig = built["steering"][1]
+        self.arrival: ExactArrival = built["exact_arrival"][1]
+        self.frame = FrameSteps(skeleton, {name: step for name, (where, step) in built.items()
+                                           if where == "frame" and step is not None})
+
+    def step(self, name: str) -> FrameStep | None:
+        """The frame step ``name`` of :data:`STEPS`, or None where these settings switch it off."""
+        return self.frame.steps.get(name)
