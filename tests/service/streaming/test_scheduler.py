@@ -63,6 +63,7 @@ def _batch_histogram(url: str) -> tuple[float, float]:
     return count, single
 
 
+@pytest.mark.slow  # 32 streams against a server
 def test_32_concurrent_streams_match_one_at_a_time(server):
     style_id = httpx.post(server.url + "/v1/styles", json={"name": "w", "motion": bvh(walk(120))}).json()["style_id"]
     requests = [_request(i, style_id) for i in range(8)]
