@@ -72,6 +72,7 @@ def test_the_new_style_is_built_in_on_its_own_weights_and_the_rest_is_kept(setup
     assert torch.allclose(fresh.context.keys1, new.context.keys1, atol=1e-5)
 
 
+@pytest.mark.slow  # fine-tunes a bundle
 def test_a_style_is_added_in_place_once(setup, capsys):
     tmp_path, _, bouncy = setup
     args = _args(tmp_path, bouncy[:2])
