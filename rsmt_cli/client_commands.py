@@ -19,7 +19,8 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import Any, cast
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -105,7 +106,8 @@ def _skip_httpx_cli() -> None:
     call: about a third of a client command's start-up. Done only in this process, before httpx loads;
     ``httpx.main`` then says its dependencies are missing."""
     if "httpx" not in sys.modules:
-        sys.modules.setdefault("httpx._main", None)  # type: ignore[arg-type]
+        # None in sys.modules makes an import of that name fail (Python's import system documents it).
+        cast(dict[str, ModuleType | None], sys.modules).setdefault("httpx._main", None)
 
 
 def _retry(args: argparse.Namespace) -> Any:

@@ -6,9 +6,14 @@ import argparse
 import json
 import shlex
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from model.data.location import find_data_dir, require_data_dir
 from rsmt_cli.output_arguments import add_output_arguments, output_flags, output_overrides
+
+if TYPE_CHECKING:
+    from model.evaluation.methods import Method
+    from model.evaluation.runner import EvalRun
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -96,7 +101,7 @@ def eval_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stream_retarget(run, methods, target_frames: int) -> str:
+def _stream_retarget(run: EvalRun, methods: list[Method], target_frames: int) -> str:
     """Each bundle's stream-retarget figures (added to the report) as a Markdown table."""
     from model.evaluation.methods import BundleMethod
     from model.evaluation.stream_retarget import RetargetSettings, retarget_report
@@ -146,7 +151,7 @@ def _command(args: argparse.Namespace) -> str:
     return " ".join(shlex.quote(p) for p in parts)
 
 
-def write_outputs(run, folder: Path, text: str) -> list[Path]:
+def write_outputs(run: EvalRun, folder: Path, text: str) -> list[Path]:
     """report.json, report.md, reference_stats.json, metrics_over_gap.png, controls.png and contact sheets
     (contact_sheet.png: the 40-frame gap; contact_sheet_d-1.png: its target moved behind, d = -1)."""
     from model.evaluation.cases import variant

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from model.motion.bvh import BvhDocument, BvhJoint
+from model.motion.bvh_parser import vec3
 from model.motion.standing_pose import FORWARD, UP, Pose, Rig, arms_lowered, t_pose, unit
 
 ARMS_DOWN_DEG = 40.0      # the sample motion lowers the arms by this much
@@ -74,7 +75,7 @@ def to_bvh(rig: Rig, poses: list[Pose], fps: float) -> str:
         end = rig.end_sites.get(j)
         if end is None and not rig.children(j):
             end = (0.0, 0.0, 0.0)
-        joints.append(BvhJoint(name, rig.parents[j], tuple(float(v) for v in rig.offsets[j]), channels, end))  # type: ignore[arg-type]
+        joints.append(BvhJoint(name, rig.parents[j], vec3(rig.offsets[j]), channels, end))
     rows = []
     for pose in poses:
         row = list(pose.root)

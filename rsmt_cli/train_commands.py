@@ -40,15 +40,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         p.add_argument("--config", type=Path,
                        help="a complete training config JSON (e.g. a run's train_config.json); overrides --preset")
         p.add_argument("--preset", default="default",
-                       help="a preset in model/train/recipes/ by name (base.json with the preset's changes): default, "
-                            "paper, smoke, the shipped recipe's stages two-hour-* and cross-style-*, ... (default: default)")
+                       help="a preset in model/train/recipes/ or its experiments/ by name (base.json with the preset's "
+                            "changes): default, smoke, the shipped recipe's stages two-hour-*, cross-style-* and "
+                            "control-1-one-frame, trials such as paper, ... (default: default)")
         # --run-dir: the same option under torchrun, whose own parser rejects --run as an ambiguous --run-path.
         p.add_argument("--run", "--run-dir", dest="run", type=Path,
                        help="run folder for checkpoints and stage weights (default: ~/.cache/rsmt/runs/NAME); "
                             "write --run-dir under torchrun")
         p.add_argument("--time-limit", type=float, default=0.0, metavar="S",
                        help="stop each stage after S seconds with a checkpoint; run again to resume")
-        p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+        add_set_argument(p)
+        p.add_argument("--threads", type=int, default=0,
+                       help="torch threads (default: the config's threads, 1 in every preset; 0 there: torch's choice)")
         p.add_argument("--compile", action="store_true",
                        help="train the sampler's per-frame functions through torch.compile: about 20%% faster "
                             "sampler steps after a minute or two of compiling (needs a C++ compiler on the CPU)")
@@ -84,6 +87,7 @@ def _register_recipe(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
     p.add_argument("--run", type=Path, help="run folder of every stage (default: ~/.cache/rsmt/runs/recipe-NAME)")
     p.add_argument("--out", type=Path, help="folder of the packaged bundle")
+    add_set_argument(p, "of every stage, on top of its preset and the recipe's changes")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: each preset's own setting)")
     p.add_argument("--compile", action="store_true",
                    help="train the sampler's per-frame functions through torch.compile (as rsmt train --compile)")
@@ -93,6 +97,14 @@ def _register_recipe(sub: argparse._SubParsersAction) -> None:
     add_device_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_recipe)
+
+
+def add_set_argument(parser: argparse.ArgumentParser, what: str = "on top of --preset or --config") -> None:
+    """``--set KEY=VALUE`` (repeatable): one training setting, dotted as in a preset file."""
+    parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"change one training setting {what} (repeatable); the key dotted as in "
+                             "model/train/recipes/base.json, the value of that setting's type, lists comma-separated: "
+                             "--set sampler_stage.loop.iterations=200 --set sampler_stage.loop.restart_at=100,150")
 
 
 def add_device_argument(parser: argparse.ArgumentParser) -> None:
@@ -116,15 +128,21 @@ def resolve_cli_device(name: str) -> torch.device:
 
 
 def load_config(args: argparse.Namespace) -> TrainConfig:
-    """The config of ``--config`` (a complete one), else of ``--preset``."""
+    """The config of ``--config`` (a complete one), else of ``--preset``, with the ``--set`` settings."""
+    from model.train.config_settings import setting_changes
     from model.train.pipeline import TrainConfig
-    from model.train.presets import load_preset
+    from model.train.presets import deep_merge, load_preset
 
+    changes = setting_changes(args.settings, TrainConfig)
     if args.config is None:
-        return load_preset(args.preset)
+        return load_preset(args.preset, changes=changes)
     if not args.config.is_file():
         raise FileNotFoundError(f"no training config {args.config}")
-    return TrainConfig.load(args.config)
+    cfg = TrainConfig.load(args.config)
+    try:
+        return TrainConfig.from_dict(deep_merge(cfg.to_dict(), changes))
+    except TypeError as exc:
+        raise ValueError(f"{args.config} with --set: not a valid training config: {exc}") from exc
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -192,6 +210,13 @@ def _run_recipe(args: argparse.Namespace) -> int:
     if args.name is None or args.out is None:
         raise ValueError("name a recipe and its bundle: rsmt train recipe NAME --out BUNDLE (--list shows the recipes)")
     recipe = load_recipe(args.name)
+    if args.settings:
+        from model.train.config_settings import setting_changes
+        from model.train.pipeline import TrainConfig
+        from model.train.presets import deep_merge
+
+        changes = deep_merge(recipe.changes, setting_changes(args.settings, TrainConfig), new_keys=True)
+        recipe = dataclasses.replace(recipe, changes=changes)
     if distributed.launched():
         raise ValueError("rsmt train recipe runs in one process; under torchrun, run its stages with rsmt train all|sampler")
     device = resolve_cli_device(args.device)

@@ -4,6 +4,7 @@ the routes, the stream connections and the schedulers update, exported at ``GET 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any
 
 from prometheus_client import (
     CollectorRegistry,
@@ -14,6 +15,9 @@ from prometheus_client import (
     generate_latest,
 )
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+
+if TYPE_CHECKING:
+    from model.inference.style_codes import LRUCache
 
 LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
 BATCH_BUCKETS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024)
@@ -59,7 +63,7 @@ class Metrics:
         self.closes = Counter("rsmt_ws_closes", "WebSocket closes initiated by the server, by close code",
                               ["code"], registry=r)
 
-    def watch_style_caches(self, caches: Callable[[], Iterable[tuple[str, object]]]) -> None:
+    def watch_style_caches(self, caches: Callable[[], Iterable[tuple[str, LRUCache[Any]]]]) -> None:
         """Export hit/miss/size series of each model's style cache (``(model name, LRUCache)`` pairs)."""
         self.registry.register(_StyleCacheCollector(caches))
 
@@ -68,7 +72,7 @@ class Metrics:
 
 
 class _StyleCacheCollector:
-    def __init__(self, caches: Callable[[], Iterable[tuple[str, object]]]) -> None:
+    def __init__(self, caches: Callable[[], Iterable[tuple[str, LRUCache[Any]]]]) -> None:
         self._caches = caches
 
     def describe(self) -> list[Metric]:
@@ -81,10 +85,10 @@ class _StyleCacheCollector:
         entries = GaugeMetricFamily("rsmt_style_cache_entries", "styles in the cache", labels=["model"])
         size = GaugeMetricFamily("rsmt_style_cache_bytes", "bytes held by cached style codes", labels=["model"])
         for name, cache in self._caches():
-            stats = cache.stats  # type: ignore[attr-defined]
+            stats = cache.stats
             hits.add_metric([name], stats.hits)
             misses.add_metric([name], stats.misses)
             evictions.add_metric([name], stats.evictions)
-            entries.add_metric([name], len(cache))  # type: ignore[arg-type]
-            size.add_metric([name], cache.bytes)  # type: ignore[attr-defined]
+            entries.add_metric([name], len(cache))
+            size.add_metric([name], cache.bytes)
         yield from (hits, misses, evictions, entries, size)

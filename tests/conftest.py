@@ -29,3 +29,21 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+# The slow tier (`python -m pytest -m "not slow"` leaves it out): besides the tests marked slow in their
+# files, every test on the real motion data and every test needing one of these fixtures.
+SLOW_FIXTURES = {
+    "harness_exe": "compiles the Unity core with Mono's mcs",
+    "core_test_exe": "compiles the Unreal core with g++",
+    "failover_exe": "compiles the Unreal failover harness with g++",
+    "browser": "drives headless chromium",
+    "redis_server": "starts a redis-server",
+}
+
+
+@pytest.hookimpl(tryfirst=True)  # before -m selects by mark
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("real_data") or SLOW_FIXTURES.keys() & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)

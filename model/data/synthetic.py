@@ -8,6 +8,7 @@ gait along a path that may turn; it is plausible in shape, not physically exact.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import torch
 
@@ -102,13 +103,11 @@ SYNTHETIC_STYLES = {
 SYNTHETIC_CONTENTS = {"walk": 0.0, "walk-turn-left": 40.0, "walk-turn-right": -40.0}
 
 
-def write_synthetic_dataset(folder, takes_per_pair: int = 3, frames: int = 150, fps: float = 30.0) -> list:
+def write_synthetic_dataset(folder: str | Path, takes_per_pair: int = 3, frames: int = 150, fps: float = 30.0) -> list:
     """Write BVH takes named like Bandai-Namco's (``dataset-2_{content}_{style}_{NNN}.bvh``).
 
     3 styles x 3 contents x ``takes_per_pair`` takes of procedural walking; returns the paths.
     """
-    from pathlib import Path
-
     from model.motion.bvh_clip import dump_clip
 
     folder = Path(folder)

@@ -10,11 +10,15 @@ top of its own travel) so the poses do not overlap; the dashed grey figure is th
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import torch
 
 from model.motion.skeleton import Skeleton
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 GT_NAME = "ground truth"
 GAP_METRICS = (
@@ -27,7 +31,7 @@ GAP_METRICS = (
 )
 
 
-def _plt():
+def _plt() -> ModuleType:
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -100,7 +104,7 @@ def plot_controls(report: dict[str, Any], path: str | Path) -> Path:
     return path
 
 
-def _draw_pose(ax, pose: torch.Tensor, parents: tuple[int, ...], x_shift: float, **style) -> None:
+def _draw_pose(ax: Axes, pose: torch.Tensor, parents: tuple[int, ...], x_shift: float, **style: Any) -> None:
     for j, p in enumerate(parents):
         if p < 0:
             continue

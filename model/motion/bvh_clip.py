@@ -23,6 +23,7 @@ from model.motion.bvh_parser import (
     ROTATION_CHANNELS,
     Vec3,
     fps_from_frame_time,
+    vec3,
 )
 from model.motion.clip import Clip
 from model.motion.rotations import (
@@ -130,8 +131,8 @@ def _static_offsets(doc: BvhDocument, joints: Sequence[int], clip_name: str) -> 
                         "one fixed offset per bone, so the mean is used",
                         clip_name or "BVH", joint.name, channel, deviation, mean,
                     )
-        offsets.append(tuple(offset))
-    return offsets  # type: ignore[return-value]
+        offsets.append(vec3(offset))
+    return offsets
 
 
 def to_clip(
@@ -169,9 +170,9 @@ def to_clip(
 
     new_index = {j: n for n, j in enumerate(kept)}
     parents = [-1] + [new_index[doc.joints[j].parent] for j in kept[1:]]
-    end_sites = tuple((new_index[j], doc.joints[j].end_site) for j in kept if doc.joints[j].end_site is not None)
+    end_sites = tuple((new_index[j], end) for j in kept if (end := doc.joints[j].end_site) is not None)
     skeleton = Skeleton.build(
-        [doc.joints[j].name for j in kept], parents, offsets, profile=prof, end_sites=end_sites  # type: ignore[arg-type]
+        [doc.joints[j].name for j in kept], parents, offsets, profile=prof, end_sites=end_sites
     )
     if frames:
         # Sign continuity over time so finite differences and interpolation behave.

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from itertools import chain
 from typing import Any
@@ -16,6 +16,13 @@ from typing import Any
 import numpy as np
 
 Vec3 = tuple[float, float, float]
+
+
+def vec3(values: Iterable[float]) -> Vec3:
+    """Three numbers as a ``Vec3`` (ValueError when there are more or fewer)."""
+    x, y, z = values
+    return (float(x), float(y), float(z))
+
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
@@ -291,10 +298,10 @@ class _Parser:
         vals = self.rest_of_line(line)
         if len(vals) != 3:
             raise self.error(f"{what}: expected 3 numbers, found {len(vals)}", line)
-        out = tuple(self.number(v, line, what) for v in vals)
+        out = vec3(self.number(v, line, what) for v in vals)
         if not all(math.isfinite(v) for v in out):
             raise self.error(f"{what}: not a finite number", line)
-        return out  # type: ignore[return-value]
+        return out
 
     def channels(self, line: int, name: str) -> tuple[str, ...]:
         words = self.rest_of_line(line)

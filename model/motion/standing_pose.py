@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from model.motion.bvh_parser import vec3
+
 if TYPE_CHECKING:
     from model.motion.skeleton import Skeleton
 
@@ -46,9 +48,9 @@ class Rig:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Rig:
         joints = data["joints"]
-        ends = {int(e["joint"]): tuple(float(v) for v in e["offset"]) for e in data.get("end_sites", [])}
+        ends = {int(e["joint"]): vec3(e["offset"]) for e in data.get("end_sites", [])}
         return cls(tuple(j["name"] for j in joints), tuple(int(j["parent"]) for j in joints),
-                   np.array([j["offset"] for j in joints], dtype=np.float64), ends,  # type: ignore[arg-type]
+                   np.array([j["offset"] for j in joints], dtype=np.float64), ends,
                    dict(data["roles"]), str(data.get("units", "cm")))
 
     @classmethod

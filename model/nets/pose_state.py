@@ -22,6 +22,8 @@ import torch
 from model.motion.rotations import sixd_normalize
 
 Tensor = torch.Tensor
+# What indexes a batch of frames: rows, a slice, a mask or index tensor, or one of each per leading dimension.
+TensorIndex = int | slice | Tensor | tuple[int | slice | Tensor, ...]
 
 
 @dataclass(frozen=True)
@@ -48,7 +50,7 @@ class PoseState:
         )
         return self.rel + ground.unsqueeze(-2)
 
-    def index(self, idx) -> PoseState:
+    def index(self, idx: TensorIndex) -> PoseState:
         return PoseState(self.rel[idx], self.vel[idx], self.rot[idx], self.root_xz[idx])
 
     def contiguous(self) -> PoseState:

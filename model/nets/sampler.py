@@ -20,7 +20,7 @@ from torch import nn
 from model.motion.rotations import sixd_normalize
 from model.nets.manifold import ManifoldDecoder
 from model.nets.phase import PhaseEstimator, advance_phase, blend_phase
-from model.nets.pose_state import PoseState, state_dim
+from model.nets.pose_state import PoseState, TensorIndex, state_dim
 
 Tensor = torch.Tensor
 
@@ -166,7 +166,7 @@ class StyleContext:
     values2: Tensor
     mask: Tensor
 
-    def index(self, idx) -> StyleContext:
+    def index(self, idx: TensorIndex) -> StyleContext:
         return StyleContext(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
 
     @property

@@ -133,7 +133,8 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     val_gen = torch.Generator().manual_seed(cfg.loop.seed + 1)
     val_sets = [pairs.sample(8, val_gen) for _ in range(2)]
 
-    def run_losses(starts, owners, style_starts, length, gen, training):
+    def run_losses(starts: torch.Tensor, owners: torch.Tensor, style_starts: torch.Tensor, length: int,
+                   gen: torch.Generator | None, training: bool) -> dict[str, torch.Tensor]:
         batch = make_batch(tensors, starts, owners, c.context + length, c.context - 1)
         pos, rot = tensors.gather(style_starts, style_frames)
         feats = local_frame_features(pos, rot, tensors.skeleton)

@@ -29,7 +29,7 @@ from model.nets.sampler import SamplerConfig, TransitionSampler
 from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig
 from model.train import distributed
 from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
-from model.train.loop import resolve_device
+from model.train.loop import LoopConfig, resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton
 from model.train.phase_stage import PhaseStageConfig, label_tensors, phase_summary, train_phase
@@ -39,6 +39,24 @@ from model.train.velocity_flag import widen_checkpoint
 
 log = logging.getLogger(__name__)
 STAGES = ("phase", "manifold", "sampler")
+
+
+# A run's defaults are the default preset's, every value of recipes/base.json (tests/model/train/test_presets.py
+# holds the two equal): networks of the compact size, and the sampler schedule the shipped model's recipe builds
+# on. The stage and network classes keep their own defaults (every extra loss off) for what builds them alone.
+def _compact_sampler() -> SamplerConfig:
+    return SamplerConfig(style_channels=192, width=192, rnn=256, head=192)
+
+
+def _compact_manifold() -> ManifoldConfig:
+    return ManifoldConfig(hidden=192)
+
+
+def _default_sampler_stage() -> SamplerStageConfig:
+    loop = LoopConfig(iterations=15000, epoch_iterations=400, lr=1e-3, weight_decay=1e-4, restart_at=(8000, 12000),
+                      restart_lr=(3e-4, 2e-4))
+    return SamplerStageConfig(loop=loop, w_vel=1.0, w_acc=2.0, w_spectrum=0.2, w_foot_height=0.3, w_style=0.1,
+                              cross_batch=16, extra_losses_from=12000)
 
 
 @dataclass
@@ -53,13 +71,13 @@ class TrainConfig:
     ratios: tuple[float, float, float] = (0.8, 0.1, 0.1)
     holdout_styles: tuple[str, ...] = ()
     augment: bool = True
-    threads: int = 0
-    sampler: SamplerConfig = field(default_factory=SamplerConfig)
-    manifold: ManifoldConfig = field(default_factory=ManifoldConfig)
+    threads: int = 1  # torch threads (0: torch's choice); --threads sets it for the machine at hand
+    sampler: SamplerConfig = field(default_factory=_compact_sampler)
+    manifold: ManifoldConfig = field(default_factory=_compact_manifold)
     phase: PhaseConfig = field(default_factory=PhaseConfig)
     phase_stage: PhaseStageConfig = field(default_factory=PhaseStageConfig)
     manifold_stage: ManifoldStageConfig = field(default_factory=ManifoldStageConfig)
-    sampler_stage: SamplerStageConfig = field(default_factory=SamplerStageConfig)
+    sampler_stage: SamplerStageConfig = field(default_factory=_default_sampler_stage)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

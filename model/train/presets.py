@@ -7,6 +7,10 @@ merges it into the base: objects key by key, anything else (numbers, strings, li
 replaced whole. A preset may change another preset instead of the base by naming it in
 ``"extends"``. A key the base does not have is an error, so a misspelt setting cannot pass
 unnoticed.
+
+The presets a recipe chain runs (``recipes/chains/``) and the ``default`` of ``rsmt train`` live in
+``recipes/``; the trials no chain runs (stages tried and not shipped, paper-size networks, the
+held-out-style experiment) in ``recipes/experiments/``. Both load by name.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from model.train.pipeline import TrainConfig, fit_to_skeleton
 RECIPE_DIR = Path(__file__).resolve().parent / "recipes"
 BASE = "base"
 EXTENDS = "extends"  # the preset a preset changes (default: the base)
+EXPERIMENTS = "experiments"  # the subfolder of the presets no recipe chain runs
 
 
 def deep_merge(base: dict[str, Any], changes: dict[str, Any], where: str = "", new_keys: bool = False) -> dict[str, Any]:
@@ -57,16 +62,22 @@ def _read(path: Path) -> dict[str, Any]:
 
 
 def preset_names(folder: Path = RECIPE_DIR) -> list[str]:
-    """The presets in ``folder``, by name (the base is not one)."""
-    return sorted(p.stem for p in folder.glob("*.json") if p.stem != BASE)
+    """The presets in ``folder`` and its ``experiments`` subfolder, by name (the base is not one)."""
+    files = [*folder.glob("*.json"), *(folder / EXPERIMENTS).glob("*.json")]
+    return sorted(p.stem for p in files if p.stem != BASE)
+
+
+def preset_path(name: str, folder: Path = RECIPE_DIR) -> Path:
+    """The file of the preset ``name``: in ``folder``, else in its ``experiments`` subfolder."""
+    for path in (folder / f"{name}.json", folder / EXPERIMENTS / f"{name}.json"):
+        if name != BASE and path.is_file():
+            return path
+    raise FileNotFoundError(f"no training preset {name!r} in {folder}; presets: {', '.join(preset_names(folder))}")
 
 
 def preset_changes(name: str, folder: Path = RECIPE_DIR) -> dict[str, Any]:
     """The preset file's own content: the settings it changes, its ``about`` and maybe ``extends``."""
-    path = folder / f"{name}.json"
-    if name == BASE or not path.is_file():
-        raise FileNotFoundError(f"no training preset {name!r} in {folder}; presets: {', '.join(preset_names(folder))}")
-    return _read(path)
+    return _read(preset_path(name, folder))
 
 
 def preset_dict(name: str, folder: Path = RECIPE_DIR, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
@@ -79,7 +90,7 @@ def preset_dict(name: str, folder: Path = RECIPE_DIR, _seen: tuple[str, ...] = (
     try:
         return deep_merge(start, changes)
     except ValueError as exc:
-        raise ValueError(f"{folder / f'{name}.json'}: {exc}") from exc
+        raise ValueError(f"{preset_path(name, folder)}: {exc}") from exc
 
 
 def base_dict(folder: Path = RECIPE_DIR) -> dict[str, Any]:

@@ -67,10 +67,10 @@ class SamplerStageConfig:
     warp_factor: float = 2.0
     warp_ramp: int = 10
     # The warped windows' own foot-slide loss (feet that the replay keeps planted), added with this weight on
-    # top of the batch's mean: without it a sampler reaches further by gliding (docs/experiments/2026-11-26-time-warp.md).
+    # top of the batch's mean: without it a sampler reaches further by gliding (docs/experiments/archive/2026-11-26-time-warp.md).
     w_warp_foot: float = 0.0
     # Train the manifold's decoder with the sampler (the paper freezes it after its own stage): whether a
-    # decoder fitted to natural speeds is what keeps warped windows sliding (docs/experiments/2026-11-26-time-warp.md).
+    # decoder fitted to natural speeds is what keeps warped windows sliding (docs/experiments/archive/2026-11-26-time-warp.md).
     train_decoder: bool = False
     # The decoder's learning rate as a fraction of the stage's (with train_decoder): trained at the full rate from
     # stage F it cost pose accuracy and style (G6); a gentler rate keeps it near the manifold it was fitted as.

@@ -77,8 +77,8 @@ def average_bundles(bundles: Sequence[Bundle], weights: Sequence[float] | None =
         out.phase_model = None
     else:
         assert out.phase_model is not None
-        out.phase_model.load_state_dict(_mix([b.phase_model.state_dict() for b in bundles], weights),  # type: ignore[union-attr]
-                                        strict=True)
+        phases = [b.phase_model for b in bundles if b.phase_model is not None]  # every one (_check_same_shape)
+        out.phase_model.load_state_dict(_mix([p.state_dict() for p in phases], weights), strict=True)
     out.output = first.output
     out.inference = first.inference
     out.sampler.eval()

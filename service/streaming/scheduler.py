@@ -339,9 +339,9 @@ class Scheduler:
             encoded = encode_binary(slots, seqs[rows], t[rows], roots[rows], rotations[rows], remaining[rows])
             for i, data in zip(binary, encoded, strict=True):
                 payloads[i] = data
-        for i, s in enumerate(streams):
-            if payloads[i] is None:
-                payloads[i] = encode_json(s.id, s.slot, int(seqs[i]), float(t[i]), int(remaining[i]), roots[i], rotations[i])
         for i, (s, ch) in enumerate(zip(streams, chars, strict=True)):
-            result.frames.append((s, int(seqs[i]), payloads[i], ch.done))  # type: ignore[arg-type]
+            payload = payloads[i]
+            if payload is None:
+                payload = encode_json(s.id, s.slot, int(seqs[i]), float(t[i]), int(remaining[i]), roots[i], rotations[i])
+            result.frames.append((s, int(seqs[i]), payload, ch.done))
 

@@ -51,6 +51,7 @@ def _files(folder) -> dict[str, str]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow  # fine-tunes a bundle
 def test_the_new_style_is_built_in_on_its_own_weights_and_the_rest_is_kept(setup, capsys):
     tmp_path, _, bouncy = setup
     assert main(_args(tmp_path, bouncy[:3])) == 0
@@ -71,6 +72,7 @@ def test_the_new_style_is_built_in_on_its_own_weights_and_the_rest_is_kept(setup
     assert torch.allclose(fresh.context.keys1, new.context.keys1, atol=1e-5)
 
 
+@pytest.mark.slow  # fine-tunes a bundle
 def test_a_style_is_added_in_place_once(setup, capsys):
     tmp_path, _, bouncy = setup
     args = _args(tmp_path, bouncy[:2])
@@ -108,6 +110,7 @@ def test_clips_name_and_out_folder_are_checked_before_training(setup, capsys):
     assert "already has a built-in style 'slow'" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # fine-tunes a bundle
 def test_a_run_folder_of_other_settings_is_refused_not_mixed_in(setup, capsys):
     tmp_path, _, bouncy = setup
     run = tmp_path / "run"

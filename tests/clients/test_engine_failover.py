@@ -22,7 +22,7 @@ from tests.clients.failover_run import FRAMES, KILL_AFTER, Delivered, check, kil
 from tests.clients.helpers import API_KEY, build_core_test, mono_tools, unity_to_model, unreal_to_model
 from tests.service.server import Server
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]  # slow: compiles with mcs and g++
 
 
 def run_until_killed(cmd: list[str], bundle: Path, port: int, first, timeout: float = 150) -> tuple[int, str, str]:

@@ -11,6 +11,8 @@ import pytest
 from rsmt_cli.main import main as rsmt_main
 from tests.clients.helpers import API_KEY
 
+pytestmark = pytest.mark.slow  # load tests against spawned servers
+
 CHARACTERS, PER_CONNECTION, FRAMES = 5, 2, 12
 
 

@@ -23,7 +23,7 @@ from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import axis_angle_to_quat, matrix_to_quat, quat_mul, quat_rotate, quat_to_matrix, yaw_quat
 from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, mono_tools, run
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]  # slow: compiles with mcs and g++
 
 REFERENCE = REPO / "clients" / "rig" / "rsmt-default-rig.tpose.json"
 MIRROR_X = np.diag([-1.0, 1.0, 1.0])                                          # model -> Unity (then metres)

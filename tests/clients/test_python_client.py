@@ -328,6 +328,7 @@ def test_async_retries():
     assert asyncio.run(go()) == {"name": "m"} and retried == [(0, 503)] and len(calls) == 2
 
 
+@pytest.mark.slow  # waits out Retry-After
 def test_live_429_is_retried_after_retry_after(client_bundle, motions):
     """A server with a tiny rate limit (1 request/s, burst 1): the client waits as told and gets through."""
     srv = Server(client_bundle, env={"RSMT_RATE_LIMIT_PER_S": "1", "RSMT_RATE_LIMIT_BURST": "1",

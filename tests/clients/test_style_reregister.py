@@ -12,6 +12,8 @@ from rsmt_client import AsyncClient, Client, RsmtError
 from tests.clients.helpers import API_KEY
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # restarts servers under the client
+
 OTHER_KEY = "client-tests-other-0123456789abcdef"
 
 

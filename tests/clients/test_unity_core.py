@@ -13,7 +13,7 @@ from rsmt_client import Client
 
 from tests.clients.helpers import API_KEY, FRAMES, SEED, UNITY, json_lines, mono_tools, run, run_harness, unity_to_model
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]  # slow: compiles with Mono's mcs
 
 
 def test_core_selftest(harness_exe):

@@ -34,7 +34,7 @@ def install(delay_s: float) -> None:
         time.sleep(delay_s)
         return original(self, *args, **kwargs)
 
-    Engine.generate = generate  # type: ignore[method-assign]
+    setattr(Engine, original.__name__, generate)
 
 
 if __name__ == "__main__":

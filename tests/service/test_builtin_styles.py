@@ -21,6 +21,8 @@ from tests.service.conftest import transition_body
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
+pytestmark = pytest.mark.slow  # a server with built-in styles and a fine-tuned bundle
+
 KEY_A, KEY_B = "a" * 24, "b" * 24
 
 

@@ -31,6 +31,8 @@ from tests.model.motion.bvh_strategies import ANY_BVH_TEXT, HOSTILE_NUMBERS, WOR
 from tests.service.conftest import bvh, walk
 from tests.service.wsclient import Ws
 
+pytestmark = pytest.mark.slow  # fuzzes the API (schemathesis, hypothesis)
+
 SCALE = max(1, int(os.environ.get("RSMT_FUZZ_SCALE", "1")))
 
 

@@ -12,12 +12,14 @@ import threading
 import time
 
 import httpx
+import pytest
 from websockets.exceptions import ConnectionClosed
 
 from tests.service.server import Server
 from tests.service.wsclient import Ws
 
 
+@pytest.mark.slow  # starts and stops rsmt serve
 def test_rsmt_serve_sigterm(bundle_dir):
     # Exactly the container's command, on a free loopback port; the model comes from RSMT_MODELS.
     srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"],
@@ -68,6 +70,7 @@ def test_rsmt_serve_sigterm(bundle_dir):
     assert announced["stopped"]["url"] == srv.url and events[-1]["event"] == "stopped"
 
 
+@pytest.mark.slow  # starts rsmt serve
 def test_rsmt_serve_says_where_it_is_in_text(bundle_dir):
     srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}", "--log-format", "text"])
     srv.start()
@@ -84,6 +87,7 @@ def test_rsmt_serve_says_where_it_is_in_text(bundle_dir):
     assert code in (0, -signal.SIGTERM), (code, lines)
 
 
+@pytest.mark.slow  # starts rsmt serve with worker processes
 def test_rsmt_serve_workers_get_the_command_line_settings(bundle_dir, tmp_path):
     # The environment points nowhere: the workers can only serve if --models reaches them.
     srv = Server(bundle_dir, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}", "--workers", "2",
@@ -97,6 +101,7 @@ def test_rsmt_serve_workers_get_the_command_line_settings(bundle_dir, tmp_path):
     assert code in (0, -signal.SIGTERM), (code, srv.logs())
 
 
+@pytest.mark.slow  # starts rsmt serve processes
 def test_no_model_fails_at_startup_with_a_hint(tmp_path):
     out = subprocess.run(["rsmt", "serve", "--port", "0", "--models", str(tmp_path / "none")], capture_output=True,
                          text=True, timeout=120)

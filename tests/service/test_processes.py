@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import socket
 
+import pytest
+
 from tests.service.processes import HaproxyProcess, RedisProcess
 
 
+@pytest.mark.slow  # starts haproxy
 def test_a_port_taken_before_haproxy_binds_it_is_chosen_again() -> None:
     lb = HaproxyProcess([1])  # no replica needs to answer for haproxy to listen
     taken = lb.stats_port
@@ -23,6 +26,7 @@ def test_a_port_taken_before_haproxy_binds_it_is_chosen_again() -> None:
         lb.cleanup()
 
 
+@pytest.mark.slow  # starts redis-server
 def test_a_port_taken_before_redis_binds_it_is_chosen_again_and_a_restart_keeps_port_and_data() -> None:
     srv = RedisProcess()
     taken = srv.port

@@ -13,6 +13,8 @@ from tests.service.conftest import bvh, walk
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
+pytestmark = pytest.mark.slow  # warms every lane of a server of its own
+
 
 @pytest.fixture(scope="module")
 def server(bundle_dir):

@@ -10,6 +10,8 @@ import pytest
 from tests.service.server import Server
 from tests.service.wsclient import Ws
 
+pytestmark = pytest.mark.slow  # spends rate limits against a server of its own
+
 BURST = 6
 
 

@@ -187,6 +187,7 @@ def test_cache_root_setting(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> 
     assert cache_root() == Path.home() / ".cache" / "rsmt" / "preprocessed"
 
 
+@pytest.mark.slow  # starts a process pool
 def test_process_pool_gives_the_same_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     make_bandai_tree(tmp_path / "data", takes_per_group=2)
     (tmp_path / "data" / "data" / "dataset-2_run_active_001.bvh").write_text("HIERARCHY\nROOT\n")

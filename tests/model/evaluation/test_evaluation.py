@@ -166,6 +166,7 @@ def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
     assert "| 40 | interp |" in text and "gap 40, d=-1" in text and "n/a" in text
 
 
+@pytest.mark.slow  # trains a classifier and runs rsmt eval
 def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bundle_dir: Path, classifier_dir: Path,
                                                  judge_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
@@ -240,6 +241,7 @@ def test_bundle_is_deterministic_without_noise(cache: MotionCache, bundle_dir: P
     assert not torch.equal(s1[1], s2[1])
 
 
+@pytest.mark.slow  # evaluates a bundle three times
 def test_noise_samples_as_a_default_request_does_reproducibly(cache: MotionCache, bundle_dir: Path, stats) -> None:
     def gap40(settings: EvalSettings) -> tuple[float, str]:
         run = evaluate(cache, [BundleMethod(bundle_dir)], settings, progress=False, stats=stats)

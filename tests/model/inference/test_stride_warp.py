@@ -108,9 +108,10 @@ def test_nothing_moves_without_a_shift_standing_or_on_arrival(case: str):
 
 
 def test_config_is_validated():
-    for bad in ({"reach": 0.0}, {"reach": 5.0}, {"reach": 1.0, "slow_cm_s": 50.0}, {"reach": 1.0, "settle": 2.0}):
+    for bad in (lambda: StrideWarpConfig(reach=0.0), lambda: StrideWarpConfig(reach=5.0),
+                lambda: StrideWarpConfig(reach=1.0, slow_cm_s=50.0), lambda: StrideWarpConfig(reach=1.0, settle=2.0)):
         with pytest.raises(ValueError):
-            StrideWarpConfig(**bad)  # type: ignore[arg-type]
+            bad()
     with pytest.raises(ValueError):
         OutputConfig(stride_warp=-1.0)
 

@@ -86,6 +86,7 @@ def smoke_config(**stage) -> dict:
     return cfg
 
 
+@pytest.mark.slow  # trains a sampler stage from a bundle
 def test_a_run_seeded_from_a_bundle_trains_with_unknown_velocities_and_turned_targets(tmp_path, monkeypatch):
     """``rsmt train sampler --from-bundle`` writes the bundle's stages into the run folder, the flag's
     column starts at zero (the same output for targets with their velocity), and the stage then trains

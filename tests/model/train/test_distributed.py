@@ -18,7 +18,7 @@ from torch import nn
 from model.train import distributed
 from model.train.loop import LoopConfig, step_generator, train_loop
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_thread")]  # slow: starts process groups (torch.distributed)
 
 WORLD = 2
 

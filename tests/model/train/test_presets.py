@@ -57,6 +57,25 @@ def test_the_base_is_a_complete_config():
     assert BASE not in PRESETS and "default" in PRESETS
 
 
+def test_the_base_holds_the_values_of_the_default_config():
+    """One set of defaults: TrainConfig() trains as base.json (its about, which describes the file, aside)."""
+    defaults = _flat(json.loads(json.dumps(TrainConfig().to_dict())))
+    base = _flat(_base())
+    differing = {k: (defaults.get(k), base.get(k)) for k in defaults.keys() | base.keys()
+                 if k != "about" and defaults.get(k) != base.get(k)}
+    assert not differing, f"TrainConfig() and base.json differ (code, base): {differing}"
+    assert training_differences(TrainConfig(), load_preset("default")) == []
+
+
+def test_presets_beside_the_base_are_those_a_chain_runs_and_the_default():
+    chained = {stage.preset for name in recipe_names() for stage in load_recipe(name).stages}
+    beside = {p.stem for p in RECIPE_DIR.glob("*.json")} - {BASE}
+    assert beside == chained | {"default"}
+    experiments = {p.stem for p in (RECIPE_DIR / "experiments").glob("*.json")}
+    assert experiments and not experiments & chained and set(PRESETS) == beside | experiments
+    assert load_preset("control-8-arrival").sampler_stage.w_last_pos == 6.0  # loads by name, extends control-1
+
+
 @pytest.mark.parametrize("name", PRESETS)
 def test_every_preset_loads_and_says_what_it_is_for(name):
     cfg = load_preset(name)

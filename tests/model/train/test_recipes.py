@@ -106,6 +106,7 @@ def _stage_lines(out: str) -> list[str]:
     return [line for line in out.splitlines() if line.startswith("stage ")]
 
 
+@pytest.mark.slow  # trains a recipe and its stages by hand
 def test_a_recipe_runs_end_to_end_packages_and_skips_finished_stages(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
@@ -178,6 +179,7 @@ def test_a_run_folder_with_a_gap_or_other_settings_is_refused_before_training(tm
     assert stage_folder(tmp_path, stage) == tmp_path / "stages" / "A"
 
 
+@pytest.mark.slow  # trains a recipe
 def test_held_out_styles_reach_every_stage_and_the_bundle_name(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"

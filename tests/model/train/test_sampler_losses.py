@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import cast
 
+import pytest
 import torch
 
 from model.train.sampler_losses import acceleration_profile, planted_foot_speed
@@ -211,6 +212,7 @@ def test_cross_style_windows_in_the_batch_rollout_score_as_in_a_rollout_of_their
             assert torch.allclose(a[key], b[key], rtol=1e-4, atol=1e-6), key
 
 
+@pytest.mark.slow  # torch.compile builds C++ with g++
 def test_compiled_steps_give_the_eager_losses_and_gradients_and_restore_the_model():
     """Training with ``--compile`` runs the per-frame functions through torch.compile; the losses and the
     gradients must be those of eager execution (to float rounding), and the model must be plain afterwards."""

@@ -107,6 +107,7 @@ def test_a_warped_window_is_the_plain_window_at_factor_one_and_ends_on_the_captu
     assert bool((travel > 1.7 * base).all())
 
 
+@pytest.mark.slow  # trains every stage
 def test_a_sampler_run_trains_on_warped_windows(tmp_path, monkeypatch):
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
@@ -131,6 +132,7 @@ def test_a_sampler_run_trains_on_warped_windows(tmp_path, monkeypatch):
     assert history[-1]["train_warp_fk_cm"] > 0 and history[-1]["train_warp_foot"] >= 0
 
 
+@pytest.mark.slow  # trains every stage twice
 def test_the_decoder_trains_with_the_sampler_only_when_asked(tmp_path, monkeypatch):
     from model.inference.bundle import Bundle
     from model.nets.manifold import ManifoldDecoder

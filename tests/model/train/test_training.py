@@ -19,6 +19,7 @@ from rsmt_cli.main import main
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
+@pytest.mark.slow  # trains every stage (synthetic data)
 def test_train_all_smoke_and_resume(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
@@ -53,6 +54,7 @@ def _checkpoint(tmp_path, name: str, stage: str) -> dict[str, torch.Tensor]:
     return load_file(str(tmp_path / f"run-{name}" / stage / "checkpoint.safetensors"))
 
 
+@pytest.mark.slow  # trains every stage twice
 def test_explicit_cpu_device_matches_default(tmp_path, monkeypatch, capsys):
     """``--device cpu`` trains exactly as a run without ``--device`` does on a machine without a GPU, in
     any process: same weights, optimiser moments and RNG state, bit for bit."""
@@ -113,6 +115,7 @@ def test_train_smoke_on_cuda_writes_a_cpu_bundle(tmp_path, monkeypatch, capsys):
     assert Bundle.load(tmp_path / "bundle-gpu").version == bundle.version
 
 
+@pytest.mark.slow  # trains critics and a sampler
 def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypatch):
     """With ``w_style`` the run trains its own style critics, one per input selection (once: a rerun
     reuses them), the sampler's steps score same-style and cross-style transitions with them from

@@ -53,6 +53,7 @@ def test_bundles_of_another_shape_and_bad_weights_are_refused():
         average_bundles([a])
 
 
+@pytest.mark.slow  # trains two bundles
 def test_rsmt_average_writes_a_loadable_bundle(tmp_path, capsys):
     _bundle(1).save(tmp_path / "a")
     _bundle(2).save(tmp_path / "b")

@@ -12,6 +12,8 @@ from websockets.sync.client import connect
 
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # floods a server with refused requests
+
 KEY = "key-body-0123456789abcdef"
 BURST = 5
 

@@ -18,6 +18,8 @@ from websockets.sync.client import connect
 
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # waits out header and body timeouts, holds many connections
+
 HEADER_S, BODY_S, HANDSHAKE_S, CAP = 6.0, 1.0, 1.0, 8
 CLOSE_MARGIN_S = 3.0
 LIMITS = {"RSMT_HEADER_TIMEOUT_S": str(HEADER_S), "RSMT_BODY_TIMEOUT_S": str(BODY_S),

@@ -8,6 +8,8 @@ import pytest
 
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # starts rsmt serve and uvicorn processes behind proxy settings
+
 LIMIT = {"RSMT_RATE_LIMIT_PER_S": "0.5", "RSMT_RATE_LIMIT_BURST": "3"}
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]
 

@@ -17,6 +17,8 @@ from tests.service.burst import Burst, metric, post, wait_for
 from tests.service.conftest import transition_body
 from tests.service.slow_engine import slow_server
 
+pytestmark = pytest.mark.slow  # fills the work queue of a slowed server
+
 DELAY_S = 5.0  # each transition holds the work thread this long: the queue stays full for at least that
 FRAMES = 10
 BODY_BYTES = 850_000

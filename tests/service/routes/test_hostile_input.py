@@ -10,6 +10,8 @@ from tests.service.conftest import bvh, context_clip, poses, transition_body, wa
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
+pytestmark = pytest.mark.slow  # hostile inputs and vanishing clients against a server of its own
+
 ZERO_CHANNELS = "HIERARCHY\nROOT Hips\n{\n\tOFFSET 0 0 0\n\tCHANNELS 0\n}\nMOTION\nFrames: %s\nFrame Time: 0.0333333\n"
 
 

@@ -204,6 +204,7 @@ def test_exact_arrival(server, styles):
         assert dots.min() > 1 - 1e-4
 
 
+@pytest.mark.slow  # streams up to the character limit
 def test_character_limit_per_connection(server, styles):
     with Ws(server.ws) as ws:
         for i in range(17):

@@ -11,6 +11,8 @@ from tests.service.conftest import bvh, transition_body, walk
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
+pytestmark = pytest.mark.slow  # a server of its own with several keys
+
 KEY_A, KEY_B, ADMIN = "owner-a-0123456789abcdef", "owner-b-0123456789abcdef", "admin-k-0123456789abcdef"
 PER_KEY, TOTAL = 3, 5
 

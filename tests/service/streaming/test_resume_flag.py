@@ -16,6 +16,8 @@ from tests.service.conftest import bvh, target_clip, walk
 from tests.service.server import Server
 from tests.service.wsclient import Ws, poses_of, start_message
 
+pytestmark = pytest.mark.slow  # packages a bundle and starts a server for it
+
 USUAL = SteeringConfig(window=20, turn_window=3, max_turn_deg=4.0, height_window=3)
 
 
