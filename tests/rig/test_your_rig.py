@@ -1,0 +1,138 @@
+"""The whole path on a rig of the user's own (docs/your-rig.md), made from real motion.
+
+Six Bandai-Namco walks are rewritten on a CMU/MotionBuilder-style rig (tests/rig/cmu_rig.py: hip and
+spine helpers with zero offsets, fingers, inches, 120 fps, unlabelled file names and a manifest);
+then, as a user would: ``rsmt profile guess``, ``rsmt data inspect``, a failed run without the
+manifest, ``rsmt train recipe rig-smoke --manifest --profile``, ``rsmt serve --models`` and a
+40-frame transition over HTTP and over the stream, checked on that rig (hips height, planted toes).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from model.motion.bvh_clip import dump_clip, load_clip
+from model.motion.kinematics import forward_kinematics
+from model.motion.skeleton import Skeleton
+from tests.rig.cmu_rig import ConvertedTake, cmu_clip, convert_takes
+from tests.service.server import Server
+
+pytestmark = [pytest.mark.slow, pytest.mark.real_data]
+
+STYLES = ("normal", "elderly")
+TAKES_PER_STYLE = 3  # a style x content group is shared out between train, val and test from 3 takes
+FRAMES = 40
+# A toe is planted when it moves less than this (cm a frame at 30 fps) from the frame before.
+PLANTED_CM = 1.0
+
+
+def rsmt(*args: str, env: dict[str, str] | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "rsmt_cli", *args], capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, **(env or {})})
+
+
+@pytest.fixture(scope="module")
+def rig(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[ConvertedTake]]:
+    sources = []
+    for style in STYLES:
+        files = sorted(shared_data.rglob(f"dataset-2_walk_{style}_*.bvh"))[:TAKES_PER_STYLE]
+        if len(files) < TAKES_PER_STYLE:
+            pytest.skip(f"the data has fewer than {TAKES_PER_STYLE} dataset-2 walks in style {style}")
+        sources += [(f, style, "walk") for f in files]
+    folder = tmp_path_factory.mktemp("cmu-rig")
+    return folder, convert_takes(sources, folder / "takes", units="inch", fps=120.0)
+
+
+def _request_bvh(take: ConvertedTake, start: int, stop: int) -> str:
+    """Frames ``[start, stop)`` (at 30 fps) of a take on the converted rig, all 31 joints, in centimetres
+    (the service speaks the model's units)."""
+    clip = cmu_clip(load_clip(take.source, profile="bandai-namco"))
+    return dump_clip(clip.window(start, min(stop, clip.num_frames)))
+
+
+def _check_output(root: np.ndarray, rotations: np.ndarray, skeleton: Skeleton, floor_cm: float) -> dict:
+    """Hips heights and the planted toes' largest distance from ``floor_cm`` (where the data's planted toe
+    joints stand: the toe joint is above the toe's tip)."""
+    pos = forward_kinematics(torch.as_tensor(rotations, dtype=torch.float64), torch.as_tensor(root, dtype=torch.float64),
+                             skeleton.offsets_tensor(torch.float64), skeleton.parents)[0].numpy()
+    toes = [skeleton.roles.left_foot[-1], skeleton.roles.right_foot[-1]]
+    hips = pos[:, skeleton.roles.root, 1]
+    toe_y = pos[:, toes, 1]
+    speed = np.linalg.norm(np.diff(pos[:, toes], axis=0), axis=-1)
+    planted = np.concatenate([speed[:1], speed]) < PLANTED_CM
+    return {"hips_min": float(hips.min()), "hips_max": float(hips.max()), "planted": int(planted.sum()),
+            "planted_toe_off_floor": float(np.abs(toe_y[planted] - floor_cm).max()) if planted.any() else None}
+
+
+def test_a_cmu_rig_trains_and_serves_from_one_documented_command(rig, tmp_path):
+    folder, takes = rig
+    data, manifest = folder / "takes", folder / "takes" / "manifest.csv"
+    env = {"RSMT_CACHE": str(tmp_path / "cache")}
+
+    # 1. A starting profile from the joint names: the facing joints stand apart, helpers and fingers drop.
+    profile = tmp_path / "cmu.json"
+    out = rsmt("profile", "guess", str(data), "--out", str(profile))
+    assert out.returncode == 0, out.stderr
+    guessed = json.loads(profile.read_text())
+    assert (guessed["left_hip"], guessed["right_shoulder"]) == ("LeftUpLeg", "RightArm")
+    assert (guessed["left_foot"], guessed["head"]) == (["LeftFoot", "LeftToeBase"], "Head")
+    assert {"LHipJoint", "RHipJoint", "LowerBack", "Neck1", "LThumb", "RightHandIndex1"} <= set(guessed["drop"])
+
+    # 2. Inspect: the units (inches) from the height, 120 fps, the facing and the dropped joints.
+    out = rsmt("data", "inspect", str(data), "--manifest", str(manifest), "--profile", str(profile), "--json")
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["problems"] == [] and report["total"]["takes"] == len(takes)
+    (facts,) = report["rigs"]
+    assert facts["cm_per_unit"] == 2.54 and facts["fps"] == 120.0 and facts["joints"] == 21
+    assert 120 < facts["head_cm"] < 180 and facts["hips_spread_cm"] > 5 and facts["shoulders_spread_cm"] > 5
+    assert "LHipJoint" in facts["dropped"] and "LeftFingerBase" in facts["dropped"]
+
+    # 3. Without the manifest nothing is labelled: the error says so and what to pass; the settings stay.
+    failed = tmp_path / "failed-run"
+    out = rsmt("train", "all", "--preset", "smoke-40", "--data", str(data), "--profile", str(profile),
+               "--run", str(failed), "--out", str(tmp_path / "none"), "--quiet", env=env)
+    assert out.returncode == 2
+    assert "labelled" in out.stderr and "--manifest" in out.stderr, out.stderr
+    assert json.loads((failed / "train_config.json").read_text())["profile"] == str(profile)
+
+    # 4. The one command: takes, manifest and profile to a packaged bundle.
+    bundle = tmp_path / "bundle"
+    out = rsmt("train", "recipe", "rig-smoke", "--data", str(data), "--manifest", str(manifest), "--profile",
+               str(profile), "--run", str(tmp_path / "run"), "--out", str(bundle), "--threads", "2", "--quiet", env=env)
+    assert out.returncode == 0, out.stdout + out.stderr
+    skeleton = Skeleton.load(bundle / "skeleton.json")
+    assert skeleton.num_joints == 21 and "LHipJoint" not in skeleton.names and skeleton.units == "cm"
+
+    # 5. Served: a 40-frame transition over HTTP and over the stream, on the rig, in its style.
+    from rsmt_client import Client, StreamClient
+
+    take = takes[0]
+    standing = float(np.median([t.standing_hips_cm for t in takes]))
+    floor = float(np.median([t.planted_toe_cm for t in takes]))
+    context, target, style = _request_bvh(take, 0, 10), _request_bvh(take, 50, 52), _request_bvh(take, 0, 90)
+    srv = Server(bundle, command=["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}", "--models", str(bundle)])
+    srv.start()
+    try:
+        with Client(srv.url) as client:
+            style_id = client.register_style(style, name="normal")["style_id"]
+            poses = client.transition(context, target, frames=FRAMES, style_id=style_id, seed=7)
+        with StreamClient(srv.url) as stream:
+            streamed = stream.transition(context, target, FRAMES, style_id=style_id, seed=7)
+    finally:
+        srv.stop()
+    for name, got in (("http", poses), ("stream", streamed)):
+        assert got.rotations.shape == (FRAMES, skeleton.num_joints, 4), name
+        figures = _check_output(got.root_positions, got.rotations, skeleton, floor)
+        print(name, {"standing": standing, "floor": floor, **figures})
+        assert abs(figures["hips_min"] - standing) <= 0.1 * standing, (name, figures)
+        assert abs(figures["hips_max"] - standing) <= 0.1 * standing, (name, figures)
+        assert figures["planted"] > 0 and figures["planted_toe_off_floor"] <= 5.0, (name, figures)
