@@ -257,6 +257,14 @@ def inspect_command(args: argparse.Namespace) -> int:
     else:
         print(format_report(report))
     if report["total"]["takes"] == 0:
-        log.error("no usable takes under %s", args.folder)
+        kinds = {p["kind"] for p in report["problems"]}
+        hint = ""
+        if "unlabelled" in kinds and args.manifest is None:
+            hint = ": the file names carry no labels; write a CSV manifest (file,style,content) and pass --manifest"
+        elif "rig" in kinds:
+            hint = f": no profile fits the rig; rsmt profile guess {args.folder} --out my-rig.json, then --profile"
+        elif "units" in kinds:
+            hint = ": the units could not be told; pass --units"
+        log.error("no usable takes under %s%s (docs/your-rig.md)", args.folder, hint)
         return 1
     return 0
