@@ -164,8 +164,9 @@ def test_the_bundle_serves_40_frames_over_http_and_the_stream_at_the_standing_he
         assert abs(figures["hips_max"] - standing) <= 0.1 * standing, (name, standing, figures)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="the rig-smoke model (24 sampler steps, all CI affords) lifts its feet: "
-                                       "toes 6-34 cm above the floor, rising while slow; a trained model is needed")
+@pytest.mark.xfail(strict=True, raises=AssertionError,
+                   reason="the rig-smoke model (24 sampler steps, all CI affords) lifts its feet: toes 6-34 cm "
+                          "above the floor, rising while slow; a trained model is needed")
 def test_the_served_toes_stay_within_5_cm_of_the_floor_when_planted(path_run):
     if path_run["train"].returncode != 0:
         pytest.fail("training failed (see test_one_command_trains_a_bundle_on_the_rig)")
