@@ -43,6 +43,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     inspect.add_argument("--profile", metavar="P",
                          help="skeleton profile: a built-in name (bandai-namco, 100style) or a JSON file; "
                               "default: the first built-in that fits each file")
+    inspect.add_argument("--units", default="auto", metavar="U",
+                         help="units of the takes: auto (read from the character's height), cm, m, mm, inch, or "
+                              "centimetres per file unit (default: auto); takes are converted to centimetres")
     inspect.add_argument("--ratios", type=parse_ratios, default=DEFAULT_RATIOS, metavar="TRAIN,VAL,TEST",
                          help="split ratios (default 0.8,0.1,0.1)")
     inspect.add_argument("--holdout-style", action="append", default=[], metavar="STYLE",
@@ -55,29 +58,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 # ---------------------------------------------------------------------------------- gathering
-def _probe_headers(index: TakeIndex, profile: SkeletonProfile | None) -> tuple[list[tuple[Take, int, float]], list[Problem]]:
-    """Frames and fps of each take from its BVH header, checking that the rig resolves."""
-    from model.motion.skeleton import SkeletonError, detect_roles  # imports torch: only when a command runs
+def _probe_headers(index: TakeIndex, profile: SkeletonProfile | None, units: str | float = "auto"
+                   ) -> tuple[list[tuple[Take, int, float]], list[Problem], list[dict[str, Any]]]:
+    """Frames and fps of each take from its BVH header, and each rig checked on its first take
+    (the profile fits, the units, the facing joints stand apart)."""
+    from model.data.rig_probe import RigReport, probe_rig  # imports torch: only when a command runs
 
-    rows: list[tuple[Take, int, float]] = []
+    headers: list[tuple[Take, Any]] = []
     problems: list[Problem] = []
-    rig_ok: dict[tuple[str, ...], str | None] = {}
     for take in index.takes:
-        rel = relative_path(take.path, index.root)
         try:
-            header = read_bvh_header(take.path)
+            headers.append((take, read_bvh_header(take.path)))
         except (OSError, ValueError) as exc:
-            problems.append(Problem(rel, "unreadable", str(exc)))
-            continue
-        if header.joints not in rig_ok:  # datasets share a handful of rigs: resolve each once
-            try:
-                detect_roles(header.joints, profile)
-                rig_ok[header.joints] = None
-            except SkeletonError as exc:
-                rig_ok[header.joints] = str(exc)
-        rig_problem = rig_ok[header.joints]
-        if rig_problem is not None:
-            problems.append(Problem(rel, "rig", rig_problem))
+            problems.append(Problem(relative_path(take.path, index.root), "unreadable", str(exc)))
+    counts = Counter(h.joints for _, h in headers)
+    rigs: dict[tuple[str, ...], RigReport | tuple[str, str]] = {}
+    for take, header in headers:  # datasets share a handful of rigs: load one take of each
+        if header.joints not in rigs:
+            rigs[header.joints] = probe_rig(take.path, relative_path(take.path, index.root), counts[header.joints],
+                                            profile, units)
+    rows: list[tuple[Take, int, float]] = []
+    for take, header in headers:
+        rel = relative_path(take.path, index.root)
+        rig = rigs[header.joints]
+        if isinstance(rig, tuple):
+            problems.append(Problem(rel, *rig))
             continue
         frames = header.frames
         if take.start is not None or take.stop is not None:
@@ -87,7 +92,7 @@ def _probe_headers(index: TakeIndex, profile: SkeletonProfile | None) -> tuple[l
                 continue
             frames = hi - lo
         rows.append((take, frames, header.fps))
-    return rows, problems
+    return rows, problems, [r.to_dict() for r in rigs.values() if isinstance(r, RigReport)]
 
 
 def _tally(rows: Sequence[tuple[Take, int, float]]) -> dict[str, float]:
@@ -106,22 +111,26 @@ def inspect_data(
     holdout_styles: Sequence[str] = (),
     use_cache: bool = False,
     fps: float = 30.0,
+    units: str = "auto",
 ) -> dict[str, Any]:
     """The report that ``rsmt data inspect`` prints, as a JSON-ready dict."""
+    from model.motion.rig_facts import parse_units
     from model.motion.skeleton import SkeletonProfile  # imports torch: only when a command runs
 
     index = index_takes(folder, manifest)
+    unit = parse_units(units)
     prof = None if profile is None else SkeletonProfile.load(profile)
     cache_folder = None
     if use_cache:
         from model.data.preprocessed import load_motion_cache  # torch-heavy; only needed with --cache
 
-        cache = load_motion_cache(folder, fps=fps, profile=prof, manifest=manifest)
+        cache = load_motion_cache(folder, fps=fps, profile=prof, manifest=manifest, units=unit)
         rows = [(t, n, cache.fps) for t, n in zip(cache.takes, cache.frame_counts)]
         problems = list(cache.problems)
         cache_folder = str(cache.folder)
+        rigs: list[dict[str, Any]] = []
     else:
-        rows, probe_problems = _probe_headers(index, prof)
+        rows, probe_problems, rigs = _probe_headers(index, prof, unit)
         problems = index.problems + probe_problems
     takes = [t for t, _, _ in rows]
     styles = sorted({t.style for t in takes})
@@ -150,6 +159,7 @@ def inspect_data(
             "holdout_styles": list(split.holdout_styles),
             **{name: _tally([rows[i] for i in split[name]]) for name in split_names},
         },
+        "rigs": rigs,
         "problems": [asdict(p) for p in problems],
     }
 
@@ -210,6 +220,14 @@ def format_report(report: dict[str, Any]) -> str:
             out += _table([title, "takes", "frames", "minutes"],
                           [[k, v["takes"], f"{v['frames']:,}", f"{v['minutes']:.1f}"] for k, v in report[key].items()])
 
+    for rig in report.get("rigs", []):
+        out += ["", f"Rig of {rig['example']} ({rig['takes']} take(s) share it): profile {rig['profile']}, "
+                    f"{rig['joints']} of the file's {rig['file_joints']} joints kept, {rig['fps']:g} fps",
+                f"  units:   {rig['cm_per_unit']:g} cm per file unit; head {rig['head_cm']:.1f} cm, "
+                f"hips {rig['hips_cm']:.1f} cm above the lowest foot joint",
+                f"  facing:  {rig['facing']} (pairs {rig['hips_spread_cm']:.1f} and "
+                f"{rig['shoulders_spread_cm']:.1f} cm apart)",
+                f"  dropped: {', '.join(rig['dropped']) or 'none'}"]
     split = report["split"]
     ratios = "/".join(f"{r:g}" for r in split["ratios"])
     held = f"; held out: {', '.join(split['holdout_styles'])}" if split["holdout_styles"] else ""
@@ -233,12 +251,20 @@ def format_report(report: dict[str, Any]) -> str:
 
 def inspect_command(args: argparse.Namespace) -> int:
     report = inspect_data(args.folder, args.manifest, args.profile, args.ratios, args.holdout_style,
-                          use_cache=args.cache, fps=args.fps)
+                          use_cache=args.cache, fps=args.fps, units=args.units)
     if args.json:
         print(json.dumps(report, indent=1))
     else:
         print(format_report(report))
     if report["total"]["takes"] == 0:
-        log.error("no usable takes under %s", args.folder)
+        kinds = {p["kind"] for p in report["problems"]}
+        hint = ""
+        if "unlabelled" in kinds and args.manifest is None:
+            hint = ": the file names carry no labels; write a CSV manifest (file,style,content) and pass --manifest"
+        elif "rig" in kinds:
+            hint = f": no profile fits the rig; rsmt profile guess {args.folder} --out my-rig.json, then --profile"
+        elif "units" in kinds:
+            hint = ": the units could not be told; pass --units"
+        log.error("no usable takes under %s%s (docs/your-rig.md)", args.folder, hint)
         return 1
     return 0

@@ -25,6 +25,7 @@ GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("client_commands", ("client",)),
     ("loadtest_commands", ("loadtest",)),
     ("rig_commands", ("rig",)),
+    ("profile_commands", ("profile",)),
 )
 
 

@@ -36,6 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ):
         p = sub.add_parser(stage, help=text, description=f"Train {text}.")
         p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
+        add_data_arguments(p)
         p.add_argument("--out", type=Path, help="bundle folder to write when the sampler is trained")
         p.add_argument("--config", type=Path,
                        help="a complete training config JSON (e.g. a run's train_config.json); overrides --preset")
@@ -85,6 +86,7 @@ def _register_recipe(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name", nargs="?", metavar="NAME", help="the recipe, e.g. default-model (see --list)")
     p.add_argument("--list", action="store_true", help="list the recipes with what each is for, and stop")
     p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
+    add_data_arguments(p)
     p.add_argument("--run", type=Path, help="run folder of every stage (default: ~/.cache/rsmt/runs/recipe-NAME)")
     p.add_argument("--out", type=Path, help="folder of the packaged bundle")
     add_set_argument(p, "of every stage, on top of its preset and the recipe's changes")
@@ -105,6 +107,35 @@ def add_set_argument(parser: argparse.ArgumentParser, what: str = "on top of --p
                         help=f"change one training setting {what} (repeatable); the key dotted as in "
                              "model/train/recipes/base.json, the value of that setting's type, lists comma-separated: "
                              "--set sampler_stage.loop.iterations=200 --set sampler_stage.loop.restart_at=100,150")
+
+
+def add_data_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--manifest``, ``--profile`` and ``--units``: how the takes of ``--data`` are labelled and read."""
+    parser.add_argument("--manifest", type=Path, metavar="CSV",
+                        help="CSV labelling the takes: columns file, style, content[, start, stop], paths relative to "
+                             "it (default: labels from the file names; docs/your-rig.md)")
+    parser.add_argument("--profile", metavar="FILE",
+                        help="skeleton profile of the rig: a JSON file (rsmt profile guess DIR writes one) or a built-in "
+                             "name (bandai-namco, 100style); replaces the preset's (default: a built-in that fits)")
+    parser.add_argument("--units", metavar="U",
+                        help="units of the takes: auto (read from the character's height), cm, m, mm, inch, or "
+                             "centimetres per file unit such as 5.64; replaces the preset's (default: auto)")
+
+
+def data_settings(args: argparse.Namespace) -> dict[str, str]:
+    """The config settings that ``--profile`` and ``--units`` give (a profile file by its absolute path)."""
+    from model.motion.rig_facts import parse_units
+    from model.motion.skeleton import BUILTIN_PROFILES, SkeletonProfile
+
+    out: dict[str, str] = {}
+    if args.profile is not None:
+        SkeletonProfile.load(args.profile)  # a bad profile fails here, before any data is read
+        out["profile"] = args.profile if args.profile in BUILTIN_PROFILES else str(Path(args.profile).resolve())
+    if args.units is not None:
+        out["units"] = str(parse_units(args.units))
+    if args.manifest is not None and not args.manifest.is_file():
+        raise FileNotFoundError(f"no manifest {args.manifest}")
+    return out
 
 
 def add_device_argument(parser: argparse.ArgumentParser) -> None:
@@ -163,6 +194,8 @@ def _train(args: argparse.Namespace, device: torch.device) -> int:
     from model.train.pipeline import STAGES, run
 
     cfg = load_config(args)
+    for key, value in data_settings(args).items():
+        setattr(cfg, key, value)
     if args.threads:
         cfg.threads = args.threads
     if args.time_limit:
@@ -183,7 +216,7 @@ def _train(args: argparse.Namespace, device: torch.device) -> int:
         distributed.barrier()  # the run folder is seeded before any rank reads it
     command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv else None
     bundle = run(cfg, Path(data), run_dir, stages, args.out, progress=not args.quiet, command=command, device=device,
-                 compile=args.compile)
+                 compile=args.compile, manifest=args.manifest)
     if distributed.world_size() > 1:  # one line per process, on stderr: every rank trained to the end
         print(f"process {distributed.rank()} of {distributed.world_size()}: "
               f"{'stopped (time limit)' if 'sampler' in stages and bundle is None else 'trained'} {', '.join(stages)}",
@@ -219,6 +252,7 @@ def _run_recipe(args: argparse.Namespace) -> int:
         recipe = dataclasses.replace(recipe, changes=changes)
     if distributed.launched():
         raise ValueError("rsmt train recipe runs in one process; under torchrun, run its stages with rsmt train all|sampler")
+    settings = data_settings(args)
     device = resolve_cli_device(args.device)
     data = require_data_dir(args.data)
     run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / f"recipe-{recipe.name}"
@@ -227,7 +261,7 @@ def _run_recipe(args: argparse.Namespace) -> int:
     held = tuple(sorted(set(args.holdout_style)))
     last = run_recipe(recipe, Path(data), run_dir, threads=args.threads, compile=args.compile, device=device,
                       progress=not args.quiet, command=command, report=_print_stage(recipe),
-                      holdout_styles=held)
+                      holdout_styles=held, manifest=args.manifest, data_settings=settings)
     if last is None:
         print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
         return 3

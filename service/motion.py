@@ -18,7 +18,7 @@ from model.inference.errors import EngineError
 from model.motion.bvh import BvhDocument, BvhError
 from model.motion.bvh_clip import dump_clip, to_clip
 from model.motion.clip import Clip
-from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError
+from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError, profile_of
 from model.motion.skeleton import plain_joint_name as _plain
 from service.errors import ServiceError, from_engine
 from service.schemas import BvhMotion, PoseMotion
@@ -71,7 +71,8 @@ def _bvh_clip(text: str, engine: Engine, limits: MotionLimits, what: str) -> Cli
                                          f"{engine.skeleton.units})")
     profile = engine.skeleton.roles.profile
     try:
-        clip = to_clip(doc, profile=profile if profile in BUILTIN_PROFILES else None, name=what)
+        # A model trained with its own profile reads files of its rig by the roles its skeleton holds.
+        clip = to_clip(doc, profile=profile if profile in BUILTIN_PROFILES else profile_of(engine.skeleton), name=what)
     except SkeletonError as exc:
         raise ServiceError("skeleton_mismatch", f"{what}: {exc}") from exc
     except (ValueError, IndexError) as exc:

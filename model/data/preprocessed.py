@@ -48,6 +48,7 @@ from model.data.takes import Problem, Take, TakeIndex, index_takes, relative_pat
 from model.motion.bvh import BvhError
 from model.motion.bvh_clip import load_clip
 from model.motion.clip import Clip
+from model.motion.rig_facts import UnitsError, conform_clip, parse_units
 from model.motion.skeleton import Skeleton, SkeletonError, SkeletonProfile
 
 log = logging.getLogger(__name__)
@@ -74,7 +75,7 @@ def _resolve_profile(profile: ProfileArg) -> SkeletonProfile | None:
 
 
 def cache_key(index: TakeIndex, fps: float = DEFAULT_FPS, profile: ProfileArg = None,
-              min_frames: int = DEFAULT_MIN_FRAMES) -> str:
+              min_frames: int = DEFAULT_MIN_FRAMES, units: str | float = "auto") -> str:
     """The cache folder name for ``index`` under these settings (16 hex digits)."""
     prof = _resolve_profile(profile)
     files = []
@@ -92,6 +93,8 @@ def cache_key(index: TakeIndex, fps: float = DEFAULT_FPS, profile: ProfileArg = 
         "data_root": str(index.root),
         "files": files,
     }
+    if units != "auto":  # absent for the default, so caches built before units were read keep their key
+        description["units"] = units
     text = json.dumps(description, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -115,12 +118,14 @@ def _single_thread() -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-def _preprocess(job: tuple[str, str, int | None, int | None, float, SkeletonProfile | None, int]) -> dict[str, Any]:
-    """Load, cut and resample one take; a problem is returned, never raised (one bad file must not stop a build)."""
-    path, rel, start, stop, fps, profile, min_frames = job
+def _preprocess(job: tuple[str, str, int | None, int | None, float, SkeletonProfile | None, int, str | float]
+                ) -> dict[str, Any]:
+    """Load, check, cut and resample one take; a problem is returned, never raised (one bad file must not stop a build)."""
+    path, rel, start, stop, fps, profile, min_frames, units = job
     try:
         # float64 until stored: the cut and resampling then lose nothing to rounding.
         clip = load_clip(path, profile=profile, dtype=torch.float64)
+        clip, facts = conform_clip(clip, units)  # in cm, its facing joints apart
         source_frames, source_fps = clip.num_frames, float(clip.fps)
         if start is not None or stop is not None:
             lo = 0 if start is None else start
@@ -142,7 +147,10 @@ def _preprocess(job: tuple[str, str, int | None, int | None, float, SkeletonProf
             "skeleton": clip.skeleton.to_dict(),
             "source_frames": source_frames,
             "source_fps": source_fps,
+            "cm_per_unit": facts.cm_per_unit,
         }
+    except UnitsError as exc:
+        return _problem(rel, "units", str(exc))
     except BvhError as exc:
         return _problem(rel, "unreadable", str(exc))
     except SkeletonError as exc:
@@ -208,6 +216,7 @@ def build_motion_cache(
     workers: int = DEFAULT_WORKERS,
     progress: bool = True,
     key: str = "",
+    units: str | float = "auto",
 ) -> Path:
     """Preprocess every take of ``index`` into the cache folder ``destination`` (replaced atomically).
 
@@ -219,7 +228,7 @@ def build_motion_cache(
     destination.parent.mkdir(parents=True, exist_ok=True)
     _remove_stale_temporaries(destination.parent)
     began = time.perf_counter()
-    jobs = [(str(t.path), relative_path(t.path, index.root), t.start, t.stop, float(fps), prof, int(min_frames))
+    jobs = [(str(t.path), relative_path(t.path, index.root), t.start, t.stop, float(fps), prof, int(min_frames), units)
             for t in index.takes]
     log.info("preprocessing %d takes from %s into %s", len(jobs), index.root, destination)
     results = _run_jobs(jobs, workers, progress)
@@ -245,6 +254,7 @@ def build_motion_cache(
             "content": take.content, "start": take.start, "stop": take.stop, "skeleton": sid,
             "frames": frames, "joints": joints, "frame_offset": frame, "row_offset": row,
             "source_frames": result["source_frames"], "source_fps": result["source_fps"],
+            "cm_per_unit": result["cm_per_unit"],
         })
         rotations.append(rot.reshape(-1, 4))
         roots.append(root)
@@ -252,7 +262,7 @@ def build_motion_cache(
         row += frames * joints
     meta = {
         "format": CACHE_FORMAT_VERSION, "key": key, "fps": float(fps),
-        "profile": None if prof is None else prof.to_dict(), "min_frames": int(min_frames),
+        "profile": None if prof is None else prof.to_dict(), "min_frames": int(min_frames), "units": units,
         "data_root": str(index.root), "layout": index.layout,
         "manifest": None if index.manifest is None else str(index.manifest),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "build_seconds": round(time.perf_counter() - began, 2),
@@ -423,6 +433,7 @@ def load_motion_cache(
     workers: int = DEFAULT_WORKERS,
     progress: bool = True,
     root: str | Path | None = None,
+    units: str | float = "auto",
 ) -> MotionCache:
     """The cache of the takes under ``folder``, built first when missing, stale or ``rebuild`` is set.
 
@@ -436,9 +447,12 @@ def load_motion_cache(
         workers: processes used to parse files (1 parses in this process).
         progress: show a progress bar on stderr while building.
         root: cache root; default :func:`cache_root`.
+        units: the takes' units (:func:`model.motion.rig_facts.parse_units`); ``auto`` reads them
+            from each take's head height. Every take is stored in centimetres.
     """
     index = index_takes(folder, manifest)
-    key = cache_key(index, fps, profile, min_frames)
+    units = parse_units(units)
+    key = cache_key(index, fps, profile, min_frames, units)
     destination = (Path(root).expanduser() if root is not None else cache_root()) / key
     if not rebuild and destination.is_dir():
         try:
@@ -447,5 +461,5 @@ def load_motion_cache(
             return cache
         except ValueError as exc:
             log.warning("rebuilding unusable cache: %s", exc)
-    build_motion_cache(index, destination, fps, profile, min_frames, workers, progress, key=key)
+    build_motion_cache(index, destination, fps, profile, min_frames, workers, progress, key=key, units=units)
     return MotionCache.open(destination)

@@ -37,7 +37,14 @@ from model.motion.rotations import (
     quat_rotate,
     quat_to_euler,
 )
-from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError, SkeletonProfile, plain_joint_name, resolve_roles
+from model.motion.skeleton import (
+    BUILTIN_PROFILES,
+    Skeleton,
+    SkeletonError,
+    SkeletonProfile,
+    plain_joint_name,
+    resolve_roles,
+)
 
 logger = logging.getLogger(__name__)
 def _fit_profile(doc: BvhDocument, profile: SkeletonProfile | str | Path | None) -> tuple[SkeletonProfile, int, list[int]]:
@@ -58,7 +65,8 @@ def _fit_profile(doc: BvhDocument, profile: SkeletonProfile | str | Path | None)
             # File order is topological, so one pass marks the whole subtree.
             for i in range(root + 1, len(names)):
                 inside[i] = inside[doc.joints[i].parent]
-            kept = [i for i in range(len(names)) if inside[i]]
+            kept = [i for i in range(len(names)) if inside[i] and (i == root or not prof.drops(names[i]))]
+            _check_drops(prof, names, root)
             resolve_roles(tuple(names[i] for i in kept), prof)
             return prof, root, kept
         except SkeletonError as exc:
@@ -66,6 +74,17 @@ def _fit_profile(doc: BvhDocument, profile: SkeletonProfile | str | Path | None)
     if profile is not None:
         raise SkeletonError(errors[0])
     raise SkeletonError("no built-in skeleton profile fits this rig:\n  " + "\n  ".join(errors))
+
+
+def _check_drops(prof: SkeletonProfile, names: Sequence[str], root: int) -> None:
+    """A profile may not drop its own root or a joint that plays a role."""
+    if prof.drops(names[root]):
+        raise SkeletonError(f"profile {prof.name!r} drops its own root joint {names[root]!r}")
+    named = [prof.head, *prof.left_foot, *prof.right_foot, prof.left_hip, prof.right_hip, prof.left_shoulder,
+             prof.right_shoulder]
+    dropped = [j for j in named if prof.drops(j)]
+    if dropped:
+        raise SkeletonError(f"profile {prof.name!r} drops joint(s) it gives a role: {', '.join(dropped)}")
 
 
 def _local_rotations(doc: BvhDocument, joints: Sequence[int]) -> torch.Tensor:
@@ -169,7 +188,12 @@ def to_clip(
     offsets: list[Vec3] = [(0.0, 0.0, 0.0)] + _static_offsets(doc, kept[1:], name)
 
     new_index = {j: n for n, j in enumerate(kept)}
-    parents = [-1] + [new_index[doc.joints[j].parent] for j in kept[1:]]
+    parents = [-1]
+    for n, j in enumerate(kept[1:], start=1):
+        between = _dropped_between(doc, j, new_index)
+        parents.append(new_index[doc.joints[between[0]].parent if between else doc.joints[j].parent])
+        if between:  # dropped joints above j: their motion goes into j's rotation and offset
+            quats[:, n], offsets[n] = _fold(doc, between, j, local[:, n + ancestors], name)
     end_sites = tuple((new_index[j], end) for j in kept if (end := doc.joints[j].end_site) is not None)
     skeleton = Skeleton.build(
         [doc.joints[j].name for j in kept], parents, offsets, profile=prof, end_sites=end_sites
@@ -184,6 +208,42 @@ def to_clip(
         fps=fps_from_frame_time(doc.frame_time),
         name=name,
     )
+
+
+def _dropped_between(doc: BvhDocument, joint: int, kept: Mapping[int, int]) -> list[int]:
+    """The dropped joints between ``joint`` and its nearest kept ancestor, top first."""
+    chain = []
+    parent = doc.joints[joint].parent
+    while parent not in kept:
+        chain.append(parent)
+        parent = doc.joints[parent].parent
+    return chain[::-1]
+
+
+def _fold(doc: BvhDocument, dropped: Sequence[int], joint: int, rotation: torch.Tensor,
+          clip_name: str) -> tuple[torch.Tensor, Vec3]:
+    """``joint``'s rotation ``[T, 4]`` and fixed offset once the ``dropped`` joints above it are folded in.
+
+    The rotation is exact. The offset (the dropped chain's translation, turned by its rotations)
+    is fixed per bone, so it is the mean over frames, with a warning when a dropped joint with a
+    bone below it rotates enough to move it (a helper joint that moves is better kept).
+    """
+    local = _local_rotations(doc, dropped)
+    pos = torch.zeros(doc.num_frames, 3, dtype=torch.float64)
+    rot = quat_identity((doc.num_frames,), torch.float64)
+    for n, d in enumerate(dropped):
+        pos = pos + quat_rotate(rot, _local_translation(doc, d))
+        rot = quat_mul(rot, local[:, n])
+    pos = pos + quat_rotate(rot, _local_translation(doc, joint))
+    if not doc.num_frames:
+        return rotation, doc.joints[joint].offset
+    mean = pos.mean(dim=0)
+    deviation = float((pos - mean).norm(dim=-1).max())
+    if deviation > BONE_TRANSLATION_TOLERANCE:
+        logger.warning("%s: dropping %s moves joint %s by up to %.4g from its mean offset; keep the dropped "
+                       "joint(s) in the profile to keep that motion", clip_name or "BVH",
+                       ", ".join(doc.joints[d].name for d in dropped), doc.joints[joint].name, deviation)
+    return quat_mul(rot, rotation), tuple(mean.tolist())
 
 
 def _check_order(order: str) -> str:

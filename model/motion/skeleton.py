@@ -44,8 +44,10 @@ class SkeletonProfile:
         left_hip / right_hip / left_shoulder / right_shoulder: the joints whose left-to-right
             vectors define the facing direction.
         mirror: regex substitutions ``[pattern, replacement]`` that turn a left joint name into
-            its right counterpart (e.g. ``["(.*)_L$", "\\\\1_R"]``).
-        ground_clearance_cm: optional typical height of the toe joints above the floor at rest.
+            its right counterpart (e.g. ``["(.*)_L$", "\\\\1_R"]``). Tried in order; the first
+            pattern that matches the whole name (case ignored, as for roles) gives the twin.
+        drop: regexes (whole name, case ignored) of joints removed on import: finger and helper
+            joints. A dropped joint's children hang from its parent, its motion folded into them.
     """
 
     name: str
@@ -59,6 +61,7 @@ class SkeletonProfile:
     right_shoulder: str
     mirror: tuple[tuple[str, str], ...]
     description: str = ""
+    drop: tuple[str, ...] = ()
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SkeletonProfile:
@@ -73,18 +76,36 @@ class SkeletonProfile:
                 re.compile(pattern)
         except (TypeError, ValueError, re.error) as exc:
             raise SkeletonError(f"profile 'mirror' must be a list of [regex, replacement] pairs: {exc}") from exc
+        drop = data.get("drop", [])
+        try:
+            if isinstance(drop, str):
+                raise TypeError("a single string")
+            drop = tuple(str(d) for d in drop)
+            for pattern in drop:
+                re.compile(pattern)
+        except (TypeError, re.error) as exc:
+            raise SkeletonError(f"profile 'drop' must be a list of joint-name regexes: {exc}") from exc
         return cls(
             name=str(data["name"]), root=str(data["root"]), head=str(data["head"]),
             left_foot=tuple(map(str, data["left_foot"])), right_foot=tuple(map(str, data["right_foot"])),
             left_hip=str(data["left_hip"]), right_hip=str(data["right_hip"]),
             left_shoulder=str(data["left_shoulder"]), right_shoulder=str(data["right_shoulder"]),
-            mirror=mirror, description=str(data.get("description", "")),
+            mirror=mirror, description=str(data.get("description", "")), drop=drop,
         )
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["mirror"] = [list(p) for p in self.mirror]
+        if self.drop:
+            d["drop"] = list(self.drop)
+        else:  # absent when empty: a profile without drops describes (and caches) as before
+            del d["drop"]
         return d
+
+    def drops(self, name: str) -> bool:
+        """Whether the profile drops the joint ``name`` (namespace prefix and case ignored)."""
+        bare = name.rsplit(":", 1)[-1].strip()
+        return any(re.fullmatch(p, bare, re.IGNORECASE) for p in self.drop)
 
     @classmethod
     def load(cls, name_or_path: str | Path) -> SkeletonProfile:
@@ -103,6 +124,20 @@ class SkeletonProfile:
             return cls.from_dict(json.loads(text))
         except json.JSONDecodeError as exc:
             raise SkeletonError(f"profile {name_or_path}: invalid JSON ({exc})") from exc
+
+
+def profile_of(skeleton: Skeleton) -> SkeletonProfile:
+    """A profile that reads files on ``skeleton``'s rig: its roles by name, its mirror pairs name by name."""
+    r, n = skeleton.roles, skeleton.names
+    pairs = [(i, j) for i, j in enumerate(r.mirror) if i < j]
+    return SkeletonProfile(
+        name=r.profile, root=n[r.root], head=n[r.head], left_foot=tuple(n[j] for j in r.left_foot),
+        right_foot=tuple(n[j] for j in r.right_foot), left_hip=n[r.left_hip], right_hip=n[r.right_hip],
+        left_shoulder=n[r.left_shoulder], right_shoulder=n[r.right_shoulder],
+        mirror=tuple((re.escape(n[i].rsplit(":", 1)[-1]), n[j].rsplit(":", 1)[-1].replace("\\", "\\\\"))
+                     for i, j in pairs),
+        description=f"the roles of a {skeleton.num_joints}-joint skeleton",
+    )
 
 
 @dataclass(frozen=True)
@@ -150,10 +185,13 @@ def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonR
     }
     mirror = list(range(len(names)))
     for i, name in enumerate(names):
+        if profile.drops(name):
+            continue
         for pattern, repl in profile.mirror:
             bare = name.rsplit(":", 1)[-1]
-            if re.fullmatch(pattern, bare):
-                other = re.sub(pattern, repl, bare)
+            match = re.fullmatch(pattern, bare, re.IGNORECASE)
+            if match:
+                other = match.expand(repl)
                 j = lookup.get(plain_joint_name(other))
                 if j is None:
                     missing.append(f"{other} (mirror of {name})")

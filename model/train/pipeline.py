@@ -29,6 +29,7 @@ from model.nets.sampler import SamplerConfig, TransitionSampler
 from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig
 from model.train import distributed
 from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
+from model.train.empty_split import empty_split_message
 from model.train.loop import LoopConfig, resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton
@@ -68,6 +69,7 @@ class TrainConfig:
     seed: int = 0
     fps: float = 30.0
     profile: str | None = None
+    units: str = "auto"  # the takes' units: auto (read from the height), cm, m, mm, inch or cm per unit
     ratios: tuple[float, float, float] = (0.8, 0.1, 0.1)
     holdout_styles: tuple[str, ...] = ()
     augment: bool = True
@@ -132,11 +134,12 @@ class PreparedData:
     split: Split
 
 
-def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True) -> PreparedData:
-    cache = load_motion_cache(data_dir, fps=cfg.fps, profile=cfg.profile, progress=progress)
+def prepare_data(cfg: TrainConfig, data_dir: Path, progress: bool = True, manifest: Path | None = None) -> PreparedData:
+    cache = load_motion_cache(data_dir, fps=cfg.fps, profile=cfg.profile, manifest=manifest, progress=progress,
+                              units=cfg.units)
     split = cache.make_split(cfg.ratios, cfg.holdout_styles)
     if not split.train or not split.val:
-        raise ValueError(f"the data in {data_dir} gives an empty train or validation split: {split.sizes()}")
+        raise ValueError(empty_split_message(cache, split, data_dir, manifest))
     skeleton = mean_skeleton(cache, split.train)
     train = MotionTensors.from_cache(cache, split.train, skeleton, augment=cfg.augment, seed=cfg.seed, progress=progress)
     val = MotionTensors.from_cache(cache, split.val, skeleton, augment=False, progress=progress)
@@ -291,9 +294,15 @@ def _sampler(cfg: TrainConfig, data: PreparedData, run_dir: Path, manifold: Moti
     return sampler
 
 
+def _save_config(cfg: TrainConfig, run_dir: Path) -> None:
+    """``RUN/train_config.json`` (under torchrun, by rank 0 only)."""
+    if distributed.is_main():
+        (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
+
+
 def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...], out: Path | None,
         progress: bool = True, command: str | None = None, device: torch.device | str = "auto",
-        compile: bool = False) -> Bundle | None:
+        compile: bool = False, manifest: Path | None = None) -> Bundle | None:
     """Run the given stages (in recipe order) and write the bundle when the sampler is done.
 
     ``device`` (``auto``: CUDA when there is a GPU, else the CPU) is where the networks train and
@@ -302,7 +311,9 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     draws stay on the CPU's generators, so the CPU path's numbers do not depend on this option.
     ``compile`` (also not part of the recipe) trains the sampler's per-frame functions through
     ``torch.compile`` (:mod:`model.train.step_compiler`). Returns None when a stage stopped before
-    its end (time limit).
+    its end (time limit). ``manifest`` labels the takes of ``data_dir`` (a CSV, see
+    :mod:`model.data.takes`). The run folder's ``train_config.json`` is written before the data
+    are read, so a run that fails on them still leaves its settings there.
     """
     dev = resolve_device(device)
     log.info("training on %s", dev)
@@ -312,8 +323,9 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     timings_path = run_dir / "timings.json"
     timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
     began = time.monotonic()
+    _save_config(cfg, run_dir)  # rewritten below once fitted to the rig
     with distributed.main_first():  # under torchrun rank 0 builds the data cache; the others read it
-        data = prepare_data(cfg, data_dir, progress and distributed.is_main())
+        data = prepare_data(cfg, data_dir, progress and distributed.is_main(), manifest)
     # Data are read and augmented on the CPU, then held where the networks train.
     data.train, data.val = data.train.to(dev), data.val.to(dev)
     timings["data_s"] = round(time.monotonic() - began, 1)
@@ -322,8 +334,8 @@ def run(cfg: TrainConfig, data_dir: Path, run_dir: Path, stages: tuple[str, ...]
     else:
         timings.pop("processes", None)
     main = distributed.is_main()  # under torchrun only rank 0 writes files; in one process, this one
+    _save_config(cfg, run_dir)
     if main:
-        (run_dir / "train_config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
         data.train.skeleton.save(run_dir / "skeleton.json")
 
     pae = _phase_model(cfg, data, run_dir, "phase" in stages, timings, progress, dev)

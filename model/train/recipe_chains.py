@@ -217,15 +217,25 @@ def stage_done(run_dir: Path, stage: ChainStage, cfg: TrainConfig) -> bool:
     return True
 
 
+def _apply_data_settings(configs: list[TrainConfig], settings: dict[str, str]) -> None:
+    for key, value in settings.items():
+        if key not in ("profile", "units"):
+            raise ValueError(f"a recipe's data setting is profile or units, not {key!r}")
+        for cfg in configs:
+            setattr(cfg, key, value)
+
+
 def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, compile: bool = False,
                device: torch.device | str = "auto", progress: bool = True, command: str | None = None,
                report: Callable[[StageReport], None] | None = None,
-               holdout_styles: tuple[str, ...] = ()) -> Path | None:
+               holdout_styles: tuple[str, ...] = (), manifest: Path | None = None,
+               data_settings: dict[str, str] | None = None) -> Path | None:
     """Run the recipe's stages in order in ``run_dir``, skipping those whose bundle is there already.
 
     ``threads`` (when not 0), ``compile`` and ``device`` are the machine's, as for ``rsmt train``.
     ``holdout_styles`` are put aside from every stage's data (and so from its critics): the recipe
-    then trains a model that never saw them, the yardstick of unseen styles.
+    then trains a model that never saw them, the yardstick of unseen styles. ``manifest`` labels the
+    takes; ``data_settings`` (``profile``, ``units``) replace those of every stage's preset.
     Every stage's preset is resolved and checked against the run folder before anything trains.
     Returns the last stage's bundle folder, or None when a stage stopped before its end.
     """
@@ -234,6 +244,7 @@ def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, 
         held = tuple(sorted(set(holdout_styles)))
         for cfg in configs:
             cfg.holdout_styles = held
+    _apply_data_settings(configs, data_settings or {})
     done = [stage_done(run_dir, stage, cfg) for stage, cfg in zip(recipe.stages, configs)]
     first_missing = done.index(False) if False in done else len(done)
     if any(done[first_missing:]):
@@ -253,7 +264,8 @@ def run_recipe(recipe: Recipe, data_dir: Path, run_dir: Path, threads: int = 0, 
         began = time.monotonic()
         what = f"stage {stage.label}: {recipe.stage_command(stage)}"
         bundle = run(cfg, data_dir, run_dir, STAGE_COMMANDS[stage.command], folder, progress=progress,
-                     command=f"{command or f'rsmt train recipe {recipe.name}'} ({what})", device=device, compile=compile)
+                     command=f"{command or f'rsmt train recipe {recipe.name}'} ({what})", device=device, compile=compile,
+                     manifest=manifest)
         if bundle is None:
             return None
         if report:
