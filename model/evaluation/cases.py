@@ -62,8 +62,9 @@ SPAN = CONTEXT + max(GAPS)
 CASE_STEP = 40
 STYLE_CLIP_FRAMES = 120
 LAST_CONTEXT = CONTEXT - 1
-LOCOMOTION = ("walk", "walk-turn-left", "walk-turn-right", "run")
-"""The contents of the data whose takes travel: every acceptance figure is taken on their cases."""
+LOCOMOTION = ("walk", "walk-turn-left", "walk-turn-right", "run", "walk-back", "walk-left", "walk-right", "dash")
+"""The contents of the data whose takes travel: every acceptance figure is taken on their cases (dataset 2 has
+the first four; dataset 1 adds backwards, at an angle to the facing and the dash)."""
 SIDE_STEP_CM = 100.0
 TURN_DEG = 90.0
 

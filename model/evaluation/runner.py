@@ -44,7 +44,14 @@ from model.evaluation.cases import (
 from model.evaluation.floor import floor_depth
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
-from model.evaluation.scoring import Transitions, ground_truth_transitions, root_speed, score, to_canonical
+from model.evaluation.scoring import (
+    Transitions,
+    gait_rows,
+    ground_truth_transitions,
+    root_speed,
+    score,
+    to_canonical,
+)
 from model.evaluation.style_judge import StyleJudge
 from model.evaluation.style_scores import StyleScorer, judge_fmd_floor, judge_fmd_rows, judge_rows, matched_reference
 from model.nets.style_classifier import StyleClassifier
@@ -211,7 +218,7 @@ def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[
         row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
                                "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground)),
                                "floor_depth_cm": float(floor_depth(gt.generated_positions, stats.feet, stats.ground).mean()),
-                               **root_speed(gt.positions, cases)}
+                               **root_speed(gt.positions, cases), **gait_rows(gt.positions, cases)}
         if run.judge is not None and v.gap == STYLE_GAP:
             row.update(judge_rows(run.judge, gt.positions, styles))
             row.update(judge_fmd_floor(run.judge, gt.positions, styles))
@@ -240,7 +247,7 @@ def _score_ground_truth_locomotion(run: EvalRun) -> dict[str, dict[str, Any]]:
                                "foot_skate": float(metrics.foot_skate(gt.positions, run.stats.feet, run.stats.ground)),
                                "floor_depth_cm": float(floor_depth(gt.generated_positions, run.stats.feet,
                                                                    run.stats.ground).mean()),
-                               **root_speed(gt.positions, loco)}
+                               **root_speed(gt.positions, loco), **gait_rows(gt.positions, loco)}
         context = root_speed(loco.canonical_positions[:, :CONTEXT], loco)
         row.update({f"context_{k}": x for k, x in context.items()})
         if run.judge is not None and v.gap == STYLE_GAP:
