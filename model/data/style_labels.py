@@ -11,14 +11,11 @@ per pair is measured on val, so the choice is a data setting (``RSMT_STYLE_LABEL
 * ``merged``: dataset-1's ``old``, ``tired``, ``childish`` and ``masculinity`` are relabelled with
   dataset 2's name (the take's :attr:`~model.data.takes.Take.source_style` keeps the original).
 
-The split never depends on this setting: it hashes and groups by the data's own name.
+The split never depends on this setting: it hashes and groups by the data's own name. The index
+(:func:`model.data.takes.index_takes`) applies it with :func:`model.data.takes.relabel`.
 """
 
 from __future__ import annotations
-
-from dataclasses import replace
-
-from model.data.takes import Take
 
 MODES = ("own", "merged")
 DEFAULT_MODE = "own"
@@ -31,10 +28,3 @@ def check_mode(mode: str) -> str:
         raise ValueError(f"style labels must be one of {', '.join(MODES)}, got {mode!r}")
     return mode
 
-
-def relabel(take: Take, mode: str) -> Take:
-    """``take`` with the style label ``mode`` gives it (the same object when unchanged)."""
-    check_mode(mode)
-    if mode == "merged" and take.source == "dataset-1" and take.data_style in DATASET1_TO_DATASET2:
-        return replace(take, style=DATASET1_TO_DATASET2[take.data_style], source_style=take.data_style)
-    return take

@@ -28,6 +28,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
 
+from model.data.location import style_labels_setting
+from model.data.style_labels import DATASET1_TO_DATASET2, check_mode
+
 FRAME_CUTS = "Frame_Cuts.csv"
 STYLE100_CONTENTS = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
 LAYOUTS = ("manifest", "100style", "bandai-namco")
@@ -169,9 +172,6 @@ def index_takes(folder: str | Path, manifest: str | Path | None = None, style_la
         FileNotFoundError: ``folder`` or ``manifest`` does not exist.
         ValueError: the manifest or ``Frame_Cuts.csv`` lacks a required column; several folders with a manifest.
     """
-    from model.data.location import style_labels_setting
-    from model.data.style_labels import relabel
-
     mode = style_labels or style_labels_setting()
     folders = data_folders(folder)
     if len(folders) > 1:
@@ -182,6 +182,14 @@ def index_takes(folder: str | Path, manifest: str | Path | None = None, style_la
         index = _index_one(folder, manifest)
     index.takes = [relabel(t, mode) for t in index.takes]
     return index
+
+
+def relabel(take: Take, mode: str) -> Take:
+    """``take`` with the style label ``mode`` (:mod:`model.data.style_labels`) gives it; the same object when unchanged."""
+    check_mode(mode)
+    if mode == "merged" and take.source == "dataset-1" and take.data_style in DATASET1_TO_DATASET2:
+        return replace(take, style=DATASET1_TO_DATASET2[take.data_style], source_style=take.data_style)
+    return take
 
 
 def _index_several(folders: list[Path]) -> TakeIndex:

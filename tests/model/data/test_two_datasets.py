@@ -11,8 +11,7 @@ import pytest
 
 from model.data.location import DEFAULT_DATASET_1, DEFAULT_UNPACKED
 from model.data.splits import split_takes
-from model.data.style_labels import relabel
-from model.data.takes import Take, index_takes, read_bvh_header
+from model.data.takes import Take, index_takes, read_bvh_header, relabel
 
 D1_STYLES = ("active", "angry", "childish", "feminine", "happy", "masculinity", "musical", "normal", "old", "tired")
 D1_CONTENTS = ("walk", "walk-back", "walk-left", "walk-right", "run", "dash", "bow")
