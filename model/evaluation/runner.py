@@ -137,7 +137,8 @@ def evaluate(
     unknown = sorted(set(settings.styles) - set(cache.styles))
     if unknown:
         raise ValueError(f"unknown style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
-    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles)
+    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles,
+                            clip_fallback=split.train if settings.split != "train" else ())
     cases = CaseSet.load(cache, case_list)
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]

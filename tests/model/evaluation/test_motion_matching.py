@@ -81,3 +81,16 @@ def test_smoothstep_and_key_joints(cache: MotionCache) -> None:
 def test_needs_a_training_take(cache: MotionCache, tmp_path: Path) -> None:
     with pytest.raises(ValueError):
         MotionMatchingMethod(cache, [])
+
+
+def test_a_split_with_one_take_per_style_borrows_its_style_clips_from_the_fallback(cache: MotionCache) -> None:
+    one_each: dict[str, int] = {}
+    for i in cache.split.val:
+        one_each.setdefault(cache.takes[i].style, i)
+    takes = sorted(one_each.values())
+    assert build_cases(cache, takes) == []  # no other take of the style in the split: no style clip
+    train = set(cache.split.train)
+    cases = build_cases(cache, takes, clip_fallback=sorted(train))
+    assert cases and all(c.style_take in train and c.cross_take in train | set(takes) for c in cases)
+    # A split that has its own clips ignores the fallback.
+    assert build_cases(cache, cache.split.val) == build_cases(cache, cache.split.val, clip_fallback=sorted(train))
