@@ -135,7 +135,7 @@ def inspect_data(
     takes = [t for t, _, _ in rows]
     styles = sorted({t.style for t in takes})
     contents = sorted({t.content for t in takes})
-    split = split_takes(takes, ratios, holdout_styles)
+    split = split_takes(takes, ratios, holdout_styles, frames=[f for _, f, _ in rows])
     split_names = [*SPLITS, "holdout"] if split.holdout_styles else list(SPLITS)
     return {
         "folder": str(index.root),

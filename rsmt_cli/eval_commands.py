@@ -37,6 +37,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="style classifier folder (rsmt train classifier) for style accuracy and FMD")
     p.add_argument("--judge", type=Path, metavar="DIR",
                    help="style judge folder (rsmt train judge): the style accuracy of the acceptance figures")
+    p.add_argument("--judge2", type=Path, metavar="DIR",
+                   help="second style judge folder (rsmt train sequence-judge), reported beside the first")
+    p.add_argument("--no-motion-matching", action="store_true",
+                   help="leave out the motion-matching baseline (built from the training split; run by default)")
     p.add_argument("--target-frames", type=int, default=1, choices=[1, 2],
                    help="target frames sent to bundles: 1, the target alone (what a game has; default), or 2, "
                         "with the frame before it (the target's velocity)")
@@ -71,7 +75,9 @@ def eval_command(args: argparse.Namespace) -> int:
 
     from model.data.preprocessed import load_motion_cache
     from model.evaluation import EvalSettings, evaluate, resolve_method
+    from model.evaluation.motion_matching import MotionMatchingMethod
     from model.evaluation.report import markdown
+    from model.evaluation.sequence_judge import SequenceJudge
     from model.evaluation.style_judge import StyleJudge
     from model.nets.style_classifier import StyleClassifier
 
@@ -84,12 +90,16 @@ def eval_command(args: argparse.Namespace) -> int:
     methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     judge = StyleJudge.load(args.judge) if args.judge else None
+    judge2 = SequenceJudge.load(args.judge2) if args.judge2 else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
+    if not args.no_motion_matching:
+        methods.append(MotionMatchingMethod(cache, cache.split.train))
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
                             diversity_samples=args.diversity_samples, render_cases=args.render_cases,
                             styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise)
     run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
-                   progress=not args.quiet, judge=judge, judge_path=str(args.judge) if args.judge else None)
+                   progress=not args.quiet, judge=judge, judge_path=str(args.judge) if args.judge else None,
+                   judge2=judge2, judge2_path=str(args.judge2) if args.judge2 else None)
     command = _command(args)
     run.report["command"] = command
     text = markdown(run.report, command)
@@ -129,7 +139,8 @@ def _command(args: argparse.Namespace) -> str:
     for m in args.model:
         parts += ["--model", str(m)]
     parts += ["--data", str(args.data or find_data_dir()), "--split", args.split]
-    for flag, optional in (("--classifier", args.classifier), ("--judge", args.judge), ("--out", args.out),
+    for flag, optional in (("--classifier", args.classifier), ("--judge", args.judge), ("--judge2", args.judge2),
+                           ("--out", args.out),
                            ("--limit", args.limit)):
         if optional is not None:
             parts += [flag, str(optional)]
@@ -141,6 +152,8 @@ def _command(args: argparse.Namespace) -> str:
         parts.append("--noise")
     if args.exact_arrival:
         parts.append("--exact-arrival")
+    if args.no_motion_matching:
+        parts.append("--no-motion-matching")
     if args.stream_retarget:
         parts.append("--stream-retarget")
     parts += output_flags(args)

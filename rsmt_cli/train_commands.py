@@ -68,10 +68,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                 "goes on from there)")
         p.set_defaults(func=_run, stage=stage)
     _register_recipe(sub)
-    from rsmt_cli import classifier_commands, judge_commands
+    from rsmt_cli import classifier_commands, judge_commands, sequence_judge_commands
 
     classifier_commands.register(sub)
     judge_commands.register(sub)
+    sequence_judge_commands.register(sub)
 
 
 def _register_recipe(sub: argparse._SubParsersAction) -> None:

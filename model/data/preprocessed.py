@@ -83,7 +83,7 @@ def cache_key(index: TakeIndex, fps: float = DEFAULT_FPS, profile: ProfileArg = 
         st = take.path.stat()
         files.append([take.take_id, relative_path(take.path, index.root), st.st_size, st.st_mtime_ns,
                       take.style, take.content, take.start, take.stop])
-    description = {
+    description: dict[str, Any] = {
         "format": CACHE_FORMAT_VERSION,
         "fps": float(fps),
         # The profile's content, not its name, so an edited profile file gives a new cache.
@@ -95,6 +95,8 @@ def cache_key(index: TakeIndex, fps: float = DEFAULT_FPS, profile: ProfileArg = 
     }
     if units != "auto":  # absent for the default, so caches built before units were read keep their key
         description["units"] = units
+    if index.roots:  # several folders; a one-folder cache keeps its key
+        description["data_roots"] = [str(r) for r in index.roots]
     text = json.dumps(description, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -252,6 +254,7 @@ def build_motion_cache(
         takes.append({
             "take_id": take.take_id, "path": relative_path(take.path, index.root), "style": take.style,
             "content": take.content, "start": take.start, "stop": take.stop, "skeleton": sid,
+            **({"source_style": take.source_style} if take.source_style else {}),
             "frames": frames, "joints": joints, "frame_offset": frame, "row_offset": row,
             "source_frames": result["source_frames"], "source_fps": result["source_fps"],
             "cm_per_unit": result["cm_per_unit"],
@@ -264,6 +267,7 @@ def build_motion_cache(
         "format": CACHE_FORMAT_VERSION, "key": key, "fps": float(fps),
         "profile": None if prof is None else prof.to_dict(), "min_frames": int(min_frames), "units": units,
         "data_root": str(index.root), "layout": index.layout,
+        **({"data_roots": [str(r) for r in index.roots]} if index.roots else {}),
         "manifest": None if index.manifest is None else str(index.manifest),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "build_seconds": round(time.perf_counter() - began, 2),
         "skeletons": skeletons, "takes": takes, "problems": problems,
@@ -322,7 +326,7 @@ class MotionCache:
         self._entries: list[dict[str, Any]] = meta["takes"]
         self.takes: list[Take] = [
             Take(path=self.data_root / e["path"], style=e["style"], content=e["content"],
-                 take_id=e["take_id"], start=e["start"], stop=e["stop"])
+                 take_id=e["take_id"], start=e["start"], stop=e["stop"], source_style=e.get("source_style"))
             for e in self._entries
         ]
         self.problems: list[Problem] = [Problem(**p) for p in meta["problems"]]
@@ -415,11 +419,11 @@ class MotionCache:
     @cached_property
     def split(self) -> Split:
         """The default split (ratios 0.8/0.1/0.1, no held-out style); indices are take positions."""
-        return split_takes(self.takes, DEFAULT_RATIOS)
+        return split_takes(self.takes, DEFAULT_RATIOS, frames=self.frame_counts)
 
     def make_split(self, ratios: Sequence[float] = DEFAULT_RATIOS, holdout_styles: Sequence[str] = ()) -> Split:
         """A split with other ratios or held-out styles (see :func:`model.data.splits.split_takes`)."""
-        return split_takes(self.takes, ratios, holdout_styles)
+        return split_takes(self.takes, ratios, holdout_styles, frames=self.frame_counts)
 
 
 def load_motion_cache(

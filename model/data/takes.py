@@ -13,6 +13,10 @@ Three layouts are understood, chosen in this order:
 
 BVH files are found recursively. A file the index cannot label becomes a :class:`Problem`, never an
 exception.
+
+Several folders (one string, separated by ``os.pathsep`` as in ``PATH``: ``RSMT_DATA=$D2:$D1``) are
+indexed each on its own and read as one index: a take keeps the id it has in its own folder, so its
+split is the same whether its folder is indexed alone or beside others.
 """
 
 from __future__ import annotations
@@ -20,9 +24,12 @@ from __future__ import annotations
 import csv
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
+
+from model.data.location import style_labels_setting
+from model.data.style_labels import DATASET1_TO_DATASET2, check_mode
 
 FRAME_CUTS = "Frame_Cuts.csv"
 STYLE100_CONTENTS = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
@@ -44,6 +51,8 @@ class Take:
             one file into several takes. It never holds an absolute path, so hashes of it are the
             same on every machine.
         start / stop: optional cut ``[start, stop)`` in the file's own frame numbering.
+        source_style: the style as the data names it when ``style`` is a merged label
+            (:mod:`model.data.style_labels`); ``None`` when they are the same.
     """
 
     path: Path
@@ -52,11 +61,23 @@ class Take:
     take_id: str
     start: int | None = None
     stop: int | None = None
+    source_style: str | None = None
+
+    @property
+    def data_style(self) -> str:
+        """The style as the data names it (before any label merge)."""
+        return self.source_style or self.style
+
+    @property
+    def source(self) -> str:
+        """The data set a Bandai-Namco take comes from (``"dataset-1"``, ``"dataset-2"``); ``""`` for other layouts."""
+        m = _BANDAI_NAME.fullmatch(self.path.stem)
+        return f"dataset-{int(m['set'])}" if m else ""
 
     @property
     def key(self) -> str:
-        """The machine-independent key that splits hash."""
-        return f"{self.style}/{self.content}/{self.take_id}"
+        """The machine-independent key that splits hash (the data's own style, so a label merge moves no take)."""
+        return f"{self.data_style}/{self.content}/{self.take_id}"
 
 
 @dataclass(frozen=True)
@@ -88,6 +109,7 @@ class TakeIndex:
         takes: labelled takes, sorted by ``take_id``.
         problems: files that could not be labelled.
         manifest: the manifest used, if any.
+        roots: every folder indexed when there are several (``root`` is the first); empty for one.
     """
 
     root: Path
@@ -95,6 +117,7 @@ class TakeIndex:
     takes: list[Take] = field(default_factory=list)
     problems: list[Problem] = field(default_factory=list)
     manifest: Path | None = None
+    roots: tuple[Path, ...] = ()
 
     @property
     def styles(self) -> list[str]:
@@ -133,16 +156,64 @@ def parse_bandai_namco_name(name: str) -> tuple[str, str] | None:
     return (m["content"].lower(), m["style"].lower()) if m else None
 
 
-def index_takes(folder: str | Path, manifest: str | Path | None = None) -> TakeIndex:
-    """Label every BVH take under ``folder``.
+def data_folders(folder: str | Path) -> list[Path]:
+    """The folders ``folder`` names: one, or several separated by ``os.pathsep``."""
+    return [Path(part).expanduser() for part in str(folder).split(os.pathsep) if part]
+
+
+def index_takes(folder: str | Path, manifest: str | Path | None = None, style_labels: str | None = None) -> TakeIndex:
+    """Label every BVH take under ``folder`` (or under each of several folders, see the module docstring).
 
     The layout is ``manifest`` when one is given, else ``100style`` when a ``Frame_Cuts.csv`` lies in
-    ``folder`` (or, failing that, anywhere below it), else ``bandai-namco``.
+    ``folder`` (or, failing that, anywhere below it), else ``bandai-namco``. ``style_labels`` is a mode of
+    :mod:`model.data.style_labels` (default: the ``RSMT_STYLE_LABELS`` setting, else ``own``).
 
     Raises:
         FileNotFoundError: ``folder`` or ``manifest`` does not exist.
-        ValueError: the manifest or ``Frame_Cuts.csv`` lacks a required column.
+        ValueError: the manifest or ``Frame_Cuts.csv`` lacks a required column; several folders with a manifest.
     """
+    mode = style_labels or style_labels_setting()
+    folders = data_folders(folder)
+    if len(folders) > 1:
+        if manifest is not None:
+            raise ValueError("a manifest labels one data folder; give one folder with --manifest")
+        index = _index_several(folders)
+    else:
+        index = _index_one(folder, manifest)
+    index.takes = [relabel(t, mode) for t in index.takes]
+    return index
+
+
+def relabel(take: Take, mode: str) -> Take:
+    """``take`` with the style label ``mode`` (:mod:`model.data.style_labels`) gives it; the same object when unchanged."""
+    check_mode(mode)
+    if mode == "merged" and take.source == "dataset-1" and take.data_style in DATASET1_TO_DATASET2:
+        return replace(take, style=DATASET1_TO_DATASET2[take.data_style], source_style=take.data_style)
+    return take
+
+
+def _index_several(folders: list[Path]) -> TakeIndex:
+    """One index of several folders: each indexed alone, the takes of all together (ids kept)."""
+    parts = [_index_one(f) for f in folders]
+    first = parts[0]
+    layouts = sorted({p.layout for p in parts})
+    index = TakeIndex(root=first.root, layout=layouts[0] if len(layouts) == 1 else "+".join(layouts),
+                      roots=tuple(p.root for p in parts))
+    seen: dict[str, Path] = {}
+    for part in parts:
+        index.problems += [replace(p, path=relative_path(part.root / p.path, first.root)) for p in part.problems]
+        for take in part.takes:
+            if take.take_id in seen:
+                index.problems.append(Problem(relative_path(take.path, first.root), "unlabelled",
+                                              f"take id {take.take_id} is also in {seen[take.take_id]}"))
+                continue
+            seen[take.take_id] = part.root
+            index.takes.append(take)
+    index.takes.sort(key=lambda t: t.take_id)
+    return index
+
+
+def _index_one(folder: str | Path, manifest: str | Path | None = None) -> TakeIndex:
     root = Path(folder).expanduser().resolve()
     if not root.is_dir():
         raise FileNotFoundError(f"no such data folder: {folder}")
@@ -372,9 +443,11 @@ def _header_number(path: Path, lineno: int, words: list[str], kind: type[_N]) ->
 
 def describe_layout(index: TakeIndex) -> str:
     """One line naming the layout and where the labels came from."""
-    source = {
+    sources = {
         "manifest": f"manifest {index.manifest}",
         "100style": f"{FRAME_CUTS} and style folders",
         "bandai-namco": "file names dataset-<N>_{content}_{style}_{NNN}.bvh",
-    }[index.layout]
-    return f"{index.layout} (labels from {source})"
+    }
+    source = "; ".join(sources[layout] for layout in index.layout.split("+"))
+    folders = f", {len(index.roots)} folders" if index.roots else ""
+    return f"{index.layout} (labels from {source}{folders})"

@@ -62,8 +62,9 @@ SPAN = CONTEXT + max(GAPS)
 CASE_STEP = 40
 STYLE_CLIP_FRAMES = 120
 LAST_CONTEXT = CONTEXT - 1
-LOCOMOTION = ("walk", "walk-turn-left", "walk-turn-right", "run")
-"""The contents of the data whose takes travel: every acceptance figure is taken on their cases."""
+LOCOMOTION = ("walk", "walk-turn-left", "walk-turn-right", "run", "walk-back", "walk-left", "walk-right", "dash")
+"""The contents of the data whose takes travel: every acceptance figure is taken on their cases (dataset 2 has
+the first four; dataset 1 adds backwards, at an angle to the facing and the dash)."""
 SIDE_STEP_CM = 100.0
 TURN_DEG = 90.0
 
@@ -173,7 +174,7 @@ def _rank_style_takes(cache: MotionCache, pool: Sequence[int], style: str, conte
 
 
 def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = None,
-                step: int = CASE_STEP, only_styles: Sequence[str] = ()) -> list[EvalCase]:
+                step: int = CASE_STEP, only_styles: Sequence[str] = (), clip_fallback: Sequence[int] = ()) -> list[EvalCase]:
     """The cases of ``takes`` (a split), sorted by take id then start; see the module docstring.
 
     Takes shorter than :data:`SPAN` give no case but still serve as style clips (when at least
@@ -181,10 +182,20 @@ def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = No
     ``only_styles`` keeps only cases of those styles; style clips (same and other style) still come
     from every take, so a case is the same case with or without the filter.
     ``limit`` keeps that many cases spread evenly over the sorted list (so every style stays in).
+    ``clip_fallback`` (e.g. the training split) gives a style's clips where ``takes`` has no other take of it
+    (dataset 1 has one take per style and content, so its val and test splits rarely hold two of a style);
+    where ``takes`` has one, nothing changes.
     """
     order = sorted(takes, key=lambda i: cache.takes[i].take_id)
     pool = [i for i in order if cache.num_frames(i) >= SPAN]
-    styles = sorted({cache.takes[i].style for i in pool})
+    fallback = [i for i in sorted(clip_fallback, key=lambda i: cache.takes[i].take_id) if cache.num_frames(i) >= SPAN]
+    styles = sorted({cache.takes[i].style for i in [*pool, *fallback]})
+
+    def rank(style: str, content: str, exclude: int, key: str) -> int | None:
+        found = _rank_style_takes(cache, pool, style, content, exclude, key)
+        return found if found is not None or not fallback else _rank_style_takes(cache, fallback, style, content,
+                                                                                  exclude, key)
+
     cases: list[EvalCase] = []
     for i in order:
         n = cache.num_frames(i)
@@ -193,12 +204,12 @@ def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = No
             continue
         for start in range(0, n - SPAN + 1, step):
             cid = f"{take.take_id}@{start}"
-            same = _rank_style_takes(cache, pool, take.style, take.content, i, cid)
+            same = rank(take.style, take.content, i, cid)
             others = [s for s in styles if s != take.style]
             if same is None or not others:
                 continue
             cross_style = others[stable_hash("cross", cid) % len(others)]
-            cross = _rank_style_takes(cache, pool, cross_style, take.content, i, cid)
+            cross = rank(cross_style, take.content, i, cid)
             if cross is None:
                 continue
             cases.append(EvalCase(

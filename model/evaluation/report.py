@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from model.evaluation.gait_report import gait_tables
+
 GT_NAME = "ground truth"
 
 
@@ -56,10 +58,12 @@ def markdown(report: dict[str, Any], command: str | None = None) -> str:
         lines += [f"# Locomotion cases ({', '.join(report['locomotion_contents'])}): the acceptance figures", ""]
         lines += _unchanged_controls(methods, report, "locomotion", "ground_truth_locomotion")
         lines += _changed_controls(methods, report, "locomotion", "ground_truth_locomotion")
+        lines += gait_tables(report, "locomotion", "ground_truth_locomotion")
         lines += _judge_tables(methods, report, "locomotion", "ground_truth_locomotion")
     lines += ["# All contents", ""]
     lines += _unchanged_controls(methods, report, "variants", "ground_truth")
     lines += _changed_controls(methods, report, "variants", "ground_truth")
+    lines += gait_tables(report, "variants", "ground_truth")
     lines += _judge_tables(methods, report, "variants", "ground_truth")
     lines += _style_tables(methods, report)
     lines += [f"Total time {report['seconds']:.1f} s: " + ", ".join(f"{n} {m['seconds']:.1f} s" for n, m in methods.items()), ""]

@@ -44,7 +44,15 @@ from model.evaluation.cases import (
 from model.evaluation.floor import floor_depth
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
-from model.evaluation.scoring import Transitions, ground_truth_transitions, root_speed, score, to_canonical
+from model.evaluation.scoring import (
+    Transitions,
+    gait_rows,
+    ground_truth_transitions,
+    root_speed,
+    score,
+    to_canonical,
+)
+from model.evaluation.sequence_judge import SequenceJudge
 from model.evaluation.style_judge import StyleJudge
 from model.evaluation.style_scores import StyleScorer, judge_fmd_floor, judge_fmd_rows, judge_rows, matched_reference
 from model.nets.style_classifier import StyleClassifier
@@ -83,6 +91,7 @@ class EvalRun:
     stats: ReferenceStats
     loco: CaseSet | None = None  # the locomotion cases (None when there are none)
     judge: StyleJudge | None = None
+    judge2: SequenceJudge | None = None  # the second judge (another family), reported beside the first
     render_index: list[int] = field(default_factory=list)
     render: dict[str, dict[str, Tensor]] = field(default_factory=dict)  # method -> variant -> [R, N+1, J, 3]
 
@@ -116,6 +125,8 @@ def evaluate(
     stats: ReferenceStats | None = None,
     judge: StyleJudge | None = None,
     judge_path: str | None = None,
+    judge2: SequenceJudge | None = None,
+    judge2_path: str | None = None,
 ) -> EvalRun:
     """Evaluate ``methods`` on the cases of ``settings.split`` of ``cache``; see the module docstring."""
     began = time.perf_counter()
@@ -126,7 +137,8 @@ def evaluate(
     unknown = sorted(set(settings.styles) - set(cache.styles))
     if unknown:
         raise ValueError(f"unknown style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
-    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles)
+    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles,
+                            clip_fallback=split.train if settings.split != "train" else ())
     cases = CaseSet.load(cache, case_list)
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]
@@ -134,7 +146,8 @@ def evaluate(
     if settings.target_frames not in (1, 2):
         raise ValueError(f"target frames must be 1 or 2, not {settings.target_frames}")
     loco = cases.subset(cases.locomotion_index) if cases.locomotion_index else None
-    run = EvalRun(report={}, cases=cases, render_index=render_index, stats=stats, loco=loco, judge=judge)
+    run = EvalRun(report={}, cases=cases, render_index=render_index, stats=stats, loco=loco, judge=judge,
+                  judge2=judge2)
 
     gt_rows, gt_features = _score_ground_truth(run, scorer)
     method_reports: dict[str, Any] = {}
@@ -190,6 +203,7 @@ def evaluate(
             "path": classifier_path, "styles": classifier.styles, "inputs": classifier.config.inputs,
             "window": classifier.config.window},
         "judge": None if judge is None else {"path": judge_path, **judge.describe()},
+        "judge2": None if judge2 is None else {"path": judge2_path, **judge2.describe()},
         "ground_truth": gt_rows,
         "ground_truth_locomotion": _score_ground_truth_locomotion(run),
         "methods": method_reports,
@@ -211,10 +225,12 @@ def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[
         row: dict[str, Any] = {"cases": len(cases), "frames": v.gap,
                                "foot_skate": float(metrics.foot_skate(gt.positions, stats.feet, stats.ground)),
                                "floor_depth_cm": float(floor_depth(gt.generated_positions, stats.feet, stats.ground).mean()),
-                               **root_speed(gt.positions, cases)}
+                               **root_speed(gt.positions, cases), **gait_rows(gt.positions, cases)}
         if run.judge is not None and v.gap == STYLE_GAP:
             row.update(judge_rows(run.judge, gt.positions, styles))
             row.update(judge_fmd_floor(run.judge, gt.positions, styles))
+        if run.judge2 is not None and v.gap == STYLE_GAP:
+            row.update(judge_rows(run.judge2, gt.positions, styles, prefix="judge2_accuracy"))
         if scorer is not None and v.gap == STYLE_GAP:
             logits, gt_features = scorer.classify(gt)
             row["style_accuracy"] = scorer.accuracy(logits, scorer.labels(styles))
@@ -240,12 +256,14 @@ def _score_ground_truth_locomotion(run: EvalRun) -> dict[str, dict[str, Any]]:
                                "foot_skate": float(metrics.foot_skate(gt.positions, run.stats.feet, run.stats.ground)),
                                "floor_depth_cm": float(floor_depth(gt.generated_positions, run.stats.feet,
                                                                    run.stats.ground).mean()),
-                               **root_speed(gt.positions, loco)}
+                               **root_speed(gt.positions, loco), **gait_rows(gt.positions, loco)}
         context = root_speed(loco.canonical_positions[:, :CONTEXT], loco)
         row.update({f"context_{k}": x for k, x in context.items()})
         if run.judge is not None and v.gap == STYLE_GAP:
             row.update(judge_rows(run.judge, gt.positions, styles))
             row.update(judge_fmd_floor(run.judge, gt.positions, styles))
+        if run.judge2 is not None and v.gap == STYLE_GAP:
+            row.update(judge_rows(run.judge2, gt.positions, styles, prefix="judge2_accuracy"))
         rows[v.name] = row
     return rows
 
@@ -277,7 +295,8 @@ def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSetting
         row: dict[str, Any] = _judged(run, v, cases, out)
         run.render[name][v.name] = out.positions[run.render_index]
         cross = None
-        if v.gap == STYLE_GAP and v.has_ground_truth and (scorer is not None or run.judge is not None):
+        if v.gap == STYLE_GAP and v.has_ground_truth and (scorer is not None or run.judge is not None
+                                                          or run.judge2 is not None):
             cross = _cross_style(run, method, v, out, settings, progress)
         if scorer is not None and v.gap == STYLE_GAP:
             row.update(_style_row(run, v, out, cross, scorer, gt_features))
@@ -285,13 +304,13 @@ def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSetting
                 and settings.diversity_cases > 0):
             row.update(_diversity(method, cases, v, settings, progress))
         rows[v.name] = row
-        if cross is not None and run.judge is not None:
-            row.update(_judge_cross(run.judge, cases, cross.positions))
+        if cross is not None:
+            row.update(_judges_cross(run, cases, cross.positions))
         if run.loco is not None:
             idx = cases.locomotion_index
             loco_rows[v.name] = _judged(run, v, run.loco, Transitions(out.positions[idx], out.rotations[idx]))
-            if cross is not None and run.judge is not None:
-                loco_rows[v.name].update(_judge_cross(run.judge, run.loco, cross.positions[idx]))
+            if cross is not None:
+                loco_rows[v.name].update(_judges_cross(run, run.loco, cross.positions[idx]))
     rows["locomotion"] = loco_rows
     return rows
 
@@ -303,6 +322,8 @@ def _judged(run: EvalRun, v: Variant, cases: CaseSet, out: Transitions) -> dict[
     styles = [c.style for c in cases.cases]
     if run.judge is not None and v.frames >= STYLE_GAP:
         row.update(judge_rows(run.judge, out.positions, styles))
+    if run.judge2 is not None and v.frames >= STYLE_GAP:
+        row.update(judge_rows(run.judge2, out.positions, styles, prefix="judge2_accuracy"))
     if run.judge is not None and v.gap == STYLE_GAP and v.has_ground_truth:
         row.update(judge_fmd_rows(run.judge, out.positions, ground_truth_transitions(cases, v).positions, styles))
     return row
@@ -324,10 +345,21 @@ def _request(v: Variant, cases: CaseSet, settings: EvalSettings, cross_style: bo
     return Request(v, cross_style=cross_style, seeds=seeds, target_frames=settings.target_frames)
 
 
-def _judge_cross(judge: StyleJudge, cases: CaseSet, positions: Tensor) -> dict[str, Any]:
+def _judges_cross(run: EvalRun, cases: CaseSet, positions: Tensor) -> dict[str, Any]:
+    """:func:`_judge_cross` of each judge given (the second's figures prefixed ``judge2``)."""
+    row: dict[str, Any] = {}
+    if run.judge is not None:
+        row.update(_judge_cross(run.judge, cases, positions))
+    if run.judge2 is not None:
+        row.update(_judge_cross(run.judge2, cases, positions, "judge2"))
+    return row
+
+
+def _judge_cross(judge: StyleJudge | SequenceJudge, cases: CaseSet, positions: Tensor,
+                 name: str = "judge") -> dict[str, Any]:
     """The judge's accuracy with other-style clips, on the clip's style, and the share read as the context's style."""
-    row = judge_rows(judge, positions, [c.cross_style for c in cases.cases], prefix="judge_accuracy_cross")
-    as_context = judge_rows(judge, positions, [c.style for c in cases.cases], prefix="judge_cross_as_context")
+    row = judge_rows(judge, positions, [c.cross_style for c in cases.cases], prefix=f"{name}_accuracy_cross")
+    as_context = judge_rows(judge, positions, [c.style for c in cases.cases], prefix=f"{name}_cross_as_context")
     return {**row, **as_context}
 
 

@@ -22,6 +22,12 @@ each case's largest, and ``max_root_speed_cm_s_worst``, the largest of all (a co
 jumping shows there); ``floor_depth_cm`` (and ``floor_depth_cm_gt`` with ground truth): per case the
 deepest a foot joint goes below its ground level over the generated frames, mean over cases
 (:mod:`model.evaluation.floor`).
+
+Gait figures (:mod:`model.motion.gait`), on the same frames (last context frame first): ``toe_skate``
+(and ``toe_skate_gt``): the toe joints alone against the toes' rest height 4.25 cm above y = 0;
+``backward_share``: the mean over cases (with hips faster than 30 cm/s somewhere) of the share of such
+frame steps that move against the facing; ``longest_airborne_frames`` (the worst case's longest run with
+both toes 15 cm above rest) and ``longest_airborne_frames_mean``.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from model.evaluation import metrics
 from model.evaluation.cases import LAST_CONTEXT, CaseSet, Variant
 from model.evaluation.floor import floor_depth
 from model.evaluation.reference import ReferenceStats
+from model.motion import gait
 
 Tensor = torch.Tensor
 
@@ -78,6 +85,19 @@ def root_speed(positions: Tensor, cases: CaseSet) -> dict[str, float]:
     return {"max_root_speed_cm_s": float(speed.mean()), "max_root_speed_cm_s_worst": float(speed.max())}
 
 
+def gait_rows(positions: Tensor, cases: CaseSet) -> dict[str, float]:
+    """Toe skate, backward share and airborne runs of ``positions [B, N+1, J, 3]`` (see the module docstring)."""
+    toes = gait.toe_joints(cases.skeleton)
+    share = gait.backward_share(positions, cases.skeleton, cases.fps)
+    moving = ~torch.isnan(share)
+    air = gait.longest_airborne(positions, toes)
+    return {"toe_skate": float(gait.toe_skate(positions, toes)),
+            "backward_share": float(share[moving].mean()) if moving.any() else float("nan"),
+            "backward_share_cases": int(moving.sum()),
+            "longest_airborne_frames": int(air.max()) if len(air) else 0,
+            "longest_airborne_frames_mean": float(air.float().mean()) if len(air) else 0.0}
+
+
 def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> dict[str, float]:
     """Scores of ``out`` on variant ``v`` (see the module docstring)."""
     pred_pos = out.generated_positions
@@ -90,6 +110,7 @@ def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> 
         "foot_skate": float(metrics.foot_skate(out.positions, ref.feet, ref.ground)),
         "floor_depth_cm": float(floor_depth(out.generated_positions, ref.feet, ref.ground).mean()),
         **root_speed(out.positions, cases),
+        **gait_rows(out.positions, cases),
     }
     if v.has_ground_truth:
         gt = ground_truth_transitions(cases, v)
@@ -102,6 +123,7 @@ def score(cases: CaseSet, v: Variant, out: Transitions, ref: ReferenceStats) -> 
             "npss_x100": 100.0 * npss,
             "mpjpe_cm": float(metrics.mean_joint_error_cm(pred_pos, gt_pos)),
             "foot_skate_gt": float(metrics.foot_skate(gt.positions, ref.feet, ref.ground)),
+            "toe_skate_gt": gait_rows(gt.positions, cases)["toe_skate"],
             "floor_depth_cm_gt": float(floor_depth(gt_pos, ref.feet, ref.ground).mean()),
         })
     return result

@@ -30,6 +30,7 @@ import torch
 
 from model.evaluation.metrics import frechet_distance
 from model.evaluation.scoring import Transitions
+from model.evaluation.sequence_judge import SequenceJudge
 from model.evaluation.style_judge import StyleJudge
 from model.motion.skeleton import Skeleton
 from model.nets.style_classifier import StyleClassifier, motion_features
@@ -100,7 +101,8 @@ def matched_reference(gt_features: Tensor, case_styles: Sequence[str], requested
     return gt_features[idx] if rows else gt_features[:0], torch.tensor(kept, dtype=torch.long)
 
 
-def judge_rows(judge: StyleJudge, positions: Tensor, requested: Sequence[str], prefix: str = "judge_accuracy") -> dict:
+def judge_rows(judge: StyleJudge | SequenceJudge, positions: Tensor, requested: Sequence[str],
+               prefix: str = "judge_accuracy") -> dict:
     """The style judge's accuracy on sequences ``[B, T, J, 3]`` against the requested styles, overall
     (``prefix``) and per requested style (``prefix + "_by_style"``), the mean probability it gives the
     requested style (``..._prob``, ``..._prob_by_style``) and the share of each requested style's cases it

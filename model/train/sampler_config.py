@@ -55,6 +55,12 @@ class SamplerStageConfig:
     control_turn: float = 0.0
     # Moved targets also move up to this far (cm) across the window's travel (the evaluation's 1 m sideways).
     control_side: float = 0.0
+    # Contents whose takes the changed-control windows come from (e.g. dataset 1's walk-back, walk-left,
+    # walk-right, dash: real backward, angled and fast gaits to change the controls of); empty: every take.
+    # Only the styles that have such takes then give changed-control windows. control_from_start: from step 0
+    # on, not only once the extra losses apply (extra_losses_from).
+    control_contents: tuple[str, ...] = ()
+    control_from_start: bool = False
     # With steering_window above 0, the changed-control windows are steered as the engine steers a bundle
     # with that window (model.inference.output.steering): the shift carries no gradient, so their losses (feet,
     # target, critics) train the gait that goes with being carried toward the target.
@@ -88,6 +94,7 @@ class SamplerStageConfig:
     validation_transition: int = 40
 
     def __post_init__(self) -> None:
+        self.control_contents = tuple(self.control_contents)
         if isinstance(self.critic_inputs, str):  # configs written before critics became a list
             self.critic_inputs = (self.critic_inputs,)
         self.critic_inputs = tuple(self.critic_inputs)

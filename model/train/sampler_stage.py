@@ -53,9 +53,14 @@ def style_statistics(tensors: MotionTensors, frames: int, samples: int = 2048, s
 class StylePairs:
     """Windows grouped by style, for content windows and for style clips."""
 
-    def __init__(self, tensors: MotionTensors, length: int, style_frames: int, step: int = 5) -> None:
+    def __init__(self, tensors: MotionTensors, length: int, style_frames: int, step: int = 5,
+                 contents: Sequence[str] = ()) -> None:
         starts, owners = tensors.window_starts(length, step)
         sstarts, sowners = tensors.window_starts(style_frames, max(1, style_frames // 4))
+        if contents:  # content windows of these contents only (style clips still from every take)
+            ids = [k for k, c in enumerate(tensors.contents) if c in set(contents)]
+            keep = torch.isin(tensors.content[owners], torch.tensor(ids, dtype=tensors.content.dtype))
+            starts, owners = starts[keep], owners[keep]
         self.by_style: dict[int, tuple[Tensor, Tensor]] = {}
         self.clips_by_style: dict[int, tuple[Tensor, Tensor]] = {}
         for s in tensors.style.unique().tolist():
@@ -136,6 +141,10 @@ class SamplerSteps:
         self.model, self.train, self.val, self.stage, self.device = model, train, val, stage, device
         self.context, self.max_transition = c.context, c.max_transition
         self.pairs = StylePairs(train, c.context + stage.max_transition, stage.style_frames)
+        # Changed-control windows from the takes of stage.control_contents (real backward, angled, dash gaits).
+        self.control_pairs = (StylePairs(train, c.context + stage.max_transition, stage.style_frames,
+                                         contents=stage.control_contents)
+                              if stage.control_contents and stage.control_batch > 0 else self.pairs)
         # Warped windows read up to warp_factor times the transition's frames of the capture.
         self.warp_pairs = StylePairs(train, source_span(c.context, stage.max_transition, stage.warp_factor),
                                      stage.style_frames) if stage.warp_batch > 0 else None
@@ -201,7 +210,7 @@ class SamplerSteps:
             total = total + self.warp_terms(r, slice(stage.batch, scored), shown)
         if cross is not None:
             total = total + self.cross_terms(r, cross, shown, scored)
-        if extra and stage.control_batch > 0:
+        if (extra or stage.control_from_start) and stage.control_batch > 0:
             total = total + self.control_terms(length, gen, shown)
         total.backward()
         return shown
@@ -265,7 +274,7 @@ class SamplerSteps:
         turned target, in equal groups."""
         stage, train, k = self.stage, self.train, self.context
         n = stage.control_batch
-        cs, co, cclips = self.pairs.sample(n, gen)
+        cs, co, cclips = self.control_pairs.sample(n, gen)
         scale = math.exp((2 * float(torch.rand(1, generator=gen)) - 1) * math.log(stage.control_dt))
         duration = max(stage.min_transition, min(self.max_transition, round(length * scale)))
         x = (2 * torch.rand(n, 1, generator=gen) - 1) * stage.control_shift

@@ -367,3 +367,38 @@ def test_a_style_with_an_adapter_is_scored_on_its_weights_the_others_on_the_bund
         want = own if i in mine else base
         assert torch.allclose(got[0][i], want[0][i], atol=1e-4) and torch.allclose(got[1][i], want[1][i], atol=1e-3)
     assert not torch.allclose(got[1][mine[0]], base[1][mine[0]], atol=1e-3)
+
+
+def test_eval_runs_motion_matching_and_the_second_judge_with_the_gait_figures(
+        dataset: tuple[Path, Path], cache: MotionCache, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from model.evaluation.judge_windows import real_windows
+    from model.evaluation.sequence_judge import JudgeTraining, train_sequence_judge
+
+    windows, styles, _ = real_windows(cache, cache.split.train)
+    index = {s: k for k, s in enumerate(cache.styles)}
+    judge2 = train_sequence_judge(windows, torch.tensor([index[s] for s in styles]), cache.styles, cache.skeleton(0),
+                                  cache.fps, JudgeTraining(steps=20, batch=16, width=8)).save(tmp_path / "judge2")
+    data, root = dataset
+    monkeypatch.setenv("RSMT_CACHE", str(root))
+    assert main(["eval", "--model", "interp", "--data", str(data), "--judge2", str(judge2), "--limit", "4",
+                 "--render-cases", "0", "--json", "--quiet"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert list(report["methods"]) == ["interp", "motion matching"] and report["judge2"]["path"] == str(judge2)
+    mm = report["methods"]["motion matching"]
+    assert mm["database_takes"] == len(cache.split.train)
+    for name, m in report["methods"].items():
+        for v, r in m["variants"].items():
+            assert r["last_frame_cm"] < 1e-3, (name, v)  # both land on the target
+            assert r["toe_skate"] >= 0 and r["longest_airborne_frames"] >= 0 and r["max_root_speed_cm_s"] > 0
+            if r.get("backward_share_cases"):
+                assert 0.0 <= r["backward_share"] <= 1.0
+        g40 = m["variants"]["gap40"]
+        assert "toe_skate_gt" in g40 and 0.0 <= g40["judge2_accuracy"] <= 1.0
+    assert report["ground_truth"]["gap40"]["toe_skate"] == report["methods"]["interp"]["variants"]["gap40"]["toe_skate_gt"]
+    # The backward share reads d = -1 as moving against the facing for interpolation (it slides back).
+    assert report["methods"]["interp"]["variants"]["gap40-d-1"]["backward_share"] > 0.5
+    assert main(["eval", "--model", "interp", "--data", str(data), "--limit", "2", "--render-cases", "0",
+                 "--no-motion-matching", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "### Feet, direction and speed, all contents" in text and "| motion matching |" not in text

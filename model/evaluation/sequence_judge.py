@@ -1,0 +1,215 @@
+"""The sequence judge: a second style judge for evaluation, of another family than :mod:`model.evaluation.style_judge`.
+
+The first judge is a linear model on whole-window summary statistics. This one is a small dilated
+temporal convolution network that reads a window frame by frame, so it sees the rhythm and order of
+the motion, which summary statistics average away. Its input is chosen so that no training critic
+shares it: the critics (:mod:`model.nets.style_classifier`, the training's style critics) read each
+frame's joint positions, velocities and rotations in the facing frame. The judge reads, per frame
+step, only quantities that are unchanged by a turn about the vertical, a move on the ground and a
+mirror of the walking direction, and that carry no posture:
+
+* the rate of change (cm/s) of the distance between every pair of :func:`key_joints` (8 joints, 28
+  pairs: how the limbs open and close, not where they are);
+* each joint's speed relative to the root (cm/s);
+* the root's horizontal speed and its vertical velocity (cm/s).
+
+A window is :data:`WINDOW` poses (41: the last context frame and a 40-frame transition; 40 steps).
+A longer sequence is scored as the mean log-probability of its windows 20 frames apart, a shorter
+one (at least 3 poses) as one window. Trained on real windows of every take of the training split
+(both data sets when both are given, the backward takes included), each style drawn equally often.
+
+Stored as ``sequence_judge.json`` (styles, joints, the standardisation, the training record) and
+``weights.safetensors``; no pickle.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from model.evaluation.motion_matching import key_joints
+from model.motion.skeleton import Skeleton
+
+Tensor = torch.Tensor
+
+FORMAT = "rsmt-sequence-judge/1"
+WINDOW = 41
+WINDOW_STEP = 20
+KIND = ("dilated temporal convolution network over per-frame rates of change of key-joint pair distances, joint "
+        "speeds relative to the root and the root's horizontal speed and vertical velocity; no postures, no facing-frame "
+        "vectors (no training critic reads these inputs)")
+
+
+def step_features(positions: Tensor, skeleton: Skeleton, fps: float) -> Tensor:
+    """``[B, T-1, C]`` per-step inputs of sequences of global positions ``[B, T, J, 3]`` (see the module docstring)."""
+    if positions.dim() != 4 or positions.shape[1] < 2:
+        raise ValueError(f"positions must be [B, T>=2, J, 3], got {list(positions.shape)}")
+    p = positions.float()
+    keys = key_joints(skeleton)
+    k = p[:, :, keys]
+    i, j = torch.triu_indices(len(keys), len(keys), offset=1)
+    dist = (k[:, :, i] - k[:, :, j]).norm(dim=-1)  # [B, T, P]
+    rate = (dist[:, 1:] - dist[:, :-1]) * fps
+    vel = (p[:, 1:] - p[:, :-1]) * fps  # [B, T-1, J, 3]
+    root = skeleton.roles.root
+    relative = (vel - vel[:, :, root:root + 1]).norm(dim=-1)
+    root_h = vel[:, :, root, [0, 2]].norm(dim=-1, keepdim=True)
+    root_v = vel[:, :, root, 1:2]
+    return torch.cat([rate, relative, root_h, root_v], dim=-1)
+
+
+class SequenceJudgeNet(nn.Module):
+    """Dilated 1-D convolutions over time, mean-pooled, to one score per style."""
+
+    def __init__(self, channels: int, styles: int, width: int = 64) -> None:
+        super().__init__()
+        self.body = nn.Sequential(
+            nn.Conv1d(channels, width, 5, padding=2), nn.ReLU(),
+            nn.Conv1d(width, width, 5, padding=4, dilation=2), nn.ReLU(),
+            nn.Conv1d(width, width, 5, padding=8, dilation=4), nn.ReLU(),
+        )
+        self.head = nn.Linear(width, styles)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """``[B, T, C]`` standardised inputs -> ``[B, S]`` logits."""
+        return self.head(self.body(x.transpose(1, 2)).mean(dim=2))
+
+
+def _windows(length: int) -> list[int]:
+    if length <= WINDOW:
+        return [0]
+    starts = list(range(0, length - WINDOW + 1, WINDOW_STEP))
+    if starts[-1] != length - WINDOW:
+        starts.append(length - WINDOW)
+    return starts
+
+
+@dataclass
+class SequenceJudge:
+    """A trained sequence judge (network, input standardisation, rig and styles)."""
+
+    styles: list[str]
+    skeleton: Skeleton
+    fps: float
+    net: SequenceJudgeNet
+    mean: Tensor
+    std: Tensor
+    width: int = 64
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def _inputs(self, positions: Tensor) -> Tensor:
+        if positions.shape[-2] != len(self.skeleton.names):
+            raise ValueError(f"the sequence judge is for {len(self.skeleton.names)} joints, got {positions.shape[-2]}")
+        return (step_features(positions, self.skeleton, self.fps) - self.mean) / self.std
+
+    @torch.no_grad()
+    def log_probs(self, positions: Tensor) -> Tensor:
+        """``[B, S]`` log-probabilities of each style for sequences of global positions ``[B, T, J, 3]``."""
+        self.net.eval()
+        x = self._inputs(positions)
+        per = [torch.log_softmax(self.net(x[:, s:s + WINDOW - 1]), dim=-1) for s in _windows(positions.shape[1])]
+        return torch.stack(per).mean(dim=0).double()
+
+    @torch.no_grad()
+    def embed(self, positions: Tensor) -> Tensor:
+        """``[B, width]`` the pooled features the judge's last layer reads (mean over windows)."""
+        self.net.eval()
+        x = self._inputs(positions)
+        return torch.stack([self.net.body(x[:, s:s + WINDOW - 1].transpose(1, 2)).mean(2)
+                            for s in _windows(positions.shape[1])]).mean(0).double()
+
+    def predict(self, positions: Tensor) -> Tensor:
+        return self.log_probs(positions).argmax(dim=-1)
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": KIND, "styles": self.styles, "window": WINDOW, "features": int(self.mean.numel()), **self.info}
+
+    def save(self, folder: str | Path) -> Path:
+        from safetensors.torch import save_file
+
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        meta = {"format": FORMAT, "kind": KIND, "styles": self.styles, "skeleton": self.skeleton.to_dict(),
+                "fps": self.fps, "window": WINDOW, "width": self.width, "info": self.info}
+        (folder / "sequence_judge.json").write_text(json.dumps(meta, indent=1))
+        tensors = {f"net.{k}": v.contiguous() for k, v in self.net.state_dict().items()}
+        tensors.update(mean=self.mean.contiguous(), std=self.std.contiguous())
+        save_file(tensors, str(folder / "weights.safetensors"))
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | Path) -> SequenceJudge:
+        from safetensors.torch import load_file
+
+        folder = Path(folder)
+        path = folder / "sequence_judge.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"{folder} is not a sequence judge folder (no sequence_judge.json; see "
+                                    "rsmt train sequence-judge)")
+        meta = json.loads(path.read_text())
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {FORMAT}")
+        t = load_file(str(folder / "weights.safetensors"))
+        mean, std = t["mean"], t["std"]
+        net = SequenceJudgeNet(mean.numel(), len(meta["styles"]), int(meta["width"]))
+        net.load_state_dict({k[4:]: v for k, v in t.items() if k.startswith("net.")})
+        return cls(styles=list(meta["styles"]), skeleton=Skeleton.from_dict(meta["skeleton"]), fps=float(meta["fps"]),
+                   net=net, mean=mean, std=std, width=int(meta["width"]), info=dict(meta.get("info", {})))
+
+
+@dataclass
+class JudgeTraining:
+    """How the sequence judge is trained."""
+
+    steps: int = 1500
+    batch: int = 256
+    lr: float = 2e-3
+    width: int = 64
+    seed: int = 0
+    weight_decay: float = 1e-4
+
+
+def train_sequence_judge(windows: Tensor, labels: Tensor, styles: Sequence[str], skeleton: Skeleton, fps: float,
+                         settings: JudgeTraining | None = None) -> SequenceJudge:
+    """Fit a judge on real windows ``[N, WINDOW, J, 3]`` (global positions) with ``labels [N]`` into ``styles``;
+    every style is drawn equally often."""
+    settings = settings or JudgeTraining()
+    if windows.shape[1] != WINDOW:
+        raise ValueError(f"windows must have {WINDOW} poses, got {windows.shape[1]}")
+    began = time.perf_counter()
+    gen = torch.Generator().manual_seed(settings.seed)
+    torch.manual_seed(settings.seed)
+    x = torch.cat([step_features(windows[lo:lo + 1024], skeleton, fps) for lo in range(0, len(windows), 1024)])
+    flat = x.reshape(-1, x.shape[-1])
+    mean, std = flat.mean(0), flat.std(0).clamp_min(1.0)  # cm/s: below 1 cm/s is not style
+    x = (x - mean) / std
+    net = SequenceJudgeNet(x.shape[-1], len(styles), settings.width)
+    opt = torch.optim.AdamW(net.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=settings.lr, total_steps=settings.steps)
+    present = [k for k in range(len(styles)) if bool((labels == k).any())]
+    by_style = [torch.nonzero(labels == k).squeeze(1) for k in present]
+    net.train()
+    loss_value = math.nan
+    for _ in range(settings.steps):
+        pick = torch.randint(len(present), (settings.batch,), generator=gen)
+        rows = torch.stack([by_style[int(s)][torch.randint(len(by_style[int(s)]), (1,), generator=gen)[0]] for s in pick])
+        batch = x[rows]
+        # A little noise on the inputs, so the judge reads the motion rather than the capture's exact numbers.
+        batch = batch + 0.05 * torch.randn(batch.shape, generator=gen)
+        loss = nn.functional.cross_entropy(net(batch), labels[rows])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        loss_value = float(loss.detach())
+    info = {"train_windows": int(len(windows)), "steps": settings.steps, "batch": settings.batch,
+            "final_loss": round(loss_value, 4), "train_seconds": round(time.perf_counter() - began, 1)}
+    return SequenceJudge(list(styles), skeleton, float(fps), net, mean, std, settings.width, info)
