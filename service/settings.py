@@ -132,6 +132,15 @@ class Settings(BaseSettings):
     max_connections_per_address: int = Field(
         default=256, ge=0, description="open connections (HTTP and WebSocket) per client address as the socket "
         "sees it (IPv6 per /64); one more is closed at once. Peers in forwarded_allow_ips are not capped. 0: no cap")
+    max_header_bytes: int = Field(
+        default=32 << 10, ge=0, description="a request's line and headers together may hold this many bytes; past "
+        "it 431 and nothing more of the connection is read (0: no cap)")
+    max_header_line_bytes: int = Field(
+        default=8 << 10, ge=0, description="one line of a request's head (its request line or one header) may hold "
+        "this many bytes; past it 431 as for max_header_bytes (0: no cap)")
+    write_timeout_s: float = Field(
+        default=30.0, ge=0, description="a connection whose answers the client has not read for this long (the "
+        "server's writes blocked on it) is closed; 0: never")
 
     # ------------------------------------------------------------------ auth and rate limits
     api_keys: Annotated[list[str], NoDecode] = Field(
