@@ -38,9 +38,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None)  # served by routes.docs, from local files
     app.state.service = ServiceState(settings=settings, metrics=Metrics(),
-                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst),
+                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst,
+                                                         max_keys=settings.rate_limit_max_tracked),
                                      auth_failures=RateLimiter(settings.auth_failure_rate_per_s,
-                                                               settings.auth_failure_burst))
+                                                               settings.auth_failure_burst,
+                                                               max_keys=settings.rate_limit_max_tracked))
     app.dependency_overrides[get_settings] = lambda: settings
     install_error_handlers(app)
     # Added last = outermost: metrics see every request, including 413s.

@@ -157,6 +157,10 @@ class Settings(BaseSettings):
         "the next get 429 rate_limited instead of 401 (a token bucket refilled at auth_failure_rate_per_s)")
     auth_failure_rate_per_s: float = Field(
         default=1.0, ge=0, description="refill rate of the per-address bucket of failed authentications; 0: no limit")
+    rate_limit_max_tracked: int = Field(
+        default=100_000, ge=1, description="most keys (or addresses) each rate limiter tracks, the per-key one and "
+        "the failed-authentication one; past it the least recently seen are forgotten (they start again with a full "
+        "burst). Each costs the same per request however many are tracked")
     open_docs_and_metrics: bool = Field(
         default=False, description="with API keys on, serve /metrics, /docs, /redoc and /openapi.json without a key")
     forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
