@@ -11,6 +11,7 @@ from fastapi import FastAPI
 from service.errors import install_error_handlers
 from service.http.auth import ApiKeyMiddleware
 from service.http.body_limit import BodyLimitMiddleware
+from service.http.handshake_log import install_handshake_log
 from service.http.log_redaction import install_redaction
 from service.http.logs import ensure_service_logging
 from service.http.queue_gate import QueueGateMiddleware
@@ -37,6 +38,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
     ensure_service_logging(settings.log_level, settings.log_format)
     install_redaction(settings.all_keys)  # no key in any log line, whoever configured logging
+    install_handshake_log()  # refused handshakes at info, not uvicorn's error
     app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None)  # served by routes.docs, from local files
     app.state.service = ServiceState(settings=settings, metrics=Metrics(),

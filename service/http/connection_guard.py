@@ -39,6 +39,8 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import socket
+import struct
 import weakref
 from dataclasses import dataclass
 from functools import cached_property
@@ -184,6 +186,18 @@ def _close(transport: asyncio.BaseTransport, loop: asyncio.AbstractEventLoop, an
         loop.call_later(_ABORT_AFTER_S, stream.abort)
 
 
+def _reset(transport: asyncio.BaseTransport) -> None:
+    """Drop a connection at once with a reset, discarding what the kernel still holds for the peer (a plain
+    close would leave it there, in FIN-WAIT, for as long as the peer does not read)."""
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        except OSError:
+            pass
+    cast(asyncio.Transport, transport).abort()
+
+
 class GuardedHttpToolsProtocol(HttpToolsProtocol):
     """uvicorn's httptools protocol with header, body and WebSocket-handshake read timeouts and a cap on
     open connections per client address (see the module's docstring)."""
@@ -205,6 +219,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._head = HeadMeter(self.limits.max_header_bytes, self.limits.max_header_line_bytes)
         self._head_refused = False
         self._write_timer: asyncio.TimerHandle | None = None
+        self._cycles: weakref.WeakSet[Any] = weakref.WeakSet()  # this connection's requests (for the write timeout)
 
     # ------------------------------------------------------------------ connection
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
@@ -274,7 +289,12 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def _write_timed_out(self) -> None:
         self._write_timer = None
         log.debug("closing %s: it read none of the answers for %.3g s", self.client, self.limits.write_timeout_s)
-        self.transport.abort()
+        # Every unfinished request of the connection (pipelined ones too: uvicorn's ``cycle`` is only the
+        # newest) is marked gone, so that its send returns quietly rather than write to a closed transport.
+        for cycle in list(self._cycles):
+            if not cycle.response_complete:
+                cycle.disconnected = True
+        _reset(self.transport)
 
     # ------------------------------------------------------------------ parser callbacks
     def on_message_begin(self) -> None:
@@ -293,6 +313,8 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._disarm()
         self._head.reset()
         super().on_headers_complete()
+        if self.cycle is not None:
+            self._cycles.add(self.cycle)
         if not (self.parser.should_upgrade() and self._should_upgrade()):
             self._in_body = True
             self._arm(self.loop.time() + self.limits.body_timeout_s)
