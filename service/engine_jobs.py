@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import secrets
 import time
+from dataclasses import replace
 from typing import Any
+
+import torch
 
 from model.inference.engine import Character, EncodedStyle
 from model.inference.errors import EngineError
@@ -60,11 +63,29 @@ def style_info(model: LoadedModel, style: StyleEntry, cached: bool) -> dict[str,
 
 
 def register_style(model: LoadedModel, caller: Caller, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
-    """Encode (or find the shared encoding of) a clip and file it under the caller; ``cached`` says whether
-    the caller had registered it already."""
+    """Encode (or find the shared encoding of) a clip and file it under the caller with the caller's own
+    name; ``cached`` says whether the caller had registered it already.
+
+    Content is deduplicated below the keys (one code, one stored clip), names above them: the entry filed
+    is the shared code under this caller's name, so no key ever sees the name another key chose. And the
+    code is computed even when the engine already has it, so that registering a clip another key has takes
+    as long as registering a new one (the time would otherwise tell that someone registered it).
+    """
     clip = motion_to_clip(motion, model.engine, model.limits, "style")
-    style, _ = encode_clip(model, clip, name)  # the store keeps the clip (RSMT_STYLE_STORE=redis: for other replicas)
-    return style_info(model, style, model.book.add(caller.owner, style, clip))
+    style, cached = encode_clip(model, clip, name)  # the store keeps the clip (RSMT_STYLE_STORE=redis: for other replicas)
+    if cached:
+        spend_encoding(model, clip)
+    own = replace(style, name=name or style.style_id)
+    return style_info(model, own, model.book.add(caller.owner, own, clip))
+
+
+def spend_encoding(model: LoadedModel, clip: Clip) -> None:
+    """The work :meth:`Engine.encode_style` does for a clip it has not seen (its code and style context),
+    done and thrown away."""
+    engine = model.engine
+    conformed = engine.conform(clip, "style clip")
+    with torch.inference_mode():
+        engine.weights("").sampler.style_context(engine.style_code(conformed))
 
 
 def new_seed() -> int:
