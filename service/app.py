@@ -23,6 +23,7 @@ from service.routes import docs, health, metrics, models, stream, styles, transi
 from service.settings import Settings, get_settings
 from service.state import ServiceState
 from service.streaming.connection import RawSendMiddleware
+from service.style_store.lane import StoreLane
 from service.viewer.page import mount_page
 
 DESCRIPTION = """Real-time stylized motion transitions (RSMT, SIGGRAPH 2023).
@@ -46,7 +47,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                                          max_keys=settings.rate_limit_max_tracked),
                                      auth_failures=RateLimiter(settings.auth_failure_rate_per_s,
                                                                settings.auth_failure_burst,
-                                                               max_keys=settings.rate_limit_max_tracked))
+                                                               max_keys=settings.rate_limit_max_tracked),
+                                     store_lane=StoreLane(4, settings.style_store_timeout_s))
     app.dependency_overrides[get_settings] = lambda: settings
     install_error_handlers(app)
     # Added last = outermost: metrics see every request, including 413s.

@@ -62,9 +62,9 @@ def style_info(model: LoadedModel, style: StyleEntry, cached: bool) -> dict[str,
     return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "cached": cached, "model": model.name}
 
 
-def register_style(model: LoadedModel, caller: Caller, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
-    """Encode (or find the shared encoding of) a clip and file it under the caller with the caller's own
-    name; ``cached`` says whether the caller had registered it already.
+def encode_registration(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> tuple[EncodedStyle, Clip]:
+    """A registration's encoded style (to file under the caller, with the caller's own name) and its clip;
+    the route files it on the style store's lane (:mod:`service.style_lookups`).
 
     Content is deduplicated below the keys (one code, one stored clip), names above them: the entry filed
     is the shared code under this caller's name, so no key ever sees the name another key chose. And the
@@ -75,8 +75,7 @@ def register_style(model: LoadedModel, caller: Caller, motion: BvhMotion | PoseM
     style, cached = encode_clip(model, clip, name)  # the store keeps the clip (RSMT_STYLE_STORE=redis: for other replicas)
     if cached:
         spend_encoding(model, clip)
-    own = replace(style, name=name or style.style_id)
-    return style_info(model, own, model.book.add(caller.owner, own, clip))
+    return replace(style, name=name or style.style_id), clip
 
 
 def spend_encoding(model: LoadedModel, clip: Clip) -> None:
@@ -93,8 +92,10 @@ def new_seed() -> int:
     return secrets.randbits(53)
 
 
-def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float) -> dict[str, Any]:
-    """Generate a whole transition alone (batch of one, so a seed always gives the same frames).
+def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float,
+                   registered: EncodedStyle | None = None) -> dict[str, Any]:
+    """Generate a whole transition alone (batch of one, so a seed always gives the same frames);
+    ``registered``: its ``style_id`` already fetched from the store (:mod:`service.style_lookups`).
 
     Returns the response body; ``timing_ms.total`` is left for the caller, which sees the whole request.
     """
@@ -103,7 +104,7 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     model.check_frames(req.frames)
     context = motion_to_clip(req.context, engine, model.limits, "context")
     target = motion_to_clip(req.target, engine, model.limits, "target")
-    style = resolve_style(model, caller, req.style_id, req.style)
+    style = registered or resolve_style(model, caller, req.style_id, req.style)
     parsed = time.perf_counter()
     seed = req.seed if req.seed is not None else new_seed()
     try:
@@ -130,14 +131,15 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     return body
 
 
-def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage,
-                      character_id: str) -> tuple[Character, EncodedStyle, int]:
-    """Build a streamed character's initial state (the scheduler steps it from then on)."""
+def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,
+                      registered: EncodedStyle | None = None) -> tuple[Character, EncodedStyle, int]:
+    """Build a streamed character's initial state (the scheduler steps it from then on); ``registered``: as
+    for :func:`run_transition`."""
     engine = model.engine
     model.check_frames(msg.frames)
     context = motion_to_clip(msg.context, engine, model.limits, "context")
     target = motion_to_clip(msg.target, engine, model.limits, "target")
-    style = resolve_style(model, caller, msg.style_id, msg.style)
+    style = registered or resolve_style(model, caller, msg.style_id, msg.style)
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,

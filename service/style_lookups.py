@@ -1,0 +1,36 @@
+"""Registered styles fetched on the style store's lane (:mod:`service.style_store.lane`), before the engine work
+that uses them is queued: a request naming a ``style_id`` waits for the store on the lane (503 after its
+timeout), never on a model's work or stream-setup threads, so requests without one are not held up by it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from service.builtin_styles import is_builtin
+from service.engine_jobs import lookup_style
+
+if TYPE_CHECKING:
+    from model.inference.engine import EncodedStyle
+    from model.motion.clip import Clip
+    from service.registry import LoadedModel
+    from service.state import ServiceState
+    from service.style_book import Caller
+
+
+async def registered_style(state: ServiceState, model: LoadedModel, caller: Caller,
+                           style_id: str | None) -> EncodedStyle | None:
+    """The caller's registered style ``style_id`` from the store (``unknown_style`` when it has none); None
+    for no id or a built-in one (the engine's own, resolved with the rest of the job)."""
+    if style_id is None or is_builtin(style_id):
+        return None
+    return await state.store_lane.call(lookup_style, model, caller, style_id)
+
+
+async def file_style(state: ServiceState, model: LoadedModel, owner: str, style: EncodedStyle, clip: Clip) -> bool:
+    """File an encoded registration under ``owner``; True when the owner had it already."""
+    return await state.store_lane.call(model.book.add, owner, style, clip)
+
+
+async def on_lane(state: ServiceState, fn: Any, *args: Any) -> Any:
+    """Any other store call (listing, fetching, deleting) on the lane."""
+    return await state.store_lane.call(fn, *args)
