@@ -65,7 +65,8 @@ def test_one_key_never_sees_another_keys_name(server):
 
 
 def test_registering_a_clip_another_key_has_is_not_faster(server):
-    shared_s, fresh_s = [], []
+    shared_s: list[float] = []
+    fresh_s: list[float] = []
     for i in range(PAIRS):
         shared, fresh = bvh(walk(240, start_yaw_deg=1.0 + i)), bvh(walk(240, start_yaw_deg=101.0 + i))
         assert _register(server, KEY_B, shared, f"b{i}")[0].status_code == 201
