@@ -109,6 +109,10 @@ class Settings(BaseSettings):
     )
     max_characters_per_connection: int = Field(default=64, ge=1)
     max_characters: int = Field(default=1024, ge=1, description="live streamed characters in the whole process")
+    max_characters_per_key: int | None = Field(
+        default=None, ge=1, description="live streamed characters one API key may drive, over all its connections "
+        "(default with keys on: a quarter of max_characters, so one key cannot take every slot; with keys off: no "
+        "share, max_characters alone)")
     max_pending_messages: int = Field(
         default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )
@@ -212,6 +216,13 @@ class Settings(BaseSettings):
     def all_keys(self) -> list[str]:
         """Every accepted key: ``api_keys`` and ``admin_api_keys``."""
         return [*self.api_keys, *self.admin_api_keys]
+
+    @property
+    def characters_per_key(self) -> int | None:
+        """The per-key share of the character slots: the setting, else a quarter of them with keys on."""
+        if self.max_characters_per_key is not None:
+            return self.max_characters_per_key
+        return max(1, self.max_characters // 4) if self.auth_enabled else None
 
     @property
     def styles_per_owner(self) -> int:

@@ -18,7 +18,7 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.errors import ServiceError, error_response
-from service.http.connection_guard import address_key
+from service.http.addresses import address_key
 from service.http.ratelimit import retry_after_header
 from service.state import ServiceState
 from service.style_book import Caller

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
+from service.http.addresses import address_key
 from service.http.header_cap import HEADERS_TOO_LARGE_RESPONSE, HeadMeter
 
 if TYPE_CHECKING:
@@ -137,20 +138,6 @@ def limits_for(config: Config) -> ConnectionLimits:
     if limits is None:
         limits = _limits_of_config[config] = ConnectionLimits.from_app(config.loaded_app)
     return limits
-
-
-def address_key(host: str) -> str:
-    """The key the per-address cap counts under: the address itself, an IPv6 one by its /64 (one host
-    usually holds a whole /64), an IPv4-mapped IPv6 one as the IPv4 address."""
-    if ":" not in host:
-        return host
-    try:
-        address = ipaddress.IPv6Address(host.split("%", 1)[0])
-    except ValueError:
-        return host
-    if address.ipv4_mapped is not None:
-        return str(address.ipv4_mapped)
-    return str(ipaddress.IPv6Network((address, 64), strict=False))
 
 
 def open_connections(server_state: ServerState) -> dict[str, int]:
