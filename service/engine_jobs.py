@@ -50,8 +50,18 @@ def encode_clip(model: LoadedModel, clip: Clip, name: str) -> tuple[EncodedStyle
         raise from_engine(exc) from exc
 
 
+#: A ``style_id`` already looked up on the style store's lane (:mod:`service.style_lookups`): the style, the
+#: ``unknown_style`` error to raise once the request's motion has been checked (the order errors come in), or
+#: None (no id, or a built-in one).
+Registered = EncodedStyle | ServiceError | None
+
+
 def resolve_style(model: LoadedModel, caller: Caller, style_id: str | None,
-                  motion: BvhMotion | PoseMotion | None) -> EncodedStyle:
+                  motion: BvhMotion | PoseMotion | None, registered: Registered = None) -> EncodedStyle:
+    if isinstance(registered, ServiceError):
+        raise registered
+    if registered is not None:
+        return registered
     if style_id is not None:
         return lookup_style(model, caller, style_id)
     assert motion is not None
@@ -93,7 +103,7 @@ def new_seed() -> int:
 
 
 def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float,
-                   registered: EncodedStyle | None = None) -> dict[str, Any]:
+                   registered: Registered = None) -> dict[str, Any]:
     """Generate a whole transition alone (batch of one, so a seed always gives the same frames);
     ``registered``: its ``style_id`` already fetched from the store (:mod:`service.style_lookups`).
 
@@ -104,7 +114,7 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     model.check_frames(req.frames)
     context = motion_to_clip(req.context, engine, model.limits, "context")
     target = motion_to_clip(req.target, engine, model.limits, "target")
-    style = registered or resolve_style(model, caller, req.style_id, req.style)
+    style = resolve_style(model, caller, req.style_id, req.style, registered)
     parsed = time.perf_counter()
     seed = req.seed if req.seed is not None else new_seed()
     try:
@@ -132,14 +142,14 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
 
 
 def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,
-                      registered: EncodedStyle | None = None) -> tuple[Character, EncodedStyle, int]:
+                      registered: Registered = None) -> tuple[Character, EncodedStyle, int]:
     """Build a streamed character's initial state (the scheduler steps it from then on); ``registered``: as
     for :func:`run_transition`."""
     engine = model.engine
     model.check_frames(msg.frames)
     context = motion_to_clip(msg.context, engine, model.limits, "context")
     target = motion_to_clip(msg.target, engine, model.limits, "target")
-    style = registered or resolve_style(model, caller, msg.style_id, msg.style)
+    style = resolve_style(model, caller, msg.style_id, msg.style, registered)
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,

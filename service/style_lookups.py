@@ -7,7 +7,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from service.builtin_styles import is_builtin
-from service.engine_jobs import lookup_style
+from service.engine_jobs import Registered, lookup_style
+from service.errors import ServiceError
 
 if TYPE_CHECKING:
     from model.inference.engine import EncodedStyle
@@ -17,13 +18,18 @@ if TYPE_CHECKING:
     from service.style_book import Caller
 
 
-async def registered_style(state: ServiceState, model: LoadedModel, caller: Caller,
-                           style_id: str | None) -> EncodedStyle | None:
-    """The caller's registered style ``style_id`` from the store (``unknown_style`` when it has none); None
-    for no id or a built-in one (the engine's own, resolved with the rest of the job)."""
+async def registered_style(state: ServiceState, model: LoadedModel, caller: Caller, style_id: str | None) -> Registered:
+    """The caller's registered style ``style_id`` from the store, or its ``unknown_style`` error (raised by the
+    job once the request's motion is checked, as before); None for no id or a built-in one (the engine's own,
+    resolved with the rest of the job). A store that does not answer raises ``style_store_unavailable``."""
     if style_id is None or is_builtin(style_id):
         return None
-    return await state.store_lane.call(lookup_style, model, caller, style_id)
+    try:
+        return await state.store_lane.call(lookup_style, model, caller, style_id)
+    except ServiceError as exc:
+        if exc.code == "unknown_style":
+            return exc
+        raise
 
 
 async def file_style(state: ServiceState, model: LoadedModel, owner: str, style: EncodedStyle, clip: Clip) -> bool:
