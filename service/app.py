@@ -11,6 +11,8 @@ from fastapi import FastAPI
 from service.errors import install_error_handlers
 from service.http.auth import ApiKeyMiddleware
 from service.http.body_limit import BodyLimitMiddleware
+from service.http.handshake_log import install_handshake_log
+from service.http.log_redaction import install_redaction
 from service.http.logs import ensure_service_logging
 from service.http.queue_gate import QueueGateMiddleware
 from service.http.ratelimit import RateLimiter
@@ -21,6 +23,7 @@ from service.routes import docs, health, metrics, models, stream, styles, transi
 from service.settings import Settings, get_settings
 from service.state import ServiceState
 from service.streaming.connection import RawSendMiddleware
+from service.style_store.lane import StoreLane
 from service.viewer.page import mount_page
 
 DESCRIPTION = """Real-time stylized motion transitions (RSMT, SIGGRAPH 2023).
@@ -35,12 +38,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app; ``settings`` default to the ``RSMT_*`` environment."""
     settings = settings or get_settings()
     ensure_service_logging(settings.log_level, settings.log_format)
+    install_redaction(settings.all_keys)  # no key in any log line, whoever configured logging
+    install_handshake_log()  # refused handshakes at info, not uvicorn's error
     app = FastAPI(title="RSMT motion transition service", version="1", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None)  # served by routes.docs, from local files
     app.state.service = ServiceState(settings=settings, metrics=Metrics(),
-                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst),
+                                     limiter=RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst,
+                                                         max_keys=settings.rate_limit_max_tracked),
                                      auth_failures=RateLimiter(settings.auth_failure_rate_per_s,
-                                                               settings.auth_failure_burst))
+                                                               settings.auth_failure_burst,
+                                                               max_keys=settings.rate_limit_max_tracked),
+                                     store_lane=StoreLane(4, settings.style_store_timeout_s))
     app.dependency_overrides[get_settings] = lambda: settings
     install_error_handlers(app)
     # Added last = outermost: metrics see every request, including 413s.

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import secrets
 import time
+from dataclasses import replace
 from typing import Any
+
+import torch
 
 from model.inference.engine import Character, EncodedStyle
 from model.inference.errors import EngineError, TooManyFrames
@@ -51,8 +54,18 @@ def encode_clip(model: LoadedModel, clip: Clip, name: str) -> tuple[EncodedStyle
         raise from_engine(exc) from exc
 
 
+#: A ``style_id`` already looked up on the style store's lane (:mod:`service.style_lookups`): the style, the
+#: ``unknown_style`` error to raise once the request's motion has been checked (the order errors come in), or
+#: None (no id, or a built-in one).
+Registered = EncodedStyle | ServiceError | None
+
+
 def resolve_style(model: LoadedModel, caller: Caller, style_id: str | None,
-                  motion: BvhMotion | PoseMotion | None) -> EncodedStyle:
+                  motion: BvhMotion | PoseMotion | None, registered: Registered = None) -> EncodedStyle:
+    if isinstance(registered, ServiceError):
+        raise registered
+    if registered is not None:
+        return registered
     if style_id is not None:
         return lookup_style(model, caller, style_id)
     assert motion is not None
@@ -63,12 +76,29 @@ def style_info(model: LoadedModel, style: StyleEntry, cached: bool) -> dict[str,
     return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "cached": cached, "model": model.name}
 
 
-def register_style(model: LoadedModel, caller: Caller, motion: BvhMotion | PoseMotion, name: str) -> dict[str, Any]:
-    """Encode (or find the shared encoding of) a clip and file it under the caller; ``cached`` says whether
-    the caller had registered it already."""
+def encode_registration(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> tuple[EncodedStyle, Clip]:
+    """A registration's encoded style (to file under the caller, with the caller's own name) and its clip;
+    the route files it on the style store's lane (:mod:`service.style_lookups`).
+
+    Content is deduplicated below the keys (one code, one stored clip), names above them: the entry filed
+    is the shared code under this caller's name, so no key ever sees the name another key chose. And the
+    code is computed even when the engine already has it, so that registering a clip another key has takes
+    as long as registering a new one (the time would otherwise tell that someone registered it).
+    """
     clip = motion_to_clip(motion, model.engine, model.limits, "style")
-    style, _ = encode_clip(model, clip, name)  # the store keeps the clip (RSMT_STYLE_STORE=redis: for other replicas)
-    return style_info(model, style, model.book.add(caller.owner, style, clip))
+    style, cached = encode_clip(model, clip, name)  # the store keeps the clip (RSMT_STYLE_STORE=redis: for other replicas)
+    if cached:
+        spend_encoding(model, clip)
+    return replace(style, name=name or style.style_id), clip
+
+
+def spend_encoding(model: LoadedModel, clip: Clip) -> None:
+    """The work :meth:`Engine.encode_style` does for a clip it has not seen (its code and style context),
+    done and thrown away."""
+    engine = model.engine
+    conformed = engine.conform(clip, "style clip")
+    with torch.inference_mode():
+        engine.weights("").sampler.style_context(engine.style_code(conformed))
 
 
 def new_seed() -> int:
@@ -76,8 +106,10 @@ def new_seed() -> int:
     return secrets.randbits(53)
 
 
-def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float) -> dict[str, Any]:
-    """Generate a whole transition alone (batch of one, so a seed always gives the same frames).
+def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float,
+                   registered: Registered = None) -> dict[str, Any]:
+    """Generate a whole transition alone (batch of one, so a seed always gives the same frames);
+    ``registered``: its ``style_id`` already fetched from the store (:mod:`service.style_lookups`).
 
     Returns the response body; ``timing_ms.total`` is left for the caller, which sees the whole request.
     """
@@ -86,7 +118,7 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     model.check_frames(req.frames)
     context = motion_to_clip(req.context, engine, model.limits, "context")
     target = motion_to_clip(req.target, engine, model.limits, "target")
-    style = resolve_style(model, caller, req.style_id, req.style)
+    style = resolve_style(model, caller, req.style_id, req.style, registered)
     parsed = time.perf_counter()
     seed = req.seed if req.seed is not None else new_seed()
     try:
@@ -113,14 +145,15 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     return body
 
 
-def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage,
-                      character_id: str) -> tuple[Character, EncodedStyle, int]:
-    """Build a streamed character's initial state (the scheduler steps it from then on)."""
+def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,
+                      registered: Registered = None) -> tuple[Character, EncodedStyle, int]:
+    """Build a streamed character's initial state (the scheduler steps it from then on); ``registered``: as
+    for :func:`run_transition`."""
     engine = model.engine
     model.check_frames(msg.frames)
     context = motion_to_clip(msg.context, engine, model.limits, "context")
     target = motion_to_clip(msg.target, engine, model.limits, "target")
-    style = resolve_style(model, caller, msg.style_id, msg.style)
+    style = resolve_style(model, caller, msg.style_id, msg.style, registered)
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,

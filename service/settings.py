@@ -118,6 +118,10 @@ class Settings(BaseSettings):
     )
     max_characters_per_connection: int = Field(default=64, ge=1)
     max_characters: int = Field(default=1024, ge=1, description="live streamed characters in the whole process")
+    max_characters_per_key: int | None = Field(
+        default=None, ge=1, description="live streamed characters one API key may drive, over all its connections "
+        "(default with keys on: a quarter of max_characters, so one key cannot take every slot; with keys off: no "
+        "share, max_characters alone)")
     max_pending_messages: int = Field(
         default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )
@@ -141,6 +145,15 @@ class Settings(BaseSettings):
     max_connections_per_address: int = Field(
         default=256, ge=0, description="open connections (HTTP and WebSocket) per client address as the socket "
         "sees it (IPv6 per /64); one more is closed at once. Peers in forwarded_allow_ips are not capped. 0: no cap")
+    max_header_bytes: int = Field(
+        default=32 << 10, ge=0, description="a request's line and headers together may hold this many bytes; past "
+        "it 431 and nothing more of the connection is read (0: no cap)")
+    max_header_line_bytes: int = Field(
+        default=8 << 10, ge=0, description="one line of a request's head (its request line or one header) may hold "
+        "this many bytes; past it 431 as for max_header_bytes (0: no cap)")
+    write_timeout_s: float = Field(
+        default=30.0, ge=0, description="a connection whose answers the client has not read for this long (the "
+        "server's writes blocked on it) is closed; 0: never")
 
     # ------------------------------------------------------------------ auth and rate limits
     api_keys: Annotated[list[str], NoDecode] = Field(
@@ -157,6 +170,10 @@ class Settings(BaseSettings):
         "the next get 429 rate_limited instead of 401 (a token bucket refilled at auth_failure_rate_per_s)")
     auth_failure_rate_per_s: float = Field(
         default=1.0, ge=0, description="refill rate of the per-address bucket of failed authentications; 0: no limit")
+    rate_limit_max_tracked: int = Field(
+        default=100_000, ge=1, description="most keys (or addresses) each rate limiter tracks, the per-key one and "
+        "the failed-authentication one; past it the least recently seen are forgotten (they start again with a full "
+        "burst). Each costs the same per request however many are tracked")
     open_docs_and_metrics: bool = Field(
         default=False, description="with API keys on, serve /metrics, /docs, /redoc and /openapi.json without a key")
     forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
@@ -234,6 +251,13 @@ class Settings(BaseSettings):
     def all_keys(self) -> list[str]:
         """Every accepted key: ``api_keys`` and ``admin_api_keys``."""
         return [*self.api_keys, *self.admin_api_keys]
+
+    @property
+    def characters_per_key(self) -> int | None:
+        """The per-key share of the character slots: the setting, else a quarter of them with keys on."""
+        if self.max_characters_per_key is not None:
+            return self.max_characters_per_key
+        return max(1, self.max_characters // 4) if self.auth_enabled else None
 
     @property
     def styles_per_owner(self) -> int:

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from service.http.ratelimit import RateLimiter
 from service.metrics import Metrics
 from service.settings import Settings
+from service.style_store.lane import StoreLane
 
 if TYPE_CHECKING:
     from service.registry import Registry
@@ -33,6 +34,7 @@ class ServiceState:
     connections: set[Connection] = field(default_factory=set)
     reserved_characters: int = 0  # starts being prepared, counted against max_characters
     failure: str = ""
+    store_lane: StoreLane = field(default_factory=lambda: StoreLane(4, 1.0))  # style-store calls (create_app sets it)
 
     @property
     def ready(self) -> bool:

@@ -134,6 +134,7 @@ def _static_offsets(doc: BvhDocument, joints: Sequence[int], clip_name: str) -> 
     """Fixed bone offsets: the OFFSET, with position channels replaced by their mean over frames."""
     slices = doc.channel_slices()
     offsets = []
+    moving: list[str] = []  # one warning per document, not one per bone
     for j in joints:
         joint = doc.joints[j]
         offset = list(joint.offset)
@@ -145,12 +146,12 @@ def _static_offsets(doc: BvhDocument, joints: Sequence[int], clip_name: str) -> 
             for (axis, _, channel), mean, deviation in zip(found, means.tolist(), deviations.tolist()):
                 offset[axis] = mean
                 if deviation > BONE_TRANSLATION_TOLERANCE:
-                    logger.warning(
-                        "%s: joint %s channel %s moves by up to %.4g from its mean %.4g; a Clip keeps "
-                        "one fixed offset per bone, so the mean is used",
-                        clip_name or "BVH", joint.name, channel, deviation, mean,
-                    )
+                    moving.append(f"{joint.name} {channel} by up to {deviation:.4g} from its mean {mean:.4g}")
         offsets.append(vec3(offset))
+    if moving:
+        shown = "; ".join(moving[:3]) + (f"; and {len(moving) - 3} more" if len(moving) > 3 else "")
+        logger.warning("%s: %d position channel(s) of non-root joints move (%s); a Clip keeps one fixed offset per "
+                       "bone, so each uses its mean", clip_name or "BVH", len(moving), shown)
     return offsets
 
 

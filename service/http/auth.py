@@ -18,6 +18,7 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.errors import ServiceError, error_response
+from service.http.addresses import address_key
 from service.http.ratelimit import retry_after_header
 from service.state import ServiceState
 from service.style_book import Caller
@@ -60,7 +61,7 @@ def _unauthorized(key: str | None) -> ServiceError:
 def refuse(state: ServiceState, key: str | None, client: str) -> ServiceError:
     """The error for a request without a valid key: ``unauthorized``, or ``rate_limited`` (with Retry-After)
     once ``client`` has failed more than ``RSMT_AUTH_FAILURE_BURST`` times (refilled at the set rate)."""
-    wait = state.auth_failures.take(client)
+    wait = state.auth_failures.take(address_key(client))  # an IPv6 client by its /64, as the connection cap
     if wait > 0:
         return ServiceError("rate_limited", f"too many requests without a valid API key from {client}; retry in "
                                             f"{wait:.2f} s", headers=retry_after_header(wait))

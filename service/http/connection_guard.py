@@ -4,7 +4,7 @@ Uvicorn bounds the idle time between two requests of a keep-alive connection (``
 nothing else a client controls: a connection that sends part of its request headers, or a ``Content-Length``
 and part of the body, and then stalls is held open for as long as the client likes, and one address may open
 as many connections as the file-descriptor limit allows. :class:`GuardedHttpToolsProtocol` is uvicorn's
-:class:`~uvicorn.protocols.http.httptools_impl.HttpToolsProtocol` with four bounds added
+:class:`~uvicorn.protocols.http.httptools_impl.HttpToolsProtocol` with these bounds added
 (:class:`ConnectionLimits`, from the ``RSMT_*`` settings of the app it serves):
 
 * **headers** (``header_timeout_s``): a request's headers must be complete this long after its first byte,
@@ -25,6 +25,10 @@ as many connections as the file-descriptor limit allows. :class:`GuardedHttpTool
   per peer address as the socket sees it, IPv6 grouped by /64; one past the cap is closed at once, before
   anything is read. Behind a proxy every client shares the proxy's address: the trusted proxies
   (``RSMT_FORWARDED_ALLOW_IPS``) are not capped, and must enforce their own per-client limits.
+* **head size** (``max_header_bytes``, ``max_header_line_bytes``): a request line and headers past either
+  bound are answered ``431`` and nothing more of the connection is read (:mod:`service.http.header_cap`).
+* **writes** (``write_timeout_s``): a client that stops reading its answers (e.g. pipelines requests and
+  never reads) is cut off once the server's writes have been blocked on it this long.
 
 ``rsmt serve`` passes this class to uvicorn; under plain uvicorn pass
 ``--http service.http.connection_guard:GuardedHttpToolsProtocol``.
@@ -35,12 +39,17 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import socket
+import struct
 import weakref
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any, cast
 
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+from service.http.addresses import address_key
+from service.http.header_cap import HEADERS_TOO_LARGE_RESPONSE, HeadMeter
 
 if TYPE_CHECKING:
     from uvicorn.config import Config
@@ -67,6 +76,9 @@ class ConnectionLimits:
     body_timeout_s: float = 30.0
     ws_handshake_timeout_s: float = 10.0
     max_connections_per_address: int = 256
+    max_header_bytes: int = 32 << 10
+    max_header_line_bytes: int = 8 << 10
+    write_timeout_s: float = 30.0
     #: Peers the cap leaves alone: the trusted proxies (``forwarded_allow_ips``: addresses, networks or ``*``),
     #: whose connections carry many clients and which must enforce their own per-client limits.
     uncapped: tuple[str, ...] = ()
@@ -107,6 +119,9 @@ class ConnectionLimits:
                 return cls(header_timeout_s=settings.header_timeout_s, body_timeout_s=settings.body_timeout_s,
                            ws_handshake_timeout_s=settings.ws_handshake_timeout_s,
                            max_connections_per_address=settings.max_connections_per_address,
+                           max_header_bytes=settings.max_header_bytes,
+                           max_header_line_bytes=settings.max_header_line_bytes,
+                           write_timeout_s=settings.write_timeout_s,
                            uncapped=tuple(settings.forwarded_allow_ips))
             app = getattr(app, "app", None)
             if app is None:
@@ -123,20 +138,6 @@ def limits_for(config: Config) -> ConnectionLimits:
     if limits is None:
         limits = _limits_of_config[config] = ConnectionLimits.from_app(config.loaded_app)
     return limits
-
-
-def address_key(host: str) -> str:
-    """The key the per-address cap counts under: the address itself, an IPv6 one by its /64 (one host
-    usually holds a whole /64), an IPv4-mapped IPv6 one as the IPv4 address."""
-    if ":" not in host:
-        return host
-    try:
-        address = ipaddress.IPv6Address(host.split("%", 1)[0])
-    except ValueError:
-        return host
-    if address.ipv4_mapped is not None:
-        return str(address.ipv4_mapped)
-    return str(ipaddress.IPv6Network((address, 64), strict=False))
 
 
 def open_connections(server_state: ServerState) -> dict[str, int]:
@@ -172,6 +173,18 @@ def _close(transport: asyncio.BaseTransport, loop: asyncio.AbstractEventLoop, an
         loop.call_later(_ABORT_AFTER_S, stream.abort)
 
 
+def _reset(transport: asyncio.BaseTransport) -> None:
+    """Drop a connection at once with a reset, discarding what the kernel still holds for the peer (a plain
+    close would leave it there, in FIN-WAIT, for as long as the peer does not read)."""
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        except OSError:
+            pass
+    cast(asyncio.Transport, transport).abort()
+
+
 class GuardedHttpToolsProtocol(HttpToolsProtocol):
     """uvicorn's httptools protocol with header, body and WebSocket-handshake read timeouts and a cap on
     open connections per client address (see the module's docstring)."""
@@ -190,6 +203,10 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._request_bytes = False  # part of a request has arrived (a timeout answers 408)
         self._in_body = False
         self.handshake_deadline: float | None = None  # read by the WebSocket protocol this connection becomes
+        self._head = HeadMeter(self.limits.max_header_bytes, self.limits.max_header_line_bytes)
+        self._head_refused = False
+        self._write_timer: asyncio.TimerHandle | None = None
+        self._cycles: weakref.WeakSet[Any] = weakref.WeakSet()  # this connection's requests (for the write timeout)
 
     # ------------------------------------------------------------------ connection
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
@@ -211,6 +228,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         if self._refused:
             return
         self._disarm()
+        self._writable()
         _release(self.server_state, self._address)
         self._address = None
         super().connection_lost(exc)
@@ -220,6 +238,50 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self.handshake_deadline = self._request_start + self.limits.ws_handshake_timeout_s
         super().handle_websocket_upgrade()
         self._address = None  # the WebSocket protocol holds the place from here and releases it when it ends
+
+    def data_received(self, data: bytes) -> None:
+        if self._head_refused:
+            return
+        if not self._in_body and self._head.feed(data):
+            self._refuse_head()
+            return
+        super().data_received(data)
+
+    def _refuse_head(self) -> None:
+        """431, then no more reading: the connection is closed once the answer had time to leave."""
+        self._head_refused = True
+        self._disarm()
+        log.debug("refusing %s: request head over %d bytes in all or %d in one line", self.client,
+                 self.limits.max_header_bytes, self.limits.max_header_line_bytes)
+        transport = self.transport
+        transport.pause_reading()
+        transport.write(HEADERS_TOO_LARGE_RESPONSE)
+        self.loop.call_later(_ABORT_AFTER_S, transport.abort)
+
+    # ------------------------------------------------------------------ write timeout
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        if self._write_timer is None and self.limits.write_timeout_s > 0:
+            self._write_timer = self.loop.call_later(self.limits.write_timeout_s, self._write_timed_out)
+
+    def resume_writing(self) -> None:
+        super().resume_writing()
+        self._writable()
+
+    def _writable(self) -> None:
+        if self._write_timer is not None:
+            self._write_timer.cancel()
+            self._write_timer = None
+
+    def _write_timed_out(self) -> None:
+        self._write_timer = None
+        log.debug("closing %s: it read none of the answers for %.3g s", self.client, self.limits.write_timeout_s)
+        # Every unfinished request of the connection (pipelined ones too: uvicorn's ``cycle`` is only the
+        # newest) is marked gone, so that its send returns quietly rather than write to a closed transport.
+        for cycle in list(self._cycles):
+            if not cycle.response_complete:
+                cycle.disconnected = True
+        _reset(self.transport)
 
     # ------------------------------------------------------------------ parser callbacks
     def on_message_begin(self) -> None:
@@ -236,7 +298,10 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
 
     def on_headers_complete(self) -> None:
         self._disarm()
+        self._head.reset()
         super().on_headers_complete()
+        if self.cycle is not None:
+            self._cycles.add(self.cycle)
         if not (self.parser.should_upgrade() and self._should_upgrade()):
             self._in_body = True
             self._arm(self.loop.time() + self.limits.body_timeout_s)

@@ -11,6 +11,8 @@ import json
 import logging
 import time
 
+from service.http.log_redaction import redaction_filter
+
 ANNOUNCE = "service.announce"
 TEXT_FORMAT = "%(asctime)s %(levelname)s %(name)s %(message)s"
 _STANDARD = set(logging.makeLogRecord({}).__dict__) | {"message", "asctime", "color_message"}
@@ -38,11 +40,13 @@ def log_config(level: str = "warning", fmt: str = "json") -> dict:
     """A ``logging.config.dictConfig`` for the service and uvicorn (pass it as uvicorn's ``log_config``)."""
     json_format = {"()": JsonFormatter}
     formatter = json_format if fmt == "json" else {"format": TEXT_FORMAT}
-    handler = {"class": "logging.StreamHandler", "formatter": "default", "stream": "ext://sys.stderr"}
+    handler = {"class": "logging.StreamHandler", "formatter": "default", "stream": "ext://sys.stderr",
+               "filters": ["redact_keys"]}  # API keys never reach a line (service.http.log_redaction)
     lvl = level.upper()
     return {
         "version": 1,
         "disable_existing_loggers": False,
+        "filters": {"redact_keys": {"()": redaction_filter}},
         "formatters": {"default": formatter, "announce": json_format if fmt == "json" else {"format": "%(message)s"}},
         "handlers": {"default": handler, "announce": {**handler, "formatter": "announce"}},
         "loggers": {
@@ -77,6 +81,7 @@ def ensure_service_logging(level: str = "warning", fmt: str = "json") -> None:
             continue
         handler = logging.StreamHandler()
         handler.setFormatter(formatter)
+        handler.addFilter(redaction_filter())
         logger.addHandler(handler)
         logger.setLevel(level.upper())
         logger.propagate = False

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 
 
 class RateLimiter:
     """Token buckets keyed by API key (or client address). Used from the event loop only.
 
-    Memory stays bounded: when more than ``max_keys`` buckets exist, full (idle) ones are dropped.
+    The buckets are kept in the order they were last used, so each :meth:`take` costs the same however many
+    keys are tracked: it drops, from the least recently used end, the buckets that have refilled (a full
+    bucket is the same as none), and past ``max_keys`` the least recently used ones even if not yet full
+    (such a key starts again with a full burst: the cap bounds memory, the rate still bounds each key).
     """
 
     def __init__(self, rate_per_s: float, burst: int, clock: Callable[[], float] = time.monotonic,
@@ -18,31 +22,42 @@ class RateLimiter:
         self.rate = rate_per_s
         self.burst = float(burst)
         self.clock = clock
-        self.max_keys = max_keys
-        self._buckets: dict[str, tuple[float, float]] = {}  # key -> (tokens, time of last update)
+        self.max_keys = max(1, max_keys)
+        self._buckets: OrderedDict[str, tuple[float, float]] = OrderedDict()  # key -> (tokens, last update)
 
     @property
     def enabled(self) -> bool:
         return self.rate > 0
+
+    def __len__(self) -> int:
+        return len(self._buckets)
 
     def take(self, key: str) -> float:
         """Spend one token; returns 0 when allowed, else the seconds until a token is available."""
         if not self.enabled:
             return 0.0
         now = self.clock()
-        tokens, last = self._buckets.get(key, (self.burst, now))
+        tokens, last = self._buckets.pop(key, (self.burst, now))
         tokens = min(self.burst, tokens + (now - last) * self.rate)
+        wait = 0.0
         if tokens >= 1.0:
-            self._buckets[key] = (tokens - 1.0, now)
-            if len(self._buckets) > self.max_keys:
-                self._prune(now)
-            return 0.0
-        self._buckets[key] = (tokens, now)
-        return (1.0 - tokens) / self.rate
+            tokens -= 1.0
+        else:
+            wait = (1.0 - tokens) / self.rate
+        self._buckets[key] = (tokens, now)  # the most recently used end
+        self._prune(now)
+        return wait
 
     def _prune(self, now: float) -> None:
+        """Drop refilled buckets from the least recently used end (each is dropped once: O(1) amortized),
+        then the oldest ones over the cap."""
+        buckets = self._buckets
         full_after = self.burst / self.rate
-        self._buckets = {k: v for k, v in self._buckets.items() if now - v[1] < full_after}
+        while buckets:
+            tokens, last = next(iter(buckets.values()))
+            if now - last < full_after - tokens / self.rate and len(buckets) <= self.max_keys:
+                return
+            buckets.popitem(last=False)
 
 
 def retry_after_header(wait_s: float) -> dict[str, str]:

@@ -33,6 +33,7 @@ async def stream(ws: WebSocket) -> None:
     conn = Connection(ws, encoding, send_queue_frames=settings.send_queue_frames,
                       slow_client_grace_s=settings.slow_client_grace_s, idle_timeout_s=settings.idle_timeout_s,
                       max_pending_messages=settings.max_pending_messages, metrics=state.metrics)
+    conn.owner = caller.owner
     state.connections.add(conn)
     state.metrics.live_streams.inc()
     session = Session(state, conn, caller, bucket)

@@ -4,14 +4,13 @@ built-in styles (``builtin:NAME``, :mod:`service.builtin_styles`): listed and fe
 
 from __future__ import annotations
 
-import asyncio
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 
 from service.builtin_styles import builtin_list, is_builtin
 from service.deps import RegistryDep
-from service.engine_jobs import register_style, style_info
+from service.engine_jobs import encode_registration, style_info
 from service.errors import ServiceError
 from service.http.auth import CallerDep, require_access
 from service.registry import LoadedModel, Registry
@@ -25,6 +24,7 @@ from service.schemas import (
 )
 from service.style_book import Caller
 from service.style_hints import builtin_suggestion
+from service.style_lookups import file_style, on_lane
 from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(require_access)],
@@ -41,7 +41,10 @@ def _builtins(model: LoadedModel) -> list[dict[str, Any]]:
                      "(cached: true when you registered it already)")
 async def create_style(body: StyleCreate, request: Request, registry: RegistryDep, caller: CallerDep) -> dict:
     model = registry.get(body.model)
-    return await model.run(register_style, model, caller, body.motion, body.name, gone=disconnect_of(request.receive))
+    style, clip = await model.run(encode_registration, model, body.motion, body.name,
+                                  gone=disconnect_of(request.receive))
+    had = await file_style(request.app.state.service, model, caller.owner, style, clip)  # the store's lane
+    return style_info(model, style, had)
 
 
 def _find(registry: Registry, caller: Caller, style_id: str) -> dict:
@@ -64,26 +67,26 @@ def _find(registry: Registry, caller: Caller, style_id: str) -> dict:
 @router.get("", response_model=StyleList,
             summary="the models' built-in styles (builtin: true) and your registered styles (of one model, or of all); "
                     "an admin key's: everyone's")
-async def list_styles(registry: RegistryDep, caller: CallerDep,
+async def list_styles(request: Request, registry: RegistryDep, caller: CallerDep,
                       model: Annotated[ModelName | None, Query()] = None) -> dict:
     models = [registry.get(model)] if model is not None else sorted(registry, key=lambda m: m.name)
-    # Off the event loop: with RSMT_STYLE_STORE=redis each store call is a round trip (or a timeout).
-    listed = await asyncio.to_thread(lambda: [(m, m.book.styles_of(caller)) for m in models])
+    # On the store's lane: with RSMT_STYLE_STORE=redis each store call is a round trip (or a timeout).
+    listed = await on_lane(request.app.state.service, lambda: [(m, m.book.styles_of(caller)) for m in models])
     return {"styles": [info for m, styles in listed
                        for info in [*_builtins(m), *(style_info(m, s, True) for s in styles)]]}
 
 
 @router.get("/{style_id}", response_model=StyleInfo, responses={404: ERROR_RESPONSES[404]},
             summary="one of your registered styles, or a built-in one")
-async def get_style(style_id: StyleId, registry: RegistryDep, caller: CallerDep) -> dict:
-    return await asyncio.to_thread(_find, registry, caller, style_id)
+async def get_style(style_id: StyleId, request: Request, registry: RegistryDep, caller: CallerDep) -> dict:
+    return await on_lane(request.app.state.service, _find, registry, caller, style_id)
 
 
 @router.delete("/{style_id}", status_code=204, response_class=Response,
                responses={k: ERROR_RESPONSES[k] for k in (404, 405)},
                summary="forget one of your styles (characters already using it keep it; an admin key's: everyone's); "
                        "built-in styles cannot be deleted (405)")
-async def delete_style(style_id: StyleId, registry: RegistryDep, caller: CallerDep) -> Response:
+async def delete_style(style_id: StyleId, request: Request, registry: RegistryDep, caller: CallerDep) -> Response:
     if is_builtin(style_id):
         owners = sorted(m.name for m in registry if any(s["style_id"] == style_id for s in builtin_list(m.engine)))
         if owners:
@@ -91,7 +94,8 @@ async def delete_style(style_id: StyleId, registry: RegistryDep, caller: CallerD
                                                      "its bundle): it cannot be deleted; DELETE /v1/styles/ID forgets "
                                                      "styles you registered")
         raise ServiceError("unknown_style", f"no model has the built-in style {style_id!r} (GET /v1/styles lists them)")
-    deleted = await asyncio.to_thread(lambda: [m.name for m in registry if m.book.delete(caller, style_id)])
+    deleted = await on_lane(request.app.state.service,
+                            lambda: [m.name for m in registry if m.book.delete(caller, style_id)])
     if not deleted:
         raise ServiceError("unknown_style", f"no style {style_id!r} under this API key")
     return Response(status_code=204)

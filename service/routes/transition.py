@@ -16,6 +16,7 @@ from service.schemas import (
     TransitionJson,
     TransitionRequest,
 )
+from service.style_lookups import registered_style
 from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1", tags=["transitions"], dependencies=[Depends(require_access)],
@@ -33,7 +34,9 @@ async def transition(body: TransitionRequest, request: Request, registry: Regist
                      caller: CallerDep) -> Response:
     arrived = time.perf_counter()
     model = registry.get(body.model)
-    result = await model.run(run_transition, model, caller, body, arrived, gone=disconnect_of(request.receive))
+    registered = await registered_style(state, model, caller, body.style_id)  # on the store's lane, not the work thread
+    result = await model.run(run_transition, model, caller, body, arrived, registered,
+                             gone=disconnect_of(request.receive))
     result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)
     state.metrics.transition_frames.labels(model.name).inc(body.frames)
     return Response(dumps(result), media_type="application/json")

@@ -35,6 +35,7 @@ from service.streaming.connection import CLOSE_TOO_BIG, Connection
 from service.streaming.frames import floats_per_frame, frame_layout
 from service.streaming.stream import Stream
 from service.style_book import Caller
+from service.style_lookups import on_lane, registered_style
 
 log = logging.getLogger(__name__)
 PROTOCOL = 1
@@ -195,7 +196,8 @@ class Session:
         self.state.reserved_characters += 1
         began = time.perf_counter()
         try:
-            character, style, seed = await model.run_stream(prepare_character, model, self.caller, msg, cid)
+            registered = await registered_style(self.state, model, self.caller, msg.style_id)  # the store's lane
+            character, style, seed = await model.run_stream(prepare_character, model, self.caller, msg, cid, registered)
             self.state.metrics.prepare_seconds.labels(model.name).observe(time.perf_counter() - began)
         finally:
             conn.reserved.discard(cid)
@@ -224,6 +226,14 @@ class Session:
         if self.registry.live_characters() + self.state.reserved_characters >= settings.max_characters:
             raise ServiceError("too_many_characters", f"the server is at its limit of {settings.max_characters} "
                                                       "live characters; retry later or use another replica")
+        share = settings.characters_per_key
+        if share is not None:
+            owner = conn.owner
+            mine = sum(len(c.streams) + len(c.reserved) for c in self.state.connections if c.owner == owner)
+            if mine >= share:
+                raise ServiceError("too_many_characters", f"this API key already drives {share} live characters, its "
+                                                          "share of the server (RSMT_MAX_CHARACTERS_PER_KEY); retry "
+                                                          "when some have ended")
 
     def _live(self, cid: str) -> tuple[Stream, LoadedModel]:
         stream = self.conn.streams.get(cid)
@@ -245,7 +255,7 @@ class Session:
     async def style(self, msg: StyleMessage) -> None:
         stream, model = self._live(msg.character)
         if msg.style_id is not None:
-            style = await model.run_stream(lookup_style, model, self.caller, msg.style_id)  # may reach Redis
+            style = await on_lane(self.state, lookup_style, model, self.caller, msg.style_id)  # may reach Redis
         else:
             style = await model.run_stream(resolve_style, model, self.caller, None, msg.style)
         assert stream.scheduler is not None

@@ -3,7 +3,10 @@
 Per model (name and version), under ``rsmt:styles:<model>:<version>:``:
 
 * ``clip:<id>``: the registered clip (:mod:`service.style_store.codec`), content-addressed: one copy
-  whichever keys registered it; ``meta:<id>``: its id, name and length as JSON (for listings);
+  whichever keys registered it; ``meta:<id>``: its id and length as JSON (for listings);
+* ``names:<owner>``: the name that owner gave each of its ids (content is shared below the keys, names are
+  not: no key sees the name another chose); the clip and its meta are written on every registration, so that
+  registering a clip another key has costs what registering a new one does;
 * ``refs:<id>``: the owners (API key digests) that registered it; the clip goes when the last one lets go;
 * ``own:<owner>``: that owner's ids, scored by last use (Redis's clock), so its least recently used go
   first over the per-key cap; ``owners``: every owner with styles (for admin listings).
@@ -21,6 +24,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, TypeVar
 from urllib.parse import urlsplit
 
@@ -56,17 +60,17 @@ local function stamp(own)
 end
 """
 
-# ARGV: prefix, owner, id, clip, meta, cap, ttl  ->  {had, evicted}
+# ARGV: prefix, owner, id, clip, meta, cap, ttl, name  ->  {had, evicted}
 _ADD = _STAMP + """
 local p, owner, sid = ARGV[1], ARGV[2], ARGV[3]
 local cap, ttl = tonumber(ARGV[6]), tonumber(ARGV[7])
 local own, refs, clip, meta = p .. 'own:' .. owner, p .. 'refs:' .. sid, p .. 'clip:' .. sid, p .. 'meta:' .. sid
+local names = p .. 'names:' .. owner
 local exists = redis.call('EXISTS', meta) == 1 and redis.call('EXISTS', clip) == 1
 local had = exists and redis.call('ZSCORE', own, sid) ~= false
-if not exists then
-  redis.call('SET', clip, ARGV[4])
-  redis.call('SET', meta, ARGV[5])
-end
+redis.call('SET', clip, ARGV[4])  -- the same bytes whoever registered it: written every time (no timing tell)
+redis.call('SET', meta, ARGV[5])
+redis.call('HSET', names, sid, ARGV[8])
 redis.call('ZADD', own, stamp(own), sid)
 redis.call('SADD', refs, owner)
 redis.call('SADD', p .. 'owners', owner)
@@ -74,6 +78,7 @@ local evicted = 0
 while redis.call('ZCARD', own) > cap do
   local victim = redis.call('ZPOPMIN', own)[1]
   local vrefs = p .. 'refs:' .. victim
+  redis.call('HDEL', names, victim)
   redis.call('SREM', vrefs, owner)
   if redis.call('SCARD', vrefs) == 0 then
     redis.call('DEL', vrefs, p .. 'clip:' .. victim, p .. 'meta:' .. victim)
@@ -81,13 +86,26 @@ while redis.call('ZCARD', own) > cap do
   evicted = evicted + 1
 end
 if ttl > 0 then
-  for _, k in ipairs({clip, meta, refs, own}) do redis.call('EXPIRE', k, ttl) end
+  for _, k in ipairs({clip, meta, refs, own, names}) do redis.call('EXPIRE', k, ttl) end
 end
 return {had and 1 or 0, evicted}
 """
 
-# ARGV: prefix, owner, id, admin (0/1), touch (0/1), want clip (0/1), ttl  ->  false | {meta, clip or false}
-_GET = _STAMP + """
+# A style's name for ``owner``; for an admin looking at another owner's, that owner's name (the first found).
+_NAME = """
+local function name_of(p, owner, sid)
+  local n = redis.call('HGET', p .. 'names:' .. owner, sid)
+  if n then return n end
+  for _, o in ipairs(redis.call('SMEMBERS', p .. 'refs:' .. sid)) do
+    n = redis.call('HGET', p .. 'names:' .. o, sid)
+    if n then return n end
+  end
+  return false
+end
+"""
+
+# ARGV: prefix, owner, id, admin (0/1), touch (0/1), want clip (0/1), ttl  ->  false | {meta, clip or false, name}
+_GET = _STAMP + _NAME + """
 local p, owner, sid, admin, touch, want = ARGV[1], ARGV[2], ARGV[3], ARGV[4], ARGV[5], ARGV[6]
 local ttl = tonumber(ARGV[7])
 local own, clip, meta = p .. 'own:' .. owner, p .. 'clip:' .. sid, p .. 'meta:' .. sid
@@ -101,7 +119,10 @@ end
 if touch == '1' then
   if mine then
     redis.call('ZADD', own, 'XX', stamp(own), sid)
-    if ttl > 0 then redis.call('EXPIRE', own, ttl) end
+    if ttl > 0 then
+      redis.call('EXPIRE', own, ttl)
+      redis.call('EXPIRE', p .. 'names:' .. owner, ttl)
+    end
   end
   if ttl > 0 then
     for _, k in ipairs({clip, meta, p .. 'refs:' .. sid}) do redis.call('EXPIRE', k, ttl) end
@@ -109,10 +130,12 @@ if touch == '1' then
 end
 local c = false
 if want == '1' then c = redis.call('GET', clip) end
-return {m, c}
+local n = false
+if mine then n = redis.call('HGET', p .. 'names:' .. owner, sid) else n = name_of(p, owner, sid) end
+return {m, c, n}
 """
 
-# ARGV: prefix, owner, admin (0/1)  ->  {meta, ...} least recently used first, one per id
+# ARGV: prefix, owner, admin (0/1)  ->  {meta, name, meta, name, ...} least recently used first, one per id
 _LIST = """
 local p, owner, admin = ARGV[1], ARGV[2], ARGV[3]
 local owners = {owner}
@@ -130,6 +153,7 @@ for _, o in ipairs(owners) do
       if m then
         seen[sid] = true
         table.insert(out, m)
+        table.insert(out, redis.call('HGET', p .. 'names:' .. o, sid) or '')
       else
         redis.call('ZREM', own, sid)
       end
@@ -150,6 +174,7 @@ local found = 0
 for _, o in ipairs(owners) do
   local own = p .. 'own:' .. o
   if redis.call('ZREM', own, sid) == 1 and live then found = 1 end
+  redis.call('HDEL', p .. 'names:' .. o, sid)
   redis.call('SREM', refs, o)
   if redis.call('ZCARD', own) == 0 then redis.call('SREM', p .. 'owners', o) end
 end
@@ -186,11 +211,12 @@ class RedisStyleStore:
 
     # ------------------------------------------------------------------ the StyleStore questions
     def add(self, owner: str, style: EncodedStyle, clip: Clip) -> bool:
-        stored = StoredClip(style.style_id, style.name, float(clip.fps), tuple(clip.skeleton.names), self.model,
+        # The shared copy carries no key's name (the id stands in): names live per owner.
+        stored = StoredClip(style.style_id, style.style_id, float(clip.fps), tuple(clip.skeleton.names), self.model,
                             clip.rotations.detach().float().numpy(), clip.root_positions.detach().float().numpy())
         meta = _meta_json(stored.meta())
         had, evicted = self._call(self._add, self.prefix, owner, style.style_id, encode_clip(stored), meta,
-                                  self.per_owner, self.ttl)
+                                  self.per_owner, self.ttl, style.name)
         self.evictions += int(evicted)
         return bool(had)
 
@@ -202,19 +228,20 @@ class RedisStyleStore:
         if cached is not None:
             again = self.engine.styles.get(style_id)  # counts the hit; None if evicted since the peek
             if again is not None:
-                return again
+                return replace(again, name=found[0].name)  # the engine's code, this caller's name
             found = self._fetch(caller, style_id, touch=False, want_clip=True)
             if found is None:
                 return None
-        return self._encode(style_id, found[1])
+        encoded = self._encode(style_id, found[1])
+        return None if encoded is None else replace(encoded, name=found[0].name)
 
     def peek(self, caller: Caller, style_id: str) -> StyleEntry | None:
         found = self._fetch(caller, style_id, touch=False, want_clip=False)
         return None if found is None else found[0]
 
     def styles_of(self, caller: Caller) -> Sequence[StyleEntry]:
-        metas = self._call(self._list, self.prefix, caller.owner, int(caller.admin))
-        return [_meta(m) for m in metas]
+        flat = self._call(self._list, self.prefix, caller.owner, int(caller.admin))
+        return [_meta(m, n) for m, n in zip(flat[::2], flat[1::2], strict=True)]
 
     def delete(self, caller: Caller, style_id: str) -> bool:
         return bool(self._call(self._delete, self.prefix, caller.owner, style_id, int(caller.admin)))
@@ -225,8 +252,8 @@ class RedisStyleStore:
                            int(want_clip), self.ttl)
         if not found:
             return None
-        meta, clip = found
-        return _meta(meta), (clip or None)
+        meta, clip, name = (*found, None)[:3]
+        return _meta(meta, name), (clip or None)
 
     def _encode(self, style_id: str, data: bytes | None) -> EncodedStyle | None:
         """Encode a stored clip with this replica's engine (which caches the code); None if it is unusable."""
@@ -263,6 +290,10 @@ def _meta_json(meta: dict[str, Any]) -> bytes:
     return json.dumps(meta, separators=(",", ":")).encode()
 
 
-def _meta(raw: bytes) -> StyleMeta:
+def _meta(raw: bytes, name: bytes | str | None = None) -> StyleMeta:
+    """A listing's entry: the stored meta with the owner's name (a style stored before names were kept
+    per owner has its name in the meta)."""
     m = json.loads(raw)
-    return StyleMeta(str(m["style_id"]), str(m["name"]), int(m["frames"]))
+    if isinstance(name, bytes):
+        name = name.decode()
+    return StyleMeta(str(m["style_id"]), name or str(m.get("name") or m["style_id"]), int(m["frames"]))

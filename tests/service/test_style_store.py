@@ -91,9 +91,11 @@ def test_redis_store_ownership_and_encoding_on_another_replica(stores, engines):
     assert got is not None and got.style_id == sid and got.frames == 30
     mine = engines[0].styles.peek(sid)
     assert mine is not None and torch.equal(got.context.keys1, mine.context.keys1)  # the same code
-    assert two.get(A, sid) is got  # from this replica's cache now
+    again = two.get(A, sid)  # from this replica's cache now: the same code, under the caller's name
+    assert again is not None and again.context is got.context and again.name == "walk"
     assert two.get(B, sid) is None and two.peek(B, sid) is None and list(two.styles_of(B)) == []
-    assert two.get(ADMIN, sid) is got and [s.style_id for s in two.styles_of(ADMIN)] == [sid]
+    admin_view = two.get(ADMIN, sid)
+    assert admin_view is not None and admin_view.context is got.context and [s.style_id for s in two.styles_of(ADMIN)] == [sid]
     assert two.delete(B, sid) is False and one.peek(A, sid) is not None
     register(one, "b", clip_of(engines[0]))  # same clip, second owner: one stored copy, two entries
     assert one.delete(A, sid) is True and one.get(A, sid) is None and one.get(B, sid) is not None

@@ -21,11 +21,18 @@ def _huge_frames_bvh() -> str:
     return text.replace("Frames: 20", "Frames: " + "9" * 4400, 1)
 
 
+def _frame_time(text: str, frame_time: str) -> str:
+    head, _, rest = text.partition("Frame Time:")
+    return head + "Frame Time: " + frame_time + "\n" + rest.split("\n", 1)[1]
+
+
 HOSTILE = {
     "frames-4400-digits": _huge_frames_bvh(),
     "zero-channels-frames-1e19": ZERO_CHANNELS % "10000000000000000000",
     "zero-channels-frames-4400-digits": ZERO_CHANNELS % ("9" * 4400),
     "channels-4400-digits": bvh(walk(20))["bvh"].replace("CHANNELS 3", "CHANNELS " + "3" * 4400, 1),
+    # Frame times whose rate overflows or leaves the sane range (issue 53, item 3: 1e-310 gave 500 / internal).
+    **{f"frame-time-{ft}": _frame_time(bvh(walk(20))["bvh"], ft) for ft in ("1e-310", "5e-324", "1e-200", "1e-4", "2")},
 }
 
 

@@ -1,0 +1,81 @@
+"""API keys never reach a log line: a :class:`logging.Filter` that rewrites every record it sees.
+
+uvicorn logs each WebSocket handshake (at info) and, with the access log on, every request line with its
+query string, so a client's ``?token=KEY`` would be written in plain text. :class:`RedactKeys` replaces, in a
+record's message and in its string fields, ``token=...`` query values, ``X-API-Key`` / ``Authorization``
+header values and every configured key (:func:`redact_keys`) with ``[redacted]``.
+
+It is installed on the handlers :func:`service.http.logs.log_config` configures (``rsmt serve``), on the
+handlers :func:`service.http.logs.ensure_service_logging` adds, and by :func:`install_redaction` on uvicorn's
+own loggers and handlers (plain ``uvicorn --factory``).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+
+REDACTED = "[redacted]"
+_PATTERNS = (
+    re.compile(r"(?i)([?&;]token=)[^&\s\"'#]+"),
+    re.compile(r"(?i)((?:x-api-key|authorization)[\"']?\s*[:=,]\s*[\"']?(?:bearer\s+)?)[^\s\"',)]+"),
+)
+_keys: set[str] = set()
+
+
+def redact_keys(keys: list[str]) -> None:
+    """Also replace each of ``keys`` (the configured API keys), wherever it appears."""
+    _keys.update(k for k in keys if k)
+
+
+def redact(text: str) -> str:
+    for pattern in _PATTERNS:
+        text = pattern.sub(lambda m: m.group(1) + REDACTED, text)
+    for key in _keys:
+        if key in text:
+            text = text.replace(key, REDACTED)
+    return text
+
+
+class RedactKeys(logging.Filter):
+    """Rewrites a record's message (its arguments merged in) and string fields without keys; drops nothing."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        try:
+            message = record.getMessage()
+        except Exception:  # a malformed record is logging's to report, not ours
+            return True
+        clean = redact(message)
+        if clean != message or record.args:
+            record.msg, record.args = clean, None
+        for name, value in list(record.__dict__.items()):
+            if isinstance(value, str) and name not in ("msg", "name", "levelname", "pathname", "filename", "module",
+                                                        "funcName", "processName", "threadName", "taskName"):
+                cleaned = redact(value)
+                if cleaned != value:
+                    setattr(record, name, cleaned)
+        return True
+
+
+_FILTER = RedactKeys()
+UVICORN_LOGGERS = ("uvicorn", "uvicorn.error", "uvicorn.access", "uvicorn.asgi")
+
+
+def install_redaction(keys: list[str]) -> None:
+    """Redact ``keys`` (and ``token=`` values) in uvicorn's records and on every handler they reach."""
+    redact_keys(keys)
+    for name in UVICORN_LOGGERS:
+        logger = logging.getLogger(name)
+        if _FILTER not in logger.filters:
+            logger.addFilter(_FILTER)
+        for handler in logger.handlers:
+            if _FILTER not in handler.filters:
+                handler.addFilter(_FILTER)
+    for handler in logging.getLogger().handlers:
+        if _FILTER not in handler.filters:
+            handler.addFilter(_FILTER)
+
+
+def redaction_filter() -> RedactKeys:
+    """The one filter instance (for ``logging.config`` factories)."""
+    return _FILTER

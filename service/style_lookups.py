@@ -1,0 +1,42 @@
+"""Registered styles fetched on the style store's lane (:mod:`service.style_store.lane`), before the engine work
+that uses them is queued: a request naming a ``style_id`` waits for the store on the lane (503 after its
+timeout), never on a model's work or stream-setup threads, so requests without one are not held up by it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from service.builtin_styles import is_builtin
+from service.engine_jobs import Registered, lookup_style
+from service.errors import ServiceError
+
+if TYPE_CHECKING:
+    from model.inference.engine import EncodedStyle
+    from model.motion.clip import Clip
+    from service.registry import LoadedModel
+    from service.state import ServiceState
+    from service.style_book import Caller
+
+
+async def registered_style(state: ServiceState, model: LoadedModel, caller: Caller, style_id: str | None) -> Registered:
+    """The caller's registered style ``style_id`` from the store, or its ``unknown_style`` error (raised by the
+    job once the request's motion is checked, as before); None for no id or a built-in one (the engine's own,
+    resolved with the rest of the job). A store that does not answer raises ``style_store_unavailable``."""
+    if style_id is None or is_builtin(style_id):
+        return None
+    try:
+        return await state.store_lane.call(lookup_style, model, caller, style_id)
+    except ServiceError as exc:
+        if exc.code == "unknown_style":
+            return exc
+        raise
+
+
+async def file_style(state: ServiceState, model: LoadedModel, owner: str, style: EncodedStyle, clip: Clip) -> bool:
+    """File an encoded registration under ``owner``; True when the owner had it already."""
+    return await state.store_lane.call(model.book.add, owner, style, clip)
+
+
+async def on_lane(state: ServiceState, fn: Any, *args: Any) -> Any:
+    """Any other store call (listing, fetching, deleting) on the lane."""
+    return await state.store_lane.call(fn, *args)

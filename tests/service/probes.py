@@ -1,0 +1,98 @@
+"""What the hardening tests measure of a real server while it is attacked: the CPU time its process spent
+(from ``/proc``), and the gaps between the frames of a real-time stream read in a background thread."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from typing import Any
+
+import httpx
+import numpy as np
+
+from tests.service.conftest import bvh, walk
+from tests.service.wsclient import Ws, start_message
+
+_TICK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time of process ``pid`` so far (every thread), in seconds."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / _TICK
+
+
+class GapProbe:
+    """``characters`` real-time characters on one WebSocket, restarted as each ends, read in a thread:
+    the arrival time of every frame. Gaps are taken per character between :meth:`mark` calls."""
+
+    def __init__(self, ws_url: str, characters: int = 4, query: str = "", frames: int | None = None) -> None:
+        self.ws = Ws(ws_url, encoding="binary", query=query)
+        self.frames = frames or int(self.ws.hello["model"]["max_transition_frames"])
+        self.characters = characters
+        self.arrivals: dict[str, list[float]] = {}
+        self.errors: list[dict[str, Any]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._runs = 0
+
+    def __enter__(self) -> GapProbe:
+        for i in range(self.characters):
+            self._start(f"probe{i}")
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join(10)
+        self.ws.conn.close()
+
+    def _start(self, base: str) -> None:
+        self._runs += 1
+        name = f"{base}.{self._runs}"
+        self.arrivals[name] = []
+        self.ws.send(start_message(name, self.frames, seed=self._runs, pace="realtime", style=bvh(walk(30))))
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                m = self.ws.recv(timeout=1.0)
+            except TimeoutError:
+                continue
+            except Exception:  # the connection ended: the test reads what it has
+                return
+            name = m.get("character")
+            if m["type"] == "frame" and name in self.arrivals:
+                self.arrivals[name].append(time.monotonic())
+            elif m["type"] == "end" and name in self.arrivals:
+                self._start(name.rsplit(".", 1)[0])
+            elif m["type"] == "error":
+                self.errors.append(m)
+
+    def gaps_ms(self, since: float, until: float) -> np.ndarray:
+        """Every gap between consecutive frames of one character that arrived within ``[since, until]``."""
+        out: list[np.ndarray] = []
+        for times in self.arrivals.values():
+            t = np.asarray([x for x in times if since <= x <= until])
+            if len(t) > 1:
+                out.append(np.diff(t) * 1e3)
+        return np.concatenate(out) if out else np.zeros(0)
+
+    def frames_in(self, since: float, until: float) -> int:
+        return sum(sum(1 for x in times if since <= x <= until) for times in self.arrivals.values())
+
+
+def p99(values: np.ndarray) -> float:
+    return float(np.percentile(values, 99)) if len(values) else float("inf")
+
+
+def live(url: str, timeout_s: float = 10.0) -> float:
+    """Seconds ``GET /v1/health/live`` took (inf when it failed)."""
+    started = time.monotonic()
+    try:
+        httpx.get(url + "/v1/health/live", timeout=timeout_s).raise_for_status()
+    except httpx.HTTPError:
+        return float("inf")
+    return time.monotonic() - started
