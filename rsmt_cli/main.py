@@ -22,6 +22,7 @@ GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("style_probe_commands", ("style-probe",)),
     ("average_commands", ("average",)),
     ("package_commands", ("package", "bundle")),
+    ("export_commands", ("export",)),
     ("client_commands", ("client",)),
     ("loadtest_commands", ("loadtest",)),
     ("rig_commands", ("rig",)),

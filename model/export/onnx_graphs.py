@@ -1,0 +1,181 @@
+"""A served engine's networks as ONNX graphs: the style encoder, the warm-up, the per-frame step and the output steps.
+
+Each graph is one of the engine's own computations with its tensors laid flat (names below), traced by
+the TorchScript-based exporter at opset 15 (:mod:`model.export.onnx_symbolics`) with the batch, and the
+style code's length, left dynamic:
+
+* ``style``: style-clip features ``[B, T, J*12]`` to the style context (FiLM and attention tensors);
+* ``begin``: the context and target states to the sampler state before the first frame;
+* ``step``: one frame of the sampler and its steering (the recurrent state in and out);
+* ``output``: the output steps (world space, smoothing, floor contact, stride warp, foot lock), their
+  per-character memory in and out.
+
+The engine's torch path runs the same modules (:mod:`model.inference.traced_step`), so the graphs and
+the engine compute the same frames.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from dataclasses import dataclass
+
+import torch
+
+from model.data.synthetic import synthetic_walk
+from model.export.onnx_symbolics import OPSET, exporting
+from model.inference.character import WeightSet
+from model.inference.character_batch import CharacterBatch
+from model.inference.engine import Engine
+from model.inference.traced_step import _flat, _FlatFrameOutput, _FlatStep
+from model.motion.features import local_frame_features
+from model.nets.pose_state import PoseState
+from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
+
+Tensor = torch.Tensor
+
+STYLE_FIELDS = ("gamma1", "beta1", "keys1", "values1", "gamma2", "beta2", "keys2", "values2", "mask")
+STATE_FIELDS = ("h", "c", "rel", "vel", "rot", "root_xz", "phase", "target_vec", "target_pos", "target_rot",
+                "target_emb", "tta", "noise")
+STEP_INPUTS = (*STATE_FIELDS, *STYLE_FIELDS, "late")
+STEP_OUTPUTS = ("h", "c", "rel", "vel", "rot", "root_xz", "phase", "tta", "shift")
+BEGIN_INPUTS = ("context_rel", "context_vel", "context_rot", "context_root_xz", "target_rel", "target_vel",
+                "target_rot", "target_root_xz", "frames", "noise", "velocity_known", *STYLE_FIELDS)
+OUTPUT_INPUTS = ("rel", "vel", "rot", "root_xz", "yaw", "origin", "remaining", "shift")
+
+
+def _style_axes(prefix: str = "") -> dict[str, dict[int, str]]:
+    """Dynamic axes of the style tensors: the batch, and the code's time steps where they have one."""
+    steps = {"keys1": 2, "keys2": 2, "values1": 1, "values2": 1, "mask": 1}
+    return {prefix + n: {0: "batch", **({steps[n]: "style_steps"} if n in steps else {})} for n in STYLE_FIELDS}
+
+
+@dataclass(frozen=True)
+class Graph:
+    """One exported graph: its ONNX bytes and the names of its inputs and outputs, in order."""
+
+    name: str
+    model: bytes
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+
+def _export(name: str, module: torch.nn.Module, args: tuple[Tensor, ...], inputs: tuple[str, ...],
+            outputs: tuple[str, ...], axes: dict[str, dict[int, str]]) -> Graph:
+    buffer = io.BytesIO()
+    with exporting(), warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # tracer warnings on shapes read as numbers (fixed by the skeleton)
+        # The TorchScript exporter writes to a file object too (its annotation says paths only).
+        torch.onnx.export(module.eval(), args, buffer, input_names=list(inputs),  # type: ignore[arg-type]
+                          output_names=list(outputs), opset_version=OPSET, dynamo=False, dynamic_axes=axes)
+    import onnx
+
+    graph = onnx.load_from_string(buffer.getvalue()).graph  # the exporter drops inputs a graph never reads
+    return Graph(name, buffer.getvalue(), tuple(i.name for i in graph.input), tuple(o.name for o in graph.output))
+
+
+class _Step(_FlatStep):
+    """The step with the ground shift always returned (zeros where steering is off), so every bundle's graph has one layout."""
+
+    def forward(self, *args: Tensor) -> tuple[Tensor, ...]:  # type: ignore[override]
+        out = super().forward(*args)
+        return out if len(out) == len(STEP_OUTPUTS) else (*out, torch.zeros_like(out[5]))
+
+
+class _Style(torch.nn.Module):
+    def __init__(self, sampler: TransitionSampler) -> None:
+        super().__init__()
+        self.sampler = sampler
+
+    def forward(self, features: Tensor) -> tuple[Tensor, ...]:
+        ctx = self.sampler.style_context(self.sampler.encode_style(features))
+        return tuple(getattr(ctx, n) for n in STYLE_FIELDS)
+
+
+class _Begin(torch.nn.Module):
+    def __init__(self, sampler: TransitionSampler) -> None:
+        super().__init__()
+        self.sampler = sampler
+
+    def forward(self, crel: Tensor, cvel: Tensor, crot: Tensor, croot: Tensor, trel: Tensor, tvel: Tensor,
+                trot: Tensor, troot: Tensor, frames: Tensor, noise: Tensor, known: Tensor,
+                *style: Tensor) -> tuple[Tensor, ...]:
+        state = self.sampler.begin(PoseState(crel, cvel, crot, croot), PoseState(trel, tvel, trot, troot), frames,
+                                   noise, StyleContext(*style), velocity_known=known)
+        return _flat(state, StyleContext(*style))[: len(STATE_FIELDS)]
+
+
+@dataclass
+class Example:
+    """A batch of two characters prepared by the engine (one retargeted), traced through to give every
+    graph its example inputs."""
+
+    features: Tensor
+    begin: tuple[Tensor, ...]
+    state: SamplerState
+    style: StyleContext
+    late: Tensor
+    output: tuple[Tensor, ...]
+
+    @classmethod
+    def of(cls, engine: Engine, weights: WeightSet) -> Example:
+        c = engine.config
+        walk = synthetic_walk(frames=160, turn_deg_s=15.0)  # a procedural walk: a request any rig's engine accepts
+        style_clip = engine.conform(walk.window(20, 20 + min(120, c.style_frames_max)))
+        pos, rot = engine._global(style_clip)
+        features = local_frame_features(pos, rot, engine.skeleton).unsqueeze(0)
+        style, cached = engine.encode_style(style_clip, weights=weights.name)
+        if not cached:  # an example, not a style anyone registered
+            engine.styles.delete(style.style_id)
+        frames = c.max_transition
+        context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
+        chars = [engine.prepare(context, target, frames, style, seed=i) for i in range(2)]
+        inits = [c._init for c in chars]
+        assert all(i is not None for i in inits)
+        ctx = PoseState.cat([i[0] for i in inits])  # type: ignore[index]
+        tgt = PoseState.cat([i[1] for i in inits])  # type: ignore[index]
+        begin = (ctx.rel, ctx.vel, ctx.rot, ctx.root_xz, tgt.rel, tgt.vel, tgt.rot, tgt.root_xz,
+                 torch.tensor([i[2] for i in inits]), torch.cat([i[3] for i in inits]),  # type: ignore[index]
+                 torch.tensor([i[4] for i in inits]))  # type: ignore[index]
+        batch = CharacterBatch(engine)
+        for ch in chars:
+            batch.add(ch)
+        batch._sync()
+        assert batch._state is not None and batch._style is not None and batch._post is not None
+        state, ctx_style = batch._state, batch._style
+        late = torch.tensor([False, True])
+        new, shift = weights.step_fn(state, ctx_style, late)
+        shift = torch.zeros(2, 2) if shift is None else shift
+        p = new.pose
+        output = (p.rel, p.vel, p.rot, p.root_xz, batch._yaw, batch._origin, torch.tensor([30, 3]), shift,
+                  *(batch._post[k] for k in engine.output_fn.fn.keys))
+        return cls(features, begin, state, ctx_style, late, output)  # type: ignore[arg-type]
+
+
+def style_graph(weights: WeightSet, example: Example) -> Graph:
+    axes = {"features": {0: "batch", 1: "frames"}, **_style_axes()}
+    return _export("style", _Style(weights.sampler), (example.features,), ("features",), STYLE_FIELDS, axes)
+
+
+def begin_graph(weights: WeightSet, example: Example) -> Graph:
+    axes = {n: {0: "batch"} for n in (*BEGIN_INPUTS, *STATE_FIELDS) if n not in STYLE_FIELDS} | _style_axes()
+    args = (*example.begin, *_flat(example.state, example.style)[len(STATE_FIELDS):])
+    return _export("begin", _Begin(weights.sampler), args, BEGIN_INPUTS, tuple(f"{n}_out" for n in STATE_FIELDS),
+                   {**axes, **{f"{n}_out": {0: "batch"} for n in STATE_FIELDS}})
+
+
+def step_graph(engine: Engine, weights: WeightSet, example: Example) -> Graph:
+    """The sampler's step with the engine's whole steering (the retarget window for rows flagged ``late``)."""
+    module = _Step(weights.sampler, engine.skeleton.roles.root, engine.output.steering, engine._facing)
+    outputs = tuple(f"{n}_out" for n in STEP_OUTPUTS[:-1]) + ("shift",)
+    axes = {n: {0: "batch"} for n in (*STATE_FIELDS, "late", *outputs)} | _style_axes()
+    args = (*_flat(example.state, example.style), example.late)
+    return _export("step", module, args, STEP_INPUTS, outputs, axes)
+
+
+def output_graph(engine: Engine, example: Example) -> Graph:
+    keys = tuple(engine.output_fn.fn.keys)
+    inputs = (*OUTPUT_INPUTS, *keys)
+    outputs = ("rotations", "root_position", *(f"{k}_out" for k in keys))
+    axes = {n: {0: "batch"} for n in (*inputs, *outputs)}
+    return _export("output", _FlatFrameOutput(engine.output_fn.fn), example.output, inputs, outputs, axes)

@@ -1,0 +1,81 @@
+"""``rsmt export onnx``: the default bundle's graphs pass onnx.checker, load in onnxruntime at opset <= 15 with a
+dynamic batch, and the sidecar describes what an engine needs to run them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+
+from rsmt_cli.main import main
+
+GRAPHS = ("style", "begin", "step", "output")
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("onnx")
+    assert main(["export", "onnx", "--out", str(out)]) == 0
+    return out
+
+
+def test_every_graph_passes_the_checker_at_opset_15_or_below(exported: Path) -> None:
+    for name in GRAPHS:
+        model = onnx.load(exported / f"{name}.onnx")
+        onnx.checker.check_model(model, full_check=True)
+        assert max(o.version for o in model.opset_import if o.domain in ("", "ai.onnx")) <= 15
+        assert all(o.domain in ("", "ai.onnx") for o in model.opset_import), "only standard operators"
+
+
+def _feed(session: ort.InferenceSession, batch: int, steps: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    feed = {}
+    for i in session.get_inputs():
+        shape = [batch if d == "batch" else steps if isinstance(d, str) else d for d in i.shape]
+        if i.type == "tensor(bool)":
+            feed[i.name] = np.ones(shape, dtype=bool)
+        elif i.type == "tensor(int64)":
+            feed[i.name] = np.full(shape, 20, dtype=np.int64)
+        else:
+            feed[i.name] = rng.standard_normal(shape).astype(np.float32)
+    return feed
+
+
+@pytest.mark.parametrize("batch", [1, 5])
+def test_onnxruntime_runs_the_step_and_output_graphs_at_any_batch(exported: Path, batch: int) -> None:
+    rng = np.random.default_rng(0)
+    for name in ("step", "output"):
+        session = ort.InferenceSession(str(exported / f"{name}.onnx"), providers=["CPUExecutionProvider"])
+        outputs = session.run(None, _feed(session, batch, 27, rng))
+        assert all(o.shape[0] == batch for o in outputs)
+
+
+def test_the_style_graph_takes_clips_of_any_length(exported: Path) -> None:
+    sidecar = json.loads((exported / "rsmt-onnx.json").read_text())
+    session = ort.InferenceSession(str(exported / "style.onnx"), providers=["CPUExecutionProvider"])
+    joints = len(sidecar["skeleton"]["joints"])
+    lengths = []
+    for frames in (sidecar["sampler"]["style_frames_min"], 119):
+        features = np.random.default_rng(1).standard_normal((2, frames - 1, joints * 12)).astype(np.float32)
+        out = dict(zip([o.name for o in session.get_outputs()], session.run(None, {"features": features})))
+        lengths.append(out["mask"].shape[1])
+        assert out["keys1"].shape[0] == 2 and out["keys1"].shape[2] == out["mask"].shape[1]
+    assert lengths[0] < lengths[1]
+
+
+def test_the_sidecar_lists_every_graph_input_and_the_state_layout(exported: Path) -> None:
+    sidecar = json.loads((exported / "rsmt-onnx.json").read_text())
+    assert sidecar["format"] == "rsmt-onnx/1" and sidecar["opset"] <= 15
+    assert set(sidecar["graphs"]) == set(GRAPHS)
+    for name, graph in sidecar["graphs"].items():
+        model = onnx.load(exported / graph["file"])
+        assert [i["name"] for i in graph["inputs"]] == [i.name for i in model.graph.input], name
+        for tensor in graph["inputs"]:
+            assert tensor["name"] in sidecar["state_layout"] or tensor["name"] in sidecar["output_memory"] \
+                or tensor["name"].startswith(("context_", "target_", "gamma", "beta", "keys", "values")) \
+                or tensor["name"] in ("features", "mask", "frames", "velocity_known", "shift"), tensor["name"]
+    assert sidecar["output_settings"]["foot_lock"] is True  # the default bundle's settings travel with it
+    assert len(sidecar["normalisation"]["style_mean"]) == len(sidecar["skeleton"]["joints"]) * 12
