@@ -62,9 +62,15 @@ class BenchResult:
     throughput: dict[int, float] = field(default_factory=dict)
     style_encode_ms: float = 0.0
     rss_mb: float = 0.0
+    bytes_per_frame: int = 0  # weight bytes a frame reads (:func:`weight_bytes_per_frame`)
+
+    def floor_ms(self, probe: dict[str, float]) -> float:
+        """The memory floor of a frame: its weight bytes at the probe's copy bandwidth (ms)."""
+        return self.bytes_per_frame / (probe["memcpy_gbps"] * 1e9) * 1e3
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "parameters_per_frame": self.parameters_per_frame, "latency_ms": self.latency_ms,
+        return {"name": self.name, "parameters_per_frame": self.parameters_per_frame,
+                "bytes_per_frame": self.bytes_per_frame, "latency_ms": self.latency_ms,
                 "throughput_char_frames_per_s": {str(k): v for k, v in self.throughput.items()},
                 "style_encode_ms": self.style_encode_ms, "rss_mb": self.rss_mb}
 
@@ -76,11 +82,21 @@ def per_frame_parameters(bundle: Bundle) -> int:
     return sum(p.numel() for n, p in bundle.sampler.named_parameters() if not n.startswith(once))
 
 
+def weight_bytes_per_frame(engine: Engine) -> int:
+    """Bytes of the weights a frame reads at batch 1: :func:`per_frame_parameters` at their runtime width
+    (float32; the LSTM cell's weight matrices at one byte where the engine runs them in int8)."""
+    once = ("style_encoder.", "phase_estimator.", "target_encoder.", "film1.", "film2.", "attn1.key", "attn1.value",
+            "attn2.key", "attn2.value")
+    int8 = engine.inference.int8_lstm
+    return sum(p.numel() * (1 if int8 and n.startswith("lstm.weight") else p.element_size())
+               for n, p in engine.bundle.sampler.named_parameters() if not n.startswith(once))
+
+
 def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8, 32, 128, 512),
                  latency_frames: int = 300, budget_s: float = 6.0) -> BenchResult:
     """Measure one engine; each throughput point runs for at most ``budget_s / len(batch_sizes)``."""
     request = WalkRequest.of(engine)
-    res = BenchResult(name, per_frame_parameters(engine.bundle))
+    res = BenchResult(name, per_frame_parameters(engine.bundle), bytes_per_frame=weight_bytes_per_frame(engine))
     times = []
     for _ in range(5):
         engine.styles.delete(engine.style_id(request.style_clip))
@@ -217,14 +233,17 @@ def machine_description() -> dict[str, str | int]:
 
 def format_table(results: list[BenchResult], probe: dict[str, float]) -> str:
     sizes = sorted({n for r in results for n in r.throughput})
-    head = (["model", "params/frame", "batch-1 median ms", "p99 ms", "style encode ms", "RSS MB"]
-            + [f"{n} chars (char-frames/s)" for n in sizes])
+    head = (["model", "params/frame", "batch-1 median ms", "memory floor ms", "x floor", "p99 ms", "style encode ms",
+             "RSS MB"] + [f"{n} chars (char-frames/s)" for n in sizes])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in results:
-        row = [r.name, f"{r.parameters_per_frame / 1e6:.2f} M", f"{r.latency_ms['median']:.3f}", f"{r.latency_ms['p99']:.3f}",
+        floor = r.floor_ms(probe)
+        row = [r.name, f"{r.parameters_per_frame / 1e6:.2f} M", f"{r.latency_ms['median']:.3f}", f"{floor:.3f}",
+               f"{r.latency_ms['median'] / floor:.1f}x" if floor else "-", f"{r.latency_ms['p99']:.3f}",
                f"{r.style_encode_ms:.2f}", f"{r.rss_mb:.0f}"] + [f"{r.throughput.get(n, 0):,.0f}" for n in sizes]
         lines.append("| " + " | ".join(row) + " |")
     lines.append("")
     lines.append(f"Machine probe: {probe['matmul_gflops']} GFLOP/s (512x512 fp32 matmul), "
-                 f"{probe['memcpy_gbps']} GB/s (64 MiB copy).")
+                 f"{probe['memcpy_gbps']} GB/s (64 MiB copy). Memory floor: the weight bytes a frame reads at batch 1 "
+                 f"({', '.join(f'{r.bytes_per_frame / 1e6:.1f} MB' for r in results)}) at that bandwidth.")
     return "\n".join(lines)

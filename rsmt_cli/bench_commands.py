@@ -19,6 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-sizes", default="1,8,32,128,512", help="concurrent characters to measure (comma-separated)")
     p.add_argument("--budget", type=float, default=8.0, metavar="S", help="seconds of throughput runs per model (default 8)")
     add_output_arguments(p, "the bundle")
+    p.add_argument("--backend", choices=["torch", "onnxruntime", "both"], default="torch",
+                   help="what runs the bundle's per-frame graphs (default torch); both: each, side by side, with "
+                        "their batch-1 times measured taking turns")
     p.add_argument("--no-paper", action="store_true", help="skip the paper-size network")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON here")
     p.set_defaults(func=_run)
@@ -35,6 +38,7 @@ def _run(args: argparse.Namespace) -> int:
         paired_latency,
         paper_size_engine,
     )
+    from model.inference.backends import with_backend
     from model.inference.bundle import DEFAULT_BUNDLE, Bundle
     from model.inference.engine import Engine
 
@@ -45,20 +49,29 @@ def _run(args: argparse.Namespace) -> int:
     path = args.model or DEFAULT_BUNDLE
     bundle = Bundle.load(path)
     probe = machine_probe()
-    engine = Engine(bundle, overrides=output_overrides(args))
-    label = engine_label(engine, path)
-    results = [bench_engine(engine, label, sizes, budget_s=args.budget)]
-    paired = None
+    backends = ["torch", "onnxruntime"] if args.backend == "both" else [args.backend]
+    engines = [with_backend(Engine(bundle, overrides=output_overrides(args)), b) for b in backends]
+    results = [bench_engine(engine, engine_label(engine, path), sizes, budget_s=args.budget) for engine in engines]
+    paired: dict[str, Any] = {}
     if not args.no_paper:
         paper = paper_size_engine(bundle)
         results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget))
-        paired = paired_latency(engine, paper)
+        for backend, engine in zip(backends, engines):
+            paired[f"{backend}_vs_paper"] = paired_latency(engine, paper)
+    if len(engines) == 2:
+        paired["torch_vs_onnxruntime"] = paired_latency(engines[0], engines[1])
     print(format_table(results, probe))
-    if paired is not None:
-        print(f"Batch 1, the two taking turns ({paired.blocks} blocks of {paired.frames} frames each): "
-              f"{paired.first_ms:.3f} ms against {paired.second_ms:.3f} ms, {paired.ratio:.3f}x the paper-size network's time.")
+    for key, pair in paired.items():
+        first, second = key.split("_vs_")
+        print(f"Batch 1, {first} and {second} taking turns ({pair.blocks} blocks of {pair.frames} frames each): "
+              f"{pair.first_ms:.3f} ms against {pair.second_ms:.3f} ms, {pair.ratio:.3f}x {second}'s time.")
+    for r in results[: len(engines)]:
+        one = r.throughput.get(1)
+        if one:
+            rates = ", ".join(f"{n} characters {v / one:.1f}x" for n, v in sorted(r.throughput.items()) if n > 1)
+            print(f"{r.name}: {rates} one character's rate.")
     report = {"machine": machine_description(), "probe": probe, "results": [r.to_dict() for r in results],
-              "paired_batch1": paired.to_dict() if paired is not None else None,
+              "paired_batch1": {k: v.to_dict() for k, v in paired.items()} or None,
               "seconds": round(time.monotonic() - began, 1)}
     print(f"\nfinished in {report['seconds']} s")
     if args.json:
@@ -68,4 +81,11 @@ def _run(args: argparse.Namespace) -> int:
 
 def engine_label(engine: Any, path: Path) -> str:
     """The bench table's name for ``engine`` (loaded from ``path``): its model and the settings it runs with."""
-    return f"{engine.name} ({path.name}; {engine.output.in_words()}{', int8 LSTM' if engine.inference.int8_lstm else ''})"
+    return (f"{engine.name} ({path.name}; {engine.output.in_words()}{', int8 LSTM' if engine.inference.int8_lstm else ''}"
+            f"{', onnxruntime' if _on_onnxruntime(engine) else ''})")
+
+
+def _on_onnxruntime(engine: Any) -> bool:
+    from model.inference.backends import backend_of
+
+    return backend_of(engine) == "onnxruntime"

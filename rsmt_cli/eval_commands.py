@@ -61,6 +61,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--exact-arrival", action="store_true",
                    help="run bundles with the engine's exact-arrival option (the last frames bend onto the target)")
     add_output_arguments(p, "each bundle")
+    p.add_argument("--backend", choices=["torch", "onnxruntime"], default="torch",
+                   help="what runs each bundle's per-frame graphs (default torch; onnxruntime: float32, no int8 LSTM)")
     p.add_argument("--stream-retarget", action="store_true",
                    help="also stream each bundle's locomotion cases and retarget them at frame 20 of 40 to the target "
                         "moved 1 m sideways (model/evaluation/stream_retarget.py)")
@@ -75,10 +77,12 @@ def eval_command(args: argparse.Namespace) -> int:
 
     from model.data.preprocessed import load_motion_cache
     from model.evaluation import EvalSettings, evaluate, resolve_method
+    from model.evaluation.methods import BundleMethod
     from model.evaluation.motion_matching import MotionMatchingMethod
     from model.evaluation.report import markdown
     from model.evaluation.sequence_judge import SequenceJudge
     from model.evaluation.style_judge import StyleJudge
+    from model.inference.backends import with_backend
     from model.nets.style_classifier import StyleClassifier
 
     if args.threads:
@@ -88,6 +92,9 @@ def eval_command(args: argparse.Namespace) -> int:
     data = require_data_dir(args.data)
     overrides = output_overrides(args)
     methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
+    for method in methods:
+        if isinstance(method, BundleMethod):
+            with_backend(method.engine, args.backend)
     classifier = StyleClassifier.load(args.classifier) if args.classifier else None
     judge = StyleJudge.load(args.judge) if args.judge else None
     judge2 = SequenceJudge.load(args.judge2) if args.judge2 else None

@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 
 import torch
 
+from model.inference.backends import with_backend
 from model.inference.bundle import Bundle, BundleError
 from model.inference.engine import Engine
 from service.builtin_styles import builtin_list
@@ -181,6 +182,7 @@ def load_registry(settings: Settings) -> Registry:
         engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
                         cache_bytes=settings.style_cache_bytes, overrides=settings.overrides(),
                         compiled=not settings.eager)
+        engine = with_backend(engine, settings.backend)
         name = engine.name if engine.name not in names else path.name
         if name in names:
             raise NoModelError(f"two bundles are named {name!r}; rename one directory")

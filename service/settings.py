@@ -45,6 +45,9 @@ class Settings(BaseSettings):
     )
     default_model: str | None = Field(default=None, description="name served by GET /v1/model (default: the first, by name)")
     threads: int = Field(default=1, ge=0, description="torch intra-op threads (0: torch's choice); process-wide")
+    backend: Literal["torch", "onnxruntime"] = Field(
+        default="torch", description="what runs the per-frame step and output steps: torch (traced graphs, the int8 "
+        "LSTM where a bundle asks for it) or onnxruntime (the same graphs as ONNX, float32; needs the onnx extra)")
     request_threads: int = Field(
         default=1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
     warmup_max_batch: int = Field(
