@@ -3,6 +3,7 @@
 Layout::
 
     OUT/
+      prepare.onnx  one character's context and target poses -> begin's inputs, the canonical frame, the first memory
       style.onnx    style-clip features -> style context
       begin.onnx    context and target states -> the sampler state before the first frame
       step.onnx     sampler state + style context -> next state and steering's ground shift
@@ -21,7 +22,7 @@ from typing import Any
 
 import onnx
 
-from model.export.onnx_graphs import Example, Graph, begin_graph, output_graph, step_graph, style_graph
+from model.export.onnx_graphs import Example, Graph, begin_graph, output_graph, prepare_graph, step_graph, style_graph
 from model.export.onnx_symbolics import OPSET
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
@@ -52,12 +53,14 @@ STATE_LAYOUT: dict[str, str] = {
 
 LOOP = [
     "once per style clip: style(features) -> the style context (9 tensors; keep it, stack rows to batch characters)",
+    "once per character: prepare(its last context frames and the target frame, local rotations and roots) -> "
+    "begin's context and target states, yaw and origin, the output memory (a batch of one: stack rows to batch)",
     "once per transition: begin(context states, target state, frames, noise, velocity_known, style) -> state",
     "every frame: step(state, style, late) -> (h, c, rel, vel, rot, root_xz, phase, tta) replace the state's, shift",
     "then output(rel, vel, rot, root_xz, yaw, origin, remaining = frames left after this one, shift, memory) "
     "-> local rotations [B, J, 4] (x, y, z, w), root position [B, 3] in the world, memory for the next frame",
-    "the memory starts from the context: prev_rot/prev_root its last frame, floor and lock_* from its feet "
-    "(model/inference/engine.py Engine.prepare); rsmt serve's /v1 API does all of this for a client",
+    "noise: zeros for a deterministic transition, else normal(0, 1) * noise_std, [B, 2*width]; late: false until the "
+    "character is given a new target mid-stream (then rerun prepare for the target part, frame kept: see the README)",
 ]
 
 
@@ -86,7 +89,7 @@ def engine_graphs(engine: Engine, weights: str = "") -> dict[str, Graph]:
     example = Example.of(engine, ws)
     graphs = [style_graph(ws, example), begin_graph(ws, example), step_graph(engine, ws, example)]
     if not weights:
-        graphs.append(output_graph(engine, example))
+        graphs += [output_graph(engine, example), prepare_graph(engine)]
     return {g.name: g for g in graphs}
 
 

@@ -4,6 +4,8 @@ Each graph is one of the engine's own computations with its tensors laid flat (n
 the TorchScript-based exporter at opset 15 (:mod:`model.export.onnx_symbolics`) with the batch, and the
 style code's length, left dynamic:
 
+* ``prepare``: one character's context and target poses to ``begin``'s inputs, the canonical frame and the
+  output steps' first memory (:mod:`model.export.onnx_prepare`; a batch of one);
 * ``style``: style-clip features ``[B, T, J*12]`` to the style context (FiLM and attention tensors);
 * ``begin``: the context and target states to the sampler state before the first frame;
 * ``step``: one frame of the sampler and its steering (the recurrent state in and out);
@@ -179,3 +181,11 @@ def output_graph(engine: Engine, example: Example) -> Graph:
     outputs = ("rotations", "root_position", *(f"{k}_out" for k in keys))
     axes = {n: {0: "batch"} for n in (*inputs, *outputs)}
     return _export("output", _FlatFrameOutput(engine.output_fn.fn), example.output, inputs, outputs, axes)
+
+
+def prepare_graph(engine: Engine) -> Graph:
+    from model.export.onnx_prepare import PREPARE_INPUTS, PREPARE_STATES, Prepare, prepare_example
+
+    keys = tuple(engine.output_fn.fn.keys)
+    axes = {"context_rotations": {0: "frames"}, "context_roots": {0: "frames"}}
+    return _export("prepare", Prepare(engine), prepare_example(engine), PREPARE_INPUTS, (*PREPARE_STATES, *keys), axes)

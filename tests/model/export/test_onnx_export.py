@@ -13,7 +13,7 @@ import pytest
 
 from rsmt_cli.main import main
 
-GRAPHS = ("style", "begin", "step", "output")
+GRAPHS = ("prepare", "style", "begin", "step", "output")
 
 
 @pytest.fixture(scope="module")
@@ -77,5 +77,7 @@ def test_the_sidecar_lists_every_graph_input_and_the_state_layout(exported: Path
             assert tensor["name"] in sidecar["state_layout"] or tensor["name"] in sidecar["output_memory"] \
                 or tensor["name"].startswith(("context_", "target_", "gamma", "beta", "keys", "values")) \
                 or tensor["name"] in ("features", "mask", "frames", "velocity_known", "shift"), tensor["name"]
+    prepare = sidecar["graphs"]["prepare"]
+    assert [o["name"] for o in prepare["outputs"]][-len(sidecar["output_memory"]):] == sidecar["output_memory"]
     assert sidecar["output_settings"]["foot_lock"] is True  # the default bundle's settings travel with it
     assert len(sidecar["normalisation"]["style_mean"]) == len(sidecar["skeleton"]["joints"]) * 12
