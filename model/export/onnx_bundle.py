@@ -4,7 +4,7 @@ Layout::
 
     OUT/
       prepare.onnx  one character's context and target poses -> begin's inputs, the canonical frame, the first memory
-      style.onnx    style-clip features -> style context
+      style.onnx    a style clip's poses -> style context
       begin.onnx    context and target states -> the sampler state before the first frame
       step.onnx     sampler state + style context -> next state and steering's ground shift
       output.onnx   a generated state + the output steps' memory -> local rotations, root, new memory
@@ -52,7 +52,7 @@ STATE_LAYOUT: dict[str, str] = {
 }
 
 LOOP = [
-    "once per style clip: style(features) -> the style context (9 tensors; keep it, stack rows to batch characters)",
+    "once per style clip: style(its local rotations and roots) -> the style context (9 tensors; keep it, stack rows to batch characters)",
     "once per character: prepare(its last context frames and the target frame, local rotations and roots) -> "
     "begin's context and target states, yaw and origin, the output memory (a batch of one: stack rows to batch)",
     "once per transition: begin(context states, target state, frames, noise, velocity_known, style) -> state",
@@ -87,7 +87,7 @@ def engine_graphs(engine: Engine, weights: str = "") -> dict[str, Graph]:
     """The four graphs of one weight set of ``engine`` (the bundle's own by default)."""
     ws = engine.weights(weights)
     example = Example.of(engine, ws)
-    graphs = [style_graph(ws, example), begin_graph(ws, example), step_graph(engine, ws, example)]
+    graphs = [style_graph(engine, ws, example), begin_graph(ws, example), step_graph(engine, ws, example)]
     if not weights:
         graphs += [output_graph(engine, example), prepare_graph(engine)]
     return {g.name: g for g in graphs}
@@ -116,10 +116,9 @@ def export_onnx(bundle: Bundle, out: Path) -> dict[str, Any]:
         "state_layout": STATE_LAYOUT,
         "output_memory": list(engine.output_fn.fn.keys),
         "normalisation": {
-            "style_features": "per frame t of the clip at the model's fps, in frame t's own canonical frame (its "
-                              "facing to +Z, root over the origin): joint positions, velocities p[t]-p[t-1] and 6D "
-                              "global rotations, J*12 values a frame for frames 1..T-1; the style graph subtracts "
-                              "style_mean and divides by style_std itself",
+            "style_clip": "local rotations and roots of the clip at the model's fps, on its rig; the style graph "
+                          "computes its features (each frame in its own canonical frame) and normalises them with "
+                          "style_mean and style_std itself",
             "style_mean": [round(float(x), 6) for x in sampler.style_mean],
             "style_std": [round(float(x), 6) for x in sampler.style_std],
             "canonical_frame": "a transition's frame: the last context frame's facing turned to +Z and its root "

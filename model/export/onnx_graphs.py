@@ -6,7 +6,8 @@ style code's length, left dynamic:
 
 * ``prepare``: one character's context and target poses to ``begin``'s inputs, the canonical frame and the
   output steps' first memory (:mod:`model.export.onnx_prepare`; a batch of one);
-* ``style``: style-clip features ``[B, T, J*12]`` to the style context (FiLM and attention tensors);
+* ``style``: a style clip's poses (local rotations ``[B, T, J, 4]``, roots ``[B, T, 3]``, on the model's rig at
+  its fps) to the style context (FiLM and attention tensors);
 * ``begin``: the context and target states to the sampler state before the first frame;
 * ``step``: one frame of the sampler and its steering (the recurrent state in and out);
 * ``output``: the output steps (world space, smoothing, floor contact, stride warp, foot lock), their
@@ -31,6 +32,9 @@ from model.inference.character_batch import CharacterBatch
 from model.inference.engine import Engine
 from model.inference.traced_step import _flat, _FlatFrameOutput, _FlatStep
 from model.motion.features import local_frame_features
+from model.motion.kinematics import forward_kinematics
+from model.motion.rotations import quat_normalize
+from model.motion.skeleton import Skeleton
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
 
@@ -85,11 +89,16 @@ class _Step(_FlatStep):
 
 
 class _Style(torch.nn.Module):
-    def __init__(self, sampler: TransitionSampler) -> None:
-        super().__init__()
-        self.sampler = sampler
+    offsets: Tensor
 
-    def forward(self, features: Tensor) -> tuple[Tensor, ...]:
+    def __init__(self, sampler: TransitionSampler, skeleton: Skeleton) -> None:
+        super().__init__()
+        self.sampler, self.skeleton = sampler, skeleton
+        self.register_buffer("offsets", skeleton.offsets_tensor())
+
+    def forward(self, rotations: Tensor, roots: Tensor) -> tuple[Tensor, ...]:
+        pos, rot = forward_kinematics(quat_normalize(rotations), roots, self.offsets, self.skeleton.parents)
+        features = local_frame_features(pos, rot, self.skeleton)
         ctx = self.sampler.style_context(self.sampler.encode_style(features))
         return tuple(getattr(ctx, n) for n in STYLE_FIELDS)
 
@@ -112,7 +121,7 @@ class Example:
     """A batch of two characters prepared by the engine (one retargeted), traced through to give every
     graph its example inputs."""
 
-    features: Tensor
+    style_poses: tuple[Tensor, Tensor]
     begin: tuple[Tensor, ...]
     state: SamplerState
     style: StyleContext
@@ -124,8 +133,7 @@ class Example:
         c = engine.config
         walk = synthetic_walk(frames=160, turn_deg_s=15.0)  # a procedural walk: a request any rig's engine accepts
         style_clip = engine.conform(walk.window(20, 20 + min(120, c.style_frames_max)))
-        pos, rot = engine._global(style_clip)
-        features = local_frame_features(pos, rot, engine.skeleton).unsqueeze(0)
+        style_poses = (style_clip.rotations.unsqueeze(0), style_clip.root_positions.unsqueeze(0))
         style, cached = engine.encode_style(style_clip, weights=weights.name)
         if not cached:  # an example, not a style anyone registered
             engine.styles.delete(style.style_id)
@@ -151,12 +159,13 @@ class Example:
         p = new.pose
         output = (p.rel, p.vel, p.rot, p.root_xz, batch._yaw, batch._origin, torch.tensor([30, 3]), shift,
                   *(batch._post[k] for k in engine.output_fn.fn.keys))
-        return cls(features, begin, state, ctx_style, late, output)  # type: ignore[arg-type]
+        return cls(style_poses, begin, state, ctx_style, late, output)  # type: ignore[arg-type]
 
 
-def style_graph(weights: WeightSet, example: Example) -> Graph:
-    axes = {"features": {0: "batch", 1: "frames"}, **_style_axes()}
-    return _export("style", _Style(weights.sampler), (example.features,), ("features",), STYLE_FIELDS, axes)
+def style_graph(engine: Engine, weights: WeightSet, example: Example) -> Graph:
+    axes = {"rotations": {0: "batch", 1: "frames"}, "roots": {0: "batch", 1: "frames"}, **_style_axes()}
+    return _export("style", _Style(weights.sampler, engine.skeleton), example.style_poses, ("rotations", "roots"),
+                   STYLE_FIELDS, axes)
 
 
 def begin_graph(weights: WeightSet, example: Example) -> Graph:

@@ -58,11 +58,17 @@ def test_the_style_graph_takes_clips_of_any_length(exported: Path) -> None:
     session = ort.InferenceSession(str(exported / "style.onnx"), providers=["CPUExecutionProvider"])
     joints = len(sidecar["skeleton"]["joints"])
     lengths = []
-    for frames in (sidecar["sampler"]["style_frames_min"], 119):
-        features = np.random.default_rng(1).standard_normal((2, frames - 1, joints * 12)).astype(np.float32)
-        out = dict(zip([o.name for o in session.get_outputs()], session.run(None, {"features": features})))
+    for frames in (sidecar["sampler"]["style_frames_min"], 120):
+        rotations = np.zeros((2, frames, joints, 4), dtype=np.float32)
+        rotations[..., 3] = 1.0
+        roots = np.zeros((2, frames, 3), dtype=np.float32)
+        roots[..., 1] = 90.0
+        roots[..., 2] = np.arange(frames) * 4.0  # walking along +Z
+        out = dict(zip([o.name for o in session.get_outputs()],
+                       session.run(None, {"rotations": rotations, "roots": roots})))
         lengths.append(out["mask"].shape[1])
         assert out["keys1"].shape[0] == 2 and out["keys1"].shape[2] == out["mask"].shape[1]
+        assert np.isfinite(out["keys1"]).all()
     assert lengths[0] < lengths[1]
 
 
@@ -76,8 +82,24 @@ def test_the_sidecar_lists_every_graph_input_and_the_state_layout(exported: Path
         for tensor in graph["inputs"]:
             assert tensor["name"] in sidecar["state_layout"] or tensor["name"] in sidecar["output_memory"] \
                 or tensor["name"].startswith(("context_", "target_", "gamma", "beta", "keys", "values")) \
-                or tensor["name"] in ("features", "mask", "frames", "velocity_known", "shift"), tensor["name"]
+                or tensor["name"] in ("rotations", "roots", "mask", "frames", "velocity_known", "shift"), tensor["name"]
     prepare = sidecar["graphs"]["prepare"]
     assert [o["name"] for o in prepare["outputs"]][-len(sidecar["output_memory"]):] == sidecar["output_memory"]
     assert sidecar["output_settings"]["foot_lock"] is True  # the default bundle's settings travel with it
     assert len(sidecar["normalisation"]["style_mean"]) == len(sidecar["skeleton"]["joints"]) * 12
+
+
+def test_the_style_graph_gives_the_engines_style_context(exported: Path) -> None:
+    from model.data.synthetic import synthetic_walk
+    from model.export.onnx_graphs import STYLE_FIELDS
+    from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+    from model.inference.engine import Engine
+
+    engine = Engine(Bundle.load(DEFAULT_BUNDLE), compiled=False)
+    clip = engine.conform(synthetic_walk(frames=100, turn_deg_s=25.0))
+    style, _ = engine.encode_style(clip)
+    session = ort.InferenceSession(str(exported / "style.onnx"), providers=["CPUExecutionProvider"])
+    out = session.run(None, {"rotations": clip.rotations[None].numpy(), "roots": clip.root_positions[None].numpy()})
+    for name, got in zip([o.name for o in session.get_outputs()], out):
+        assert name in STYLE_FIELDS
+        np.testing.assert_allclose(got, getattr(style.context, name).numpy(), atol=1e-4, err_msg=name)
