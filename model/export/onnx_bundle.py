@@ -52,7 +52,8 @@ STATE_LAYOUT: dict[str, str] = {
 }
 
 LOOP = [
-    "once per style clip: style(its local rotations and roots) -> the style context (9 tensors; keep it, stack rows to batch characters)",
+    "once per style clip: style(its local rotations and roots) -> the style context "
+    "(9 tensors; keep it, stack rows to batch characters)",
     "once per character: prepare(its last context frames and the target frame, local rotations and roots) -> "
     "begin's context and target states, yaw and origin, the output memory (a batch of one: stack rows to batch)",
     "once per transition: begin(context states, target state, frames, noise, velocity_known, style) -> state",
