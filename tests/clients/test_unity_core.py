@@ -24,8 +24,8 @@ def test_core_selftest(harness_exe):
 
 
 def test_monobehaviour_and_asset_code_type_check(tmp_path):
-    """Runtime/Unity, the .bvh importer (Editor) and the sample compile against stand-ins of the UnityEngine and
-    UnityEditor types they use."""
+    """Runtime/Unity, the .bvh importer (Editor) and the samples compile against stand-ins of the UnityEngine,
+    UnityEditor and Inference Engine types they use."""
     mcs, _ = mono_tools()
     stubs = UNITY.parents[1] / "tests" / "clients" / "unity_stubs"
     sources = sorted(str(p) for p in (UNITY / "Runtime").rglob("*.cs")) + \

@@ -1,0 +1,167 @@
+"""The in-engine samples (the network run by the game engine on the graphs of ``rsmt export onnx``).
+
+* Unreal (``clients/unreal/RsmtLink/Samples/InEngineInference``): its state loop, compiled with g++ as Unreal would,
+  runs a transition with a mid-stream retarget on the exported graphs, each graph call answered by onnxruntime here
+  (what NNE's ORT runtime does in the engine), and gives the torch engine's frames; its NNE adapter type-checks
+  against stubs of the NNE API (tests/clients/unreal_stubs).
+* Unity (``clients/unity/Samples~/InEngineInference``): type-checked with mcs against stubs of the Inference Engine
+  API (tests/clients/test_unity_core.py compiles every sample); its loop mirrors the Unreal one line for line.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from model.data.synthetic import synthetic_walk
+from model.export.onnx_bundle import export_onnx
+from model.export.onnx_graphs import STYLE_FIELDS
+from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+from model.inference.engine import CharacterBatch, Engine
+from model.motion.kinematics import forward_kinematics
+from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, run
+
+pytestmark = pytest.mark.timeout(900)
+
+SAMPLE = UNREAL / "Samples" / "InEngineInference"
+STUBS = REPO / "tests" / "clients" / "unreal_stubs"
+FLAGS = ["-std=c++17", "-O1", "-Wall", "-Wextra", "-Wshadow", "-Wconversion", "-Wno-sign-conversion", "-pedantic",
+         "-Werror", "-fno-exceptions", "-fno-rtti"]
+DTYPES: dict[int, np.dtype] = {0: np.dtype(np.float32), 1: np.dtype(np.int64), 2: np.dtype(np.bool_)}
+TYPES = {v: k for k, v in DTYPES.items()}
+FRAMES, RETARGET_AT = 40, 20
+
+
+def test_the_nne_adapter_type_checks_against_the_nne_api():
+    run([gxx(), *FLAGS, f"-I{STUBS}", f"-I{SAMPLE}", "-fsyntax-only", str(SAMPLE / "RsmtNneGraph.cpp")], timeout=300)
+    for header in STUBS.glob("*.h"):
+        assert "STUB OF UNREAL" in header.read_text().splitlines()[0], header
+
+
+def test_the_unity_sample_is_listed_and_its_stubs_say_what_they_are():
+    package = json.loads((UNITY / "package.json").read_text())
+    assert "Samples~/InEngineInference" in [s["path"] for s in package["samples"]]
+    stub = REPO / "tests" / "clients" / "unity_stubs" / "UnityInferenceEngine.cs"
+    assert "STUB OF UNITY'S INFERENCE ENGINE API" in stub.read_text().splitlines()[0]
+
+
+# ---------------------------------------------------------------------- the Unreal loop on onnxruntime
+def _write_set(out: IO[bytes], tensors: dict[str, np.ndarray]) -> None:
+    out.write(struct.pack("<I", len(tensors)))
+    for name, value in tensors.items():
+        value = np.ascontiguousarray(value)
+        out.write(struct.pack("<I", len(name)) + name.encode() + struct.pack("<BI", TYPES[value.dtype], value.ndim))
+        out.write(struct.pack(f"<{value.ndim}q", *value.shape) + struct.pack("<Q", value.nbytes) + value.tobytes())
+
+
+def _read(stream: IO[bytes], n: int) -> bytes:
+    data = stream.read(n)
+    assert len(data) == n, "the loop program stopped mid-message"
+    return data
+
+
+def _read_set(stream: IO[bytes]) -> dict[str, np.ndarray]:
+    (count,) = struct.unpack("<I", _read(stream, 4))
+    out = {}
+    for _ in range(count):
+        (size,) = struct.unpack("<I", _read(stream, 4))
+        name = _read(stream, size).decode()
+        kind, rank = struct.unpack("<BI", _read(stream, 5))
+        shape = struct.unpack(f"<{rank}q", _read(stream, 8 * rank))
+        (nbytes,) = struct.unpack("<Q", _read(stream, 8))
+        out[name] = np.frombuffer(_read(stream, nbytes), dtype=DTYPES[kind]).reshape(shape)
+    return out
+
+
+def _write_names(out: IO[bytes], names: list[str]) -> None:
+    out.write(struct.pack("<I", len(names)))
+    for n in names:
+        out.write(struct.pack("<I", len(n)) + n.encode())
+
+
+@pytest.fixture(scope="module")
+def graphs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("graphs")
+    export_onnx(Bundle.load(DEFAULT_BUNDLE), out)
+    return out
+
+
+def _engine_frames(engine: Engine, context, target, retarget, style_clip) -> torch.Tensor:
+    style, _ = engine.encode_style(style_clip)
+    batch = CharacterBatch(engine)
+    ch = engine.prepare(context, target, FRAMES, style, deterministic=True)
+    batch.add(ch)
+    rows = []
+    for frame in range(FRAMES):
+        if frame == RETARGET_AT:
+            engine.retarget(ch, batch, target=retarget)
+        out = batch.step()
+        rows.append((out.rotations[0], out.root_positions[0]))
+    rot, root = torch.stack([r for r, _ in rows]), torch.stack([p for _, p in rows])
+    return forward_kinematics(rot, root, engine.skeleton.offsets_tensor(), engine.skeleton.parents)[0]
+
+
+def test_the_unreal_sample_loop_on_the_exported_graphs_gives_the_engines_frames(graphs: Path, tmp_path: Path):
+    exe = tmp_path / "rsmt_loop_bridge"
+    run([gxx(), *FLAGS, f"-I{SAMPLE}", str(REPO / "tests" / "clients" / "engine_samples" / "rsmt_loop_bridge.cpp"),
+         str(SAMPLE / "RsmtOnnxStateLoop.cpp"), "-o", str(exe)], timeout=300)
+    sidecar = json.loads((graphs / "rsmt-onnx.json").read_text())
+    sessions = [ort.InferenceSession(str(graphs / sidecar["graphs"][g]["file"]), providers=["CPUExecutionProvider"])
+                for g in ("prepare", "begin", "step", "output")]
+    engine = Engine(Bundle.load(DEFAULT_BUNDLE), int8_lstm=False)
+    walk = engine.conform(synthetic_walk(frames=200, speed_cm_s=140.0, turn_deg_s=20.0))
+    k = sidecar["sampler"]["context"]
+    context, target, style_clip = walk.window(0, k), walk.window(k + 45, k + 46), walk.window(60, 180)
+    moved = target.root_positions.clone()
+    moved[:, 0] += 100.0
+    retarget = type(target)(target.skeleton, target.rotations, moved, target.fps, target.name)
+    style = ort.InferenceSession(str(graphs / "style.onnx"), providers=["CPUExecutionProvider"])
+    style_out = style.run(None, {"rotations": style_clip.rotations[None].numpy(),
+                                 "roots": style_clip.root_positions[None].numpy()})
+    request = {"context_rotations": context.rotations.numpy(), "context_roots": context.root_positions.numpy(),
+               "target_rotations": target.rotations.numpy(), "target_roots": target.root_positions.numpy(),
+               "retarget_rotations": retarget.rotations.numpy(), "retarget_roots": retarget.root_positions.numpy(),
+               "frames": np.array([FRAMES], dtype=np.int64), "retarget_at": np.array([RETARGET_AT], dtype=np.int64),
+               "noise": np.zeros((1, 2 * sidecar["sampler"]["width"]), dtype=np.float32),
+               **{f"style.{n}": v for n, v in zip(STYLE_FIELDS, style_out)}}
+    proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    assert proc.stdin is not None and proc.stdout is not None
+    for s in sessions:
+        _write_names(proc.stdin, [i.name for i in s.get_inputs()])
+    _write_names(proc.stdin, sidecar["output_memory"])
+    _write_set(proc.stdin, request)
+    proc.stdin.flush()
+    frames, calls = [], 0
+    while True:
+        kind = _read(proc.stdout, 1)[0]
+        if kind == 3:
+            break
+        if kind == 2:
+            frames.append(_read_set(proc.stdout))
+            continue
+        assert kind == 1 and calls < 10 * FRAMES, "the loop runs two graphs a frame"
+        (index,) = struct.unpack("<I", _read(proc.stdout, 4))
+        inputs = _read_set(proc.stdout)
+        session = sessions[index]
+        outputs = session.run(None, inputs)
+        _write_set(proc.stdin, dict(zip([o.name for o in session.get_outputs()], outputs)))
+        proc.stdin.flush()
+        calls += 1
+    assert proc.wait(30) == 0
+    assert len(frames) == FRAMES and calls == 2 + 2 + 2 * FRAMES  # prepare + begin, again at the retarget, 2 a frame
+    joints = engine.skeleton.num_joints
+    rot = torch.from_numpy(np.stack([f["rotations"] for f in frames]).reshape(FRAMES, joints, 4).copy())
+    root = torch.from_numpy(np.stack([f["root"] for f in frames]).copy())
+    got = forward_kinematics(rot, root, engine.skeleton.offsets_tensor(), engine.skeleton.parents)[0]
+    expected = _engine_frames(engine, context, target, retarget, style_clip)
+    assert float((got - expected).norm(dim=-1).max()) < 1e-3  # cm, on every joint of every frame
+    plain = _engine_frames(engine, context, target, target, style_clip)
+    assert float((plain - expected).norm(dim=-1).max()) > 1.0  # the retarget moved it: the loop really retargeted
