@@ -4,8 +4,10 @@
   runs a transition with a mid-stream retarget on the exported graphs, each graph call answered by onnxruntime here
   (what NNE's ORT runtime does in the engine), and gives the torch engine's frames; its NNE adapter type-checks
   against stubs of the NNE API (tests/clients/unreal_stubs).
-* Unity (``clients/unity/Samples~/InEngineInference``): type-checked with mcs against stubs of the Inference Engine
-  API (tests/clients/test_unity_core.py compiles every sample); its loop mirrors the Unreal one line for line.
+* Unity (``clients/unity/Samples~/InEngineInference``): its state loop, compiled with Mono's mcs, runs the same
+  transition the same way (integers and flags as int32, as the Inference Engine passes them) and gives the same
+  frames; the Inference Engine adapter and the MonoBehaviour type-check against stubs of the Inference Engine API
+  (tests/clients/test_unity_core.py compiles every sample).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from model.export.onnx_graphs import STYLE_FIELDS
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import CharacterBatch, Engine
 from model.motion.kinematics import forward_kinematics
-from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, run
+from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, mono_tools, run
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -35,7 +37,9 @@ SAMPLE = UNREAL / "Samples" / "InEngineInference"
 STUBS = REPO / "tests" / "clients" / "unreal_stubs"
 FLAGS = ["-std=c++17", "-O1", "-Wall", "-Wextra", "-Wshadow", "-Wconversion", "-Wno-sign-conversion", "-pedantic",
          "-Werror", "-fno-exceptions", "-fno-rtti"]
-DTYPES: dict[int, np.dtype] = {0: np.dtype(np.float32), 1: np.dtype(np.int64), 2: np.dtype(np.bool_)}
+DTYPES: dict[int, np.dtype] = {0: np.dtype(np.float32), 1: np.dtype(np.int64), 2: np.dtype(np.bool_),
+                               3: np.dtype(np.int32)}
+ORT_TYPES = {"tensor(float)": np.float32, "tensor(int64)": np.int64, "tensor(bool)": np.bool_}
 TYPES = {v: k for k, v in DTYPES.items()}
 FRAMES, RETARGET_AT = 40, 20
 
@@ -109,59 +113,95 @@ def _engine_frames(engine: Engine, context, target, retarget, style_clip) -> tor
     return forward_kinematics(rot, root, engine.skeleton.offsets_tensor(), engine.skeleton.parents)[0]
 
 
-def test_the_unreal_sample_loop_on_the_exported_graphs_gives_the_engines_frames(graphs: Path, tmp_path: Path):
+class _Case:
+    """One request for a loop program: a retargeted transition of the default model, and the engine's frames for it."""
+
+    def __init__(self, graphs: Path) -> None:
+        self.sidecar = json.loads((graphs / "rsmt-onnx.json").read_text())
+        self.sessions = [ort.InferenceSession(str(graphs / self.sidecar["graphs"][g]["file"]),
+                                              providers=["CPUExecutionProvider"])
+                         for g in ("prepare", "begin", "step", "output")]
+        self.engine = Engine(Bundle.load(DEFAULT_BUNDLE), int8_lstm=False)
+        walk = self.engine.conform(synthetic_walk(frames=200, speed_cm_s=140.0, turn_deg_s=20.0))
+        k = self.sidecar["sampler"]["context"]
+        self.context, self.target, self.style = walk.window(0, k), walk.window(k + 45, k + 46), walk.window(60, 180)
+        moved = self.target.root_positions.clone()
+        moved[:, 0] += 100.0
+        self.retarget = type(self.target)(self.target.skeleton, self.target.rotations, moved, self.target.fps, "moved")
+        style = ort.InferenceSession(str(graphs / "style.onnx"), providers=["CPUExecutionProvider"])
+        style_out = style.run(None, {"rotations": self.style.rotations[None].numpy(),
+                                     "roots": self.style.root_positions[None].numpy()})
+        self.request = {
+            "context_rotations": self.context.rotations.numpy(), "context_roots": self.context.root_positions.numpy(),
+            "target_rotations": self.target.rotations.numpy(), "target_roots": self.target.root_positions.numpy(),
+            "retarget_rotations": self.retarget.rotations.numpy(),
+            "retarget_roots": self.retarget.root_positions.numpy(),
+            "frames": np.array([FRAMES], dtype=np.int64), "retarget_at": np.array([RETARGET_AT], dtype=np.int64),
+            "noise": np.zeros((1, 2 * self.sidecar["sampler"]["width"]), dtype=np.float32),
+            **{f"style.{n}": v for n, v in zip(STYLE_FIELDS, style_out)}}
+
+    def run(self, command: list[str], int32: bool) -> tuple[torch.Tensor, int]:
+        """Joint positions ``[FRAMES, J, 3]`` of the program's frames, and how many graph calls it made. ``int32``:
+        the program passes integers and flags as int32 (Unity's Inference Engine does)."""
+
+        def out(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+            return {k: v.astype(np.int32) if int32 and v.dtype != np.float32 else v for k, v in values.items()}
+
+        proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        assert proc.stdin is not None and proc.stdout is not None
+        for s in self.sessions:
+            _write_names(proc.stdin, [i.name for i in s.get_inputs()])
+        _write_names(proc.stdin, self.sidecar["output_memory"])
+        _write_set(proc.stdin, out(self.request))
+        proc.stdin.flush()
+        frames, calls = [], 0
+        while True:
+            kind = _read(proc.stdout, 1)[0]
+            if kind == 3:
+                break
+            if kind == 2:
+                frames.append(_read_set(proc.stdout))
+                continue
+            assert kind == 1 and calls < 10 * FRAMES, "the loop runs two graphs a frame"
+            (index,) = struct.unpack("<I", _read(proc.stdout, 4))
+            session = self.sessions[index]
+            inputs = _read_set(proc.stdout)
+            types = {i.name: ORT_TYPES[i.type] for i in session.get_inputs()}
+            outputs = session.run(None, {k: v.astype(types[k]) for k, v in inputs.items()})
+            _write_set(proc.stdin, out(dict(zip([o.name for o in session.get_outputs()], outputs))))
+            proc.stdin.flush()
+            calls += 1
+        assert proc.wait(30) == 0
+        assert len(frames) == FRAMES
+        joints = self.engine.skeleton.num_joints
+        rot = torch.from_numpy(np.stack([f["rotations"] for f in frames]).reshape(FRAMES, joints, 4).copy())
+        root = torch.from_numpy(np.stack([f["root"] for f in frames]).copy())
+        sk = self.engine.skeleton
+        return forward_kinematics(rot, root, sk.offsets_tensor(), sk.parents)[0], calls
+
+    def check(self, got: torch.Tensor, calls: int) -> None:
+        assert calls == 2 + 2 + 2 * FRAMES  # prepare + begin, again at the retarget, two graphs a frame
+        expected = _engine_frames(self.engine, self.context, self.target, self.retarget, self.style)
+        assert float((got - expected).norm(dim=-1).max()) < 1e-3  # cm, on every joint of every frame
+        plain = _engine_frames(self.engine, self.context, self.target, self.target, self.style)
+        assert float((plain - expected).norm(dim=-1).max()) > 1.0  # the retarget moved it: the loop really retargeted
+
+
+@pytest.fixture(scope="module")
+def case(graphs: Path) -> _Case:
+    return _Case(graphs)
+
+
+def test_the_unreal_sample_loop_on_the_exported_graphs_gives_the_engines_frames(case: _Case, tmp_path: Path):
     exe = tmp_path / "rsmt_loop_bridge"
     run([gxx(), *FLAGS, f"-I{SAMPLE}", str(REPO / "tests" / "clients" / "engine_samples" / "rsmt_loop_bridge.cpp"),
          str(SAMPLE / "RsmtOnnxStateLoop.cpp"), "-o", str(exe)], timeout=300)
-    sidecar = json.loads((graphs / "rsmt-onnx.json").read_text())
-    sessions = [ort.InferenceSession(str(graphs / sidecar["graphs"][g]["file"]), providers=["CPUExecutionProvider"])
-                for g in ("prepare", "begin", "step", "output")]
-    engine = Engine(Bundle.load(DEFAULT_BUNDLE), int8_lstm=False)
-    walk = engine.conform(synthetic_walk(frames=200, speed_cm_s=140.0, turn_deg_s=20.0))
-    k = sidecar["sampler"]["context"]
-    context, target, style_clip = walk.window(0, k), walk.window(k + 45, k + 46), walk.window(60, 180)
-    moved = target.root_positions.clone()
-    moved[:, 0] += 100.0
-    retarget = type(target)(target.skeleton, target.rotations, moved, target.fps, target.name)
-    style = ort.InferenceSession(str(graphs / "style.onnx"), providers=["CPUExecutionProvider"])
-    style_out = style.run(None, {"rotations": style_clip.rotations[None].numpy(),
-                                 "roots": style_clip.root_positions[None].numpy()})
-    request = {"context_rotations": context.rotations.numpy(), "context_roots": context.root_positions.numpy(),
-               "target_rotations": target.rotations.numpy(), "target_roots": target.root_positions.numpy(),
-               "retarget_rotations": retarget.rotations.numpy(), "retarget_roots": retarget.root_positions.numpy(),
-               "frames": np.array([FRAMES], dtype=np.int64), "retarget_at": np.array([RETARGET_AT], dtype=np.int64),
-               "noise": np.zeros((1, 2 * sidecar["sampler"]["width"]), dtype=np.float32),
-               **{f"style.{n}": v for n, v in zip(STYLE_FIELDS, style_out)}}
-    proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-    assert proc.stdin is not None and proc.stdout is not None
-    for s in sessions:
-        _write_names(proc.stdin, [i.name for i in s.get_inputs()])
-    _write_names(proc.stdin, sidecar["output_memory"])
-    _write_set(proc.stdin, request)
-    proc.stdin.flush()
-    frames, calls = [], 0
-    while True:
-        kind = _read(proc.stdout, 1)[0]
-        if kind == 3:
-            break
-        if kind == 2:
-            frames.append(_read_set(proc.stdout))
-            continue
-        assert kind == 1 and calls < 10 * FRAMES, "the loop runs two graphs a frame"
-        (index,) = struct.unpack("<I", _read(proc.stdout, 4))
-        inputs = _read_set(proc.stdout)
-        session = sessions[index]
-        outputs = session.run(None, inputs)
-        _write_set(proc.stdin, dict(zip([o.name for o in session.get_outputs()], outputs)))
-        proc.stdin.flush()
-        calls += 1
-    assert proc.wait(30) == 0
-    assert len(frames) == FRAMES and calls == 2 + 2 + 2 * FRAMES  # prepare + begin, again at the retarget, 2 a frame
-    joints = engine.skeleton.num_joints
-    rot = torch.from_numpy(np.stack([f["rotations"] for f in frames]).reshape(FRAMES, joints, 4).copy())
-    root = torch.from_numpy(np.stack([f["root"] for f in frames]).copy())
-    got = forward_kinematics(rot, root, engine.skeleton.offsets_tensor(), engine.skeleton.parents)[0]
-    expected = _engine_frames(engine, context, target, retarget, style_clip)
-    assert float((got - expected).norm(dim=-1).max()) < 1e-3  # cm, on every joint of every frame
-    plain = _engine_frames(engine, context, target, target, style_clip)
-    assert float((plain - expected).norm(dim=-1).max()) > 1.0  # the retarget moved it: the loop really retargeted
+    case.check(*case.run([str(exe)], int32=False))
+
+
+def test_the_unity_sample_loop_on_the_exported_graphs_gives_the_engines_frames(case: _Case, tmp_path: Path):
+    mcs, mono = mono_tools()
+    exe = tmp_path / "RsmtLoopBridge.exe"
+    run([mcs, "-nologo", "-warnaserror", f"-out:{exe}", str(REPO / "tests" / "clients" / "engine_samples" /
+         "RsmtLoopBridge.cs"), str(UNITY / "Samples~" / "InEngineInference" / "RsmtOnnxStateLoop.cs")], timeout=300)
+    case.check(*case.run([mono, str(exe)], int32=True))
