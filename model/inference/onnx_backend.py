@@ -90,6 +90,11 @@ class OnnxFrameOutput(CompiledFrameOutput):
 def use_onnxruntime(engine: Engine, threads: int | None = None) -> Engine:
     """``engine`` with every weight set's step and its output steps run by onnxruntime (``threads``:
     intra-op threads; default torch's current setting). Returns the same engine."""
+    try:
+        import onnx  # noqa: F401  (the exporter needs it)
+        import onnxruntime  # noqa: F401
+    except ImportError as exc:
+        raise ValueError(f"the onnxruntime backend needs onnx and onnxruntime: pip install 'rsmt[onnx]' ({exc})") from exc
     from model.export.onnx_graphs import Example, output_graph, step_graph
 
     threads = threads or torch.get_num_threads()
