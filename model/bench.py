@@ -75,21 +75,22 @@ class BenchResult:
                 "style_encode_ms": self.style_encode_ms, "rss_mb": self.rss_mb}
 
 
+# The sampler's layers that run once per style or transition, not every frame.
+_ONCE = ("style_encoder.", "phase_estimator.", "target_encoder.", "film1.", "film2.", "attn1.key", "attn1.value",
+         "attn2.key", "attn2.value")
+
+
 def per_frame_parameters(bundle: Bundle) -> int:
     """Weights read for every generated frame (the style encoder and target encoder run once)."""
-    once = ("style_encoder.", "phase_estimator.", "target_encoder.", "film1.", "film2.", "attn1.key", "attn1.value",
-            "attn2.key", "attn2.value")
-    return sum(p.numel() for n, p in bundle.sampler.named_parameters() if not n.startswith(once))
+    return sum(p.numel() for n, p in bundle.sampler.named_parameters() if not n.startswith(_ONCE))
 
 
 def weight_bytes_per_frame(engine: Engine) -> int:
     """Bytes of the weights a frame reads at batch 1: :func:`per_frame_parameters` at their runtime width
     (float32; the LSTM cell's weight matrices at one byte where the engine runs them in int8)."""
-    once = ("style_encoder.", "phase_estimator.", "target_encoder.", "film1.", "film2.", "attn1.key", "attn1.value",
-            "attn2.key", "attn2.value")
     int8 = engine.inference.int8_lstm
     return sum(p.numel() * (1 if int8 and n.startswith("lstm.weight") else p.element_size())
-               for n, p in engine.bundle.sampler.named_parameters() if not n.startswith(once))
+               for n, p in engine.bundle.sampler.named_parameters() if not n.startswith(_ONCE))
 
 
 def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8, 32, 128, 512),

@@ -57,3 +57,18 @@ def test_paired_latency_takes_turns_and_reports_both_medians_and_their_ratio():
     s, b = ["small"] * 7, ["big"] * 7
     assert calls == s + b + b + s + s + b + b + s
     assert paired.to_dict()["blocks"] == 4 and paired.to_dict()["frames_per_block"] == 6
+
+
+def test_the_memory_floor_counts_the_bytes_each_backend_reads():
+    from model.bench import weight_bytes_per_frame
+
+    cfg = SamplerConfig(joints=21, phases=4, latent=8, width=32, rnn=64, head=32, style_channels=32, max_transition=20)
+    man = ManifoldConfig(joints=21, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    bundle = Bundle.create(synthetic_skeleton(), cfg, man)
+    float32 = weight_bytes_per_frame(Engine(bundle, int8_lstm=False))
+    assert float32 == 4 * per_frame_parameters(bundle)
+    lstm = bundle.sampler.lstm.weight_ih.numel() + bundle.sampler.lstm.weight_hh.numel()
+    assert weight_bytes_per_frame(Engine(bundle, int8_lstm=True)) == float32 - 3 * lstm  # int8 matrices: one byte
+    res = BenchResult("tiny", per_frame_parameters(bundle), latency_ms={"median": 1.0, "p99": 1.0}, bytes_per_frame=float32)
+    assert abs(res.floor_ms({"memcpy_gbps": 10.0, "matmul_gflops": 1.0}) - float32 / 1e10 * 1e3) < 1e-12
+    assert "memory floor ms" in format_table([res], {"memcpy_gbps": 10.0, "matmul_gflops": 1.0})
