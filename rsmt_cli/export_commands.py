@@ -38,9 +38,10 @@ def _onnx(args: argparse.Namespace) -> int:
         from model.export.onnx_parity import largest_joint_error_cm
         from model.inference.engine import Engine
         from model.inference.onnx_backend import use_onnxruntime
+        from model.inference.overrides import Overrides
 
-        error = largest_joint_error_cm(Engine(bundle, int8_lstm=False),
-                                       use_onnxruntime(Engine(bundle, int8_lstm=False)))
+        error = largest_joint_error_cm(Engine(bundle, overrides=Overrides(int8_lstm=False)),
+                                       use_onnxruntime(Engine(bundle, overrides=Overrides(int8_lstm=False))))
         print(f"parity: onnxruntime and the torch engine (float32) within {error:.2e} cm on every joint of 50 "
               f"40-frame transitions")
     return 0

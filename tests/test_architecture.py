@@ -94,6 +94,7 @@ MODEL_LAYERS = {
     "nets": {"data", "inference", "evaluation", "train", "bench"},  # motion only
     "data": {"inference", "evaluation", "train", "bench"},
     "inference": {"data", "evaluation", "train", "bench"},
+    "export": {"evaluation", "train", "bench"},  # the engine's graphs for other runtimes, over inference
 }
 
 

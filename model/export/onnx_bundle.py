@@ -26,6 +26,7 @@ from model.export.onnx_graphs import Example, Graph, begin_graph, output_graph, 
 from model.export.onnx_symbolics import OPSET
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
+from model.inference.overrides import Overrides
 
 FORMAT = "rsmt-onnx/1"
 SIDECAR = "rsmt-onnx.json"
@@ -96,7 +97,7 @@ def engine_graphs(engine: Engine, weights: str = "") -> dict[str, Graph]:
 
 def export_onnx(bundle: Bundle, out: Path) -> dict[str, Any]:
     """Write the bundle's graphs and sidecar into ``out``; returns the sidecar."""
-    engine = Engine(bundle, compiled=False, int8_lstm=False)  # the float32 network the graphs hold
+    engine = Engine(bundle, compiled=False, overrides=Overrides(int8_lstm=False))  # the float32 network the graphs hold
     out.mkdir(parents=True, exist_ok=True)
     graphs = {name: _write(g, out) for name, g in engine_graphs(engine).items()}
     adapters = {}

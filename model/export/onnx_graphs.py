@@ -140,25 +140,25 @@ class Example:
         frames = c.max_transition
         context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
         chars = [engine.prepare(context, target, frames, style, seed=i) for i in range(2)]
-        inits = [c._init for c in chars]
-        assert all(i is not None for i in inits)
-        ctx = PoseState.cat([i[0] for i in inits])  # type: ignore[index]
-        tgt = PoseState.cat([i[1] for i in inits])  # type: ignore[index]
+        starts = [c.prepared for c in chars]
+        assert all(p is not None for p in starts)
+        ctx = PoseState.cat([p.context for p in starts])  # type: ignore[union-attr]
+        tgt = PoseState.cat([p.target for p in starts])  # type: ignore[union-attr]
         begin = (ctx.rel, ctx.vel, ctx.rot, ctx.root_xz, tgt.rel, tgt.vel, tgt.rot, tgt.root_xz,
-                 torch.tensor([i[2] for i in inits]), torch.cat([i[3] for i in inits]),  # type: ignore[index]
-                 torch.tensor([i[4] for i in inits]))  # type: ignore[index]
+                 torch.tensor([p.frames for p in starts]), torch.cat([p.noise for p in starts]),  # type: ignore[union-attr]
+                 torch.tensor([p.velocity_known for p in starts]))  # type: ignore[union-attr]
         batch = CharacterBatch(engine)
         for ch in chars:
             batch.add(ch)
         batch._sync()
-        assert batch._state is not None and batch._style is not None and batch._post is not None
+        assert batch._state is not None and batch._style is not None and batch._memory is not None
         state, ctx_style = batch._state, batch._style
         late = torch.tensor([False, True])
         new, shift = weights.step_fn(state, ctx_style, late)
         shift = torch.zeros(2, 2) if shift is None else shift
         p = new.pose
         output = (p.rel, p.vel, p.rot, p.root_xz, batch._yaw, batch._origin, torch.tensor([30, 3]), shift,
-                  *(batch._post[k] for k in engine.output_fn.fn.keys))
+                  *(batch._memory[k] for k in engine.output_fn.fn.keys))
         return cls(style_poses, begin, state, ctx_style, late, output)  # type: ignore[arg-type]
 
 

@@ -46,14 +46,7 @@ class Prepare(torch.nn.Module):
         tpos, trot6 = frame.positions_to(tpos.unsqueeze(0)), quat_to_sixd(frame.rotations_to(tglob.unsqueeze(0)))
         tgt = state_from_positions(torch.cat([tpos, tpos], 1), torch.cat([trot6, trot6], 1),
                                    sk.roles.root).index((slice(None), 1))  # no frame before it: a zero velocity
-        local = quat_normalize(crot)
-        memory = {"prev_rot": local[-1:], "prev_root": croot[-1:]}
-        if e.floor is not None:
-            memory["floor"] = e.floor.floor(local, croot)
-        if e.warp is not None:
-            memory.update(e.warp.start())
-        if e.foot_lock is not None:
-            memory.update(e.foot_lock.start(local, croot).memory())
+        memory = e.pipeline.frame.start(quat_normalize(crot), croot)
         states = (ctx.rel, ctx.vel, ctx.rot, ctx.root_xz, tgt.rel, tgt.vel, tgt.rot, tgt.root_xz, frame.yaw, frame.origin)
         return (*states, *(memory[key] for key in e.output_fn.fn.keys))
 

@@ -28,6 +28,7 @@ from model.export.onnx_bundle import export_onnx
 from model.export.onnx_graphs import STYLE_FIELDS
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import CharacterBatch, Engine
+from model.inference.overrides import Overrides
 from model.motion.kinematics import forward_kinematics
 from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, mono_tools, run
 
@@ -121,7 +122,7 @@ class _Case:
         self.sessions = [ort.InferenceSession(str(graphs / self.sidecar["graphs"][g]["file"]),
                                               providers=["CPUExecutionProvider"])
                          for g in ("prepare", "begin", "step", "output")]
-        self.engine = Engine(Bundle.load(DEFAULT_BUNDLE), int8_lstm=False)
+        self.engine = Engine(Bundle.load(DEFAULT_BUNDLE), overrides=Overrides(int8_lstm=False))
         walk = self.engine.conform(synthetic_walk(frames=200, speed_cm_s=140.0, turn_deg_s=20.0))
         k = self.sidecar["sampler"]["context"]
         self.context, self.target, self.style = walk.window(0, k), walk.window(k + 45, k + 46), walk.window(60, 180)

@@ -8,6 +8,7 @@ from model.bench import BenchResult, bench_engine, format_table, machine_probe, 
 from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
+from model.inference.overrides import Overrides
 from model.inference.traced_step import CompiledStep
 from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
@@ -65,10 +66,11 @@ def test_the_memory_floor_counts_the_bytes_each_backend_reads():
     cfg = SamplerConfig(joints=21, phases=4, latent=8, width=32, rnn=64, head=32, style_channels=32, max_transition=20)
     man = ManifoldConfig(joints=21, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
     bundle = Bundle.create(synthetic_skeleton(), cfg, man)
-    float32 = weight_bytes_per_frame(Engine(bundle, int8_lstm=False))
+    float32 = weight_bytes_per_frame(Engine(bundle, overrides=Overrides(int8_lstm=False)))
     assert float32 == 4 * per_frame_parameters(bundle)
     lstm = bundle.sampler.lstm.weight_ih.numel() + bundle.sampler.lstm.weight_hh.numel()
-    assert weight_bytes_per_frame(Engine(bundle, int8_lstm=True)) == float32 - 3 * lstm  # int8 matrices: one byte
+    int8 = Engine(bundle, overrides=Overrides(int8_lstm=True))
+    assert weight_bytes_per_frame(int8) == float32 - 3 * lstm  # the int8 matrices at one byte
     res = BenchResult("tiny", per_frame_parameters(bundle), latency_ms={"median": 1.0, "p99": 1.0}, bytes_per_frame=float32)
     assert abs(res.floor_ms({"memcpy_gbps": 10.0, "matmul_gflops": 1.0}) - float32 / 1e10 * 1e3) < 1e-12
     assert "memory floor ms" in format_table([res], {"memcpy_gbps": 10.0, "matmul_gflops": 1.0})

@@ -9,12 +9,13 @@ from model.export.onnx_parity import FRAMES, parity_cases, run_cases
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
 from model.inference.onnx_backend import OnnxFrameOutput, OnnxStep, use_onnxruntime
+from model.inference.overrides import Overrides
 
 
 def test_onnxruntime_matches_the_torch_engine_within_a_hundredth_of_a_millimetre() -> None:
     bundle = Bundle.load(DEFAULT_BUNDLE)
-    torch_engine = Engine(bundle, int8_lstm=False)  # the graphs hold the float32 network
-    onnx_engine = use_onnxruntime(Engine(bundle, int8_lstm=False))
+    torch_engine = Engine(bundle, overrides=Overrides(int8_lstm=False))  # the graphs hold the float32 network
+    onnx_engine = use_onnxruntime(Engine(bundle, overrides=Overrides(int8_lstm=False)))
     assert isinstance(onnx_engine.step_fn, OnnxStep) and isinstance(onnx_engine.output_fn, OnnxFrameOutput)
     out = onnx_engine.output
     assert out.foot_lock and out.floor and out.smooths and out.stride_warp > 0 and out.steering.on  # every step on
