@@ -34,6 +34,8 @@ NOT_RUN: dict[tuple[str, str], str] = {
         "installs the project into a new virtual environment, then serves on port 8000 until stopped",
     ("README.md", "pip install -e ./clients/python -e '.[test]' && python -m pytest -q"):
         "installs into a new virtual environment and runs the whole test suite, this test included",
+    ("README.md", 'python -m pytest -q -m "not slow"'):
+        "the fast test tier: a run of this suite's own unmarked tests, from the repository root",
     ("README.md", "rsmt train recipe default-model"): "trains the default model: about three hours on 2 cores",
     ("README.md", "export RSMT_DATA=$(bash ../shared/data/unpack.sh)"):
         "unpacks the motion data, which lives outside the repository (tests/cli/test_data_commands.py runs "
