@@ -38,7 +38,7 @@ def _run(args: argparse.Namespace) -> int:
         paired_latency,
         paper_size_engine,
     )
-    from model.inference.backends import with_backend
+    from model.export.backends import with_backend
     from model.inference.bundle import DEFAULT_BUNDLE, Bundle
     from model.inference.engine import Engine
 
@@ -86,6 +86,6 @@ def engine_label(engine: Any, path: Path) -> str:
 
 
 def _on_onnxruntime(engine: Any) -> bool:
-    from model.inference.backends import backend_of
+    from model.export.backends import backend_of
 
     return backend_of(engine) == "onnxruntime"

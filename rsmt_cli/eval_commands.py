@@ -82,7 +82,7 @@ def eval_command(args: argparse.Namespace) -> int:
     from model.evaluation.report import markdown
     from model.evaluation.sequence_judge import SequenceJudge
     from model.evaluation.style_judge import StyleJudge
-    from model.inference.backends import with_backend
+    from model.export.backends import with_backend
     from model.nets.style_classifier import StyleClassifier
 
     if args.threads:

@@ -35,9 +35,9 @@ def _onnx(args: argparse.Namespace) -> int:
               f"{len(graph['outputs'])} outputs, {size / 2**20:.1f} MiB")
     print(f"{SIDECAR}: {sidecar['model']} {sidecar['version']}, {len(sidecar['skeleton']['joints'])} joints")
     if args.parity:
+        from model.export.onnx_backend import use_onnxruntime
         from model.export.onnx_parity import largest_joint_error_cm
         from model.inference.engine import Engine
-        from model.inference.onnx_backend import use_onnxruntime
         from model.inference.overrides import Overrides
 
         error = largest_joint_error_cm(Engine(bundle, overrides=Overrides(int8_lstm=False)),

@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 import torch
 
-from model.inference.backends import with_backend
+from model.export.backends import with_backend
 from model.inference.bundle import Bundle, BundleError
 from model.inference.engine import Engine
 from service.builtin_styles import builtin_list

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import torch
 
+from model.export.onnx_backend import OnnxFrameOutput, OnnxStep, use_onnxruntime
 from model.export.onnx_parity import FRAMES, parity_cases, run_cases
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
-from model.inference.onnx_backend import OnnxFrameOutput, OnnxStep, use_onnxruntime
 from model.inference.overrides import Overrides
 
 

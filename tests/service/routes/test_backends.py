@@ -10,7 +10,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from model.inference.backends import BACKENDS
+from model.export.backends import BACKENDS
 from tests.service.routes import test_http, test_stream
 from tests.service.server import Server
 
@@ -60,7 +60,7 @@ test_exact_arrival = test_stream.test_exact_arrival
 def test_the_service_default_is_the_engine_default_and_a_wrong_name_is_refused():
     from pydantic import ValidationError
 
-    from model.inference.backends import DEFAULT_BACKEND
+    from model.export.backends import DEFAULT_BACKEND
     from service.settings import Settings
 
     assert Settings().backend == DEFAULT_BACKEND

@@ -1,5 +1,5 @@
 """Which runtime runs an engine's per-frame graphs: ``torch`` (traced TorchScript graphs, the int8 LSTM where the
-bundle asks for it) or ``onnxruntime`` (the same graphs exported to ONNX, float32; :mod:`model.inference.onnx_backend`).
+bundle asks for it) or ``onnxruntime`` (the same graphs exported to ONNX, float32; :mod:`model.export.onnx_backend`).
 
 Both give the same frames within float32 rounding (tests/model/export/test_onnx_parity.py); the int8 LSTM is the
 torch backend's only, and moves frames by more than that. ``rsmt bench --backend both`` measures the two side by
@@ -19,7 +19,7 @@ def with_backend(engine: Engine, backend: str = DEFAULT_BACKEND) -> Engine:
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     if backend == "onnxruntime":
-        from model.inference.onnx_backend import use_onnxruntime
+        from model.export.onnx_backend import use_onnxruntime
 
         return use_onnxruntime(engine)
     return engine
@@ -27,6 +27,6 @@ def with_backend(engine: Engine, backend: str = DEFAULT_BACKEND) -> Engine:
 
 def backend_of(engine: Engine) -> str:
     """The backend ``engine`` runs on."""
-    from model.inference.onnx_backend import OnnxStep
+    from model.export.onnx_backend import OnnxStep
 
     return "onnxruntime" if isinstance(engine.step_fn, OnnxStep) else "torch"

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from model.inference.backends import backend_of, with_backend
+from model.export.backends import backend_of, with_backend
+from model.export.onnx_backend import OnnxFrameOutput, OnnxStep
 from model.inference.engine import Engine
-from model.inference.onnx_backend import OnnxFrameOutput, OnnxStep
 from tests.model.tiny_bundles import tiny_bundle
 
 
