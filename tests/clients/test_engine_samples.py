@@ -32,7 +32,7 @@ from model.inference.overrides import Overrides
 from model.motion.kinematics import forward_kinematics
 from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, mono_tools, run
 
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]  # builds the engine samples with mcs and g++
 
 SAMPLE = UNREAL / "Samples" / "InEngineInference"
 STUBS = REPO / "tests" / "clients" / "unreal_stubs"

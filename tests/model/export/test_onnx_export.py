@@ -13,6 +13,8 @@ import pytest
 
 from rsmt_cli.main import main
 
+pytestmark = pytest.mark.slow  # exports the default bundle's five graphs
+
 GRAPHS = ("prepare", "style", "begin", "step", "output")
 
 

@@ -3,6 +3,7 @@ to within 1e-3 cm of the torch engine on every joint, both in float32."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from model.export.onnx_backend import OnnxFrameOutput, OnnxStep, use_onnxruntime
@@ -10,6 +11,8 @@ from model.export.onnx_parity import FRAMES, parity_cases, run_cases
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
 from model.inference.overrides import Overrides
+
+pytestmark = pytest.mark.slow  # 50 transitions through onnxruntime and the torch engine
 
 
 def test_onnxruntime_matches_the_torch_engine_within_a_hundredth_of_a_millimetre() -> None:

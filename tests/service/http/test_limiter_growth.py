@@ -17,6 +17,8 @@ import pytest
 from service.http.ratelimit import RateLimiter
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # 20,000 failed logins from new addresses
+
 KEY = "limiter-growth-key-0123456789"
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]
 ENV = {"RSMT_API_KEYS": KEY, "RSMT_FORWARDED_ALLOW_IPS": "127.0.0.1"}

@@ -14,6 +14,8 @@ from websockets.exceptions import InvalidStatus
 from tests.service.server import Server
 from tests.service.wsclient import Ws
 
+pytestmark = pytest.mark.slow  # several servers at several log levels
+
 KEY = "log-redaction-key-0123456789abcdef"
 WRONG = "wrong-token-zyxwvutsrqponm98765"
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]

@@ -19,6 +19,8 @@ from tests.service.conftest import bvh, walk
 from tests.service.server import Server
 from tests.service.wsclient import Ws
 
+pytestmark = pytest.mark.slow  # waits out a write timeout
+
 KEY = "quiet-logs-key-0123456789abcdef"
 WRITE_S = 2.0
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]

@@ -14,6 +14,8 @@ from model.export.backends import BACKENDS
 from tests.service.routes import test_http, test_stream
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # a server per backend
+
 # Every output step on, so the onnxruntime server runs its whole output graph (the test bundle's own settings
 # switch them off).
 OUTPUT_STEPS = {"RSMT_OUTPUT_SMOOTHING": "0.3", "RSMT_FOOT_LOCK": "true", "RSMT_FLOOR": "true", "RSMT_STEERING": "20",

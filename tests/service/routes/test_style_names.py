@@ -16,6 +16,8 @@ from tests.service.conftest import bvh, walk
 from tests.service.processes import RedisProcess
 from tests.service.server import Server
 
+pytestmark = pytest.mark.slow  # Redis and timed registrations
+
 KEY_A, KEY_B = "names-key-a-0123456789abcdef", "names-key-b-0123456789abcdef"
 SECRET = "B-private-name-4242"
 PAIRS = 12
