@@ -40,6 +40,9 @@ NOT_RUN: dict[tuple[str, str], str] = {
     ("README.md", "export RSMT_DATA=$(bash ../shared/data/unpack.sh)"):
         "unpacks the motion data, which lives outside the repository (tests/cli/test_data_commands.py runs "
         "`rsmt data inspect`)",
+    ("README.md", 'export RSMT_DATA="$(bash ../shared/data/unpack.sh):$(bash ../shared/data/unpack.sh --dataset-1)"'):
+        "unpacks both datasets, which live outside the repository (tests/model/data/test_two_datasets.py reads "
+        "them side by side)",
     ("docs/service.md", "rsmt serve --threads 4"):
         "servers on port 8000 and 9000 that run until stopped (tests/cli/test_serve_command.py)",
     ("docs/service.md", "rsmt serve --models /tmp/rsmt-random"): "ends in a server that runs until stopped",
