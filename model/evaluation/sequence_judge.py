@@ -36,13 +36,12 @@ import torch
 from torch import nn
 
 from model.evaluation.motion_matching import key_joints
+from model.evaluation.style_judge import WINDOW, window_starts  # the same windows as the first judge scores
 from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
 
 FORMAT = "rsmt-sequence-judge/1"
-WINDOW = 41
-WINDOW_STEP = 20
 KIND = ("dilated temporal convolution network over per-frame rates of change of key-joint pair distances, joint "
         "speeds relative to the root and the root's horizontal speed and vertical velocity; no postures, no facing-frame "
         "vectors (no training critic reads these inputs)")
@@ -83,15 +82,6 @@ class SequenceJudgeNet(nn.Module):
         return self.head(self.body(x.transpose(1, 2)).mean(dim=2))
 
 
-def _windows(length: int) -> list[int]:
-    if length <= WINDOW:
-        return [0]
-    starts = list(range(0, length - WINDOW + 1, WINDOW_STEP))
-    if starts[-1] != length - WINDOW:
-        starts.append(length - WINDOW)
-    return starts
-
-
 @dataclass
 class SequenceJudge:
     """A trained sequence judge (network, input standardisation, rig and styles)."""
@@ -115,7 +105,7 @@ class SequenceJudge:
         """``[B, S]`` log-probabilities of each style for sequences of global positions ``[B, T, J, 3]``."""
         self.net.eval()
         x = self._inputs(positions)
-        per = [torch.log_softmax(self.net(x[:, s:s + WINDOW - 1]), dim=-1) for s in _windows(positions.shape[1])]
+        per = [torch.log_softmax(self.net(x[:, s:s + WINDOW - 1]), dim=-1) for s in window_starts(positions.shape[1])]
         return torch.stack(per).mean(dim=0).double()
 
     @torch.no_grad()
@@ -124,7 +114,7 @@ class SequenceJudge:
         self.net.eval()
         x = self._inputs(positions)
         return torch.stack([self.net.body(x[:, s:s + WINDOW - 1].transpose(1, 2)).mean(2)
-                            for s in _windows(positions.shape[1])]).mean(0).double()
+                            for s in window_starts(positions.shape[1])]).mean(0).double()
 
     def predict(self, positions: Tensor) -> Tensor:
         return self.log_probs(positions).argmax(dim=-1)

@@ -83,8 +83,8 @@ def feature_names(joints: Sequence[str]) -> list[str]:
     return [*names, "root bob std", "root bob frequency"]
 
 
-def _windows(length: int) -> list[int]:
-    """Start frames of the :data:`WINDOW`-pose windows a sequence of ``length`` poses is scored on."""
+def window_starts(length: int) -> list[int]:
+    """Start frames of the :data:`WINDOW`-pose windows a sequence of ``length`` poses is scored on (both judges)."""
     if length <= WINDOW:
         return [0]
     starts = list(range(0, length - WINDOW + 1, WINDOW_STEP))
@@ -122,7 +122,7 @@ class StyleJudge:
         if positions.shape[-2] != len(self.joints):
             raise ValueError(f"the style judge is for {len(self.joints)} joints, got {positions.shape[-2]}")
         return torch.stack([self.standardise(window_features(positions[:, s:s + WINDOW], self.fps, self.root))
-                            for s in _windows(positions.shape[1])])
+                            for s in window_starts(positions.shape[1])])
 
     def embed(self, positions: Tensor) -> Tensor:
         """``[B, F]`` standardised window statistics of sequences ``[B, T, J, 3]`` (the mean over their
