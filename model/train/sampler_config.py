@@ -92,6 +92,14 @@ class SamplerStageConfig:
     style_loss_min_frames: int = 16  # shorter transitions get no style loss: too short to show a style
     extra_losses_from: int = 0  # step from which w_vel, w_acc, w_spectrum, w_foot_height, w_style and cross pairs apply
     validation_transition: int = 40
+    # The style code's own term (model.train.style_code_loss): each step, code_contrast_clips clips of each of
+    # code_contrast_styles styles (all styles when fewer) are encoded and their time-mean codes scored by a
+    # supervised contrastive loss at code_contrast_temperature, from step 0; 0: off. Against a code that
+    # collapses or encodes content more than style, for styles the encoder never saw.
+    w_code_contrast: float = 0.0
+    code_contrast_styles: int = 8
+    code_contrast_clips: int = 4
+    code_contrast_temperature: float = 0.1
 
     def __post_init__(self) -> None:
         self.control_contents = tuple(self.control_contents)
@@ -115,6 +123,10 @@ class SamplerStageConfig:
             raise ValueError(f"steering_window must be 0 (off) or more frames, got {self.steering_window}")
         if not 0.0 <= self.target_velocity_drop <= 1.0:
             raise ValueError(f"target_velocity_drop must be in [0, 1], got {self.target_velocity_drop}")
+        if self.w_code_contrast < 0 or self.code_contrast_styles < 2 or self.code_contrast_clips < 2:
+            raise ValueError("w_code_contrast must be 0 or more, code_contrast_styles and code_contrast_clips 2 or more")
+        if self.code_contrast_temperature <= 0:
+            raise ValueError(f"code_contrast_temperature must be above 0, got {self.code_contrast_temperature}")
         if not 0.0 < self.decoder_lr_scale <= 1.0:
             raise ValueError(f"decoder_lr_scale must be in (0, 1], got {self.decoder_lr_scale}")
 

@@ -27,6 +27,7 @@ from model.train.sampler_config import CRITIC_INPUTS, SamplerStageConfig, cross_
 from model.train.sampler_losses import acceleration_profile, score_rollout, transition_losses, weighted_sum
 from model.train.sampler_rollout import Rollout, concat_batches, rollout
 from model.train.step_compiler import compiled_steps
+from model.train.style_code_loss import supervised_contrastive, time_mean_code
 from model.train.time_warp import draw_factors, source_span
 
 Tensor = torch.Tensor
@@ -96,6 +97,17 @@ class StylePairs:
         if same.any() and (co != co[0]).any():
             cpick[same] = torch.randint(len(cs), (int(same.sum()),), generator=gen)
         return starts[pick], owners[pick], cs[cpick]
+
+    def sample_clip_sets(self, styles: int, clips: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+        """``clips`` style-clip starts of each of ``styles`` distinct styles (all when fewer): ``(starts, style ids)``."""
+        chosen = torch.randperm(len(self.styles), generator=gen)[:styles].tolist()
+        starts, ids = [], []
+        for k in chosen:
+            s = self.styles[k]
+            cs, _ = self.clips_by_style[s]
+            starts.append(cs[torch.randint(len(cs), (clips,), generator=gen)])
+            ids.append(torch.full((clips,), s, dtype=torch.long))
+        return torch.cat(starts), torch.cat(ids)
 
 
 @dataclass
@@ -212,8 +224,19 @@ class SamplerSteps:
             total = total + self.cross_terms(r, cross, shown, scored)
         if (extra or stage.control_from_start) and stage.control_batch > 0:
             total = total + self.control_terms(length, gen, shown)
+        if stage.w_code_contrast > 0 and len(self.pairs.styles) > 1:
+            total = total + stage.w_code_contrast * self.code_term(gen, shown)
         total.backward()
         return shown
+
+    def code_term(self, gen: torch.Generator, shown: dict[str, float]) -> Tensor:
+        """The style code's contrastive term (:mod:`model.train.style_code_loss`) on clips of several styles."""
+        stage = self.stage
+        starts, ids = self.pairs.sample_clip_sets(stage.code_contrast_styles, stage.code_contrast_clips, gen)
+        code = self.model.encode_style(self.features_of(starts, self.train))
+        loss = supervised_contrastive(time_mean_code(code), ids.to(code.device), stage.code_contrast_temperature)
+        shown["code_contrast"] = loss.item()
+        return loss
 
     def add_warped_windows(self, batch: WindowBatch, feats: Tensor, labels: Tensor | None, length: int,
                            gen: torch.Generator) -> tuple[WindowBatch, Tensor, Tensor | None]:
