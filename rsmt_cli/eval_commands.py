@@ -14,6 +14,7 @@ from rsmt_cli.output_arguments import add_output_arguments, output_flags, output
 if TYPE_CHECKING:
     from model.evaluation.methods import Method
     from model.evaluation.runner import EvalRun
+    from model.inference.overrides import Overrides
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,6 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="style judge folder (rsmt train judge): the style accuracy of the acceptance figures")
     p.add_argument("--judge2", type=Path, metavar="DIR",
                    help="second style judge folder (rsmt train sequence-judge), reported beside the first")
+    p.add_argument("--network-alone", action="store_true",
+                   help="also run each bundle with steering off (--steering 0: the network alone carries the body), "
+                        "reported as NAME (steering 0) beside its own settings")
     p.add_argument("--no-motion-matching", action="store_true",
                    help="leave out the motion-matching baseline (built from the training split; run by default)")
     p.add_argument("--target-frames", type=int, default=1, choices=[1, 2],
@@ -92,6 +96,8 @@ def eval_command(args: argparse.Namespace) -> int:
     data = require_data_dir(args.data)
     overrides = output_overrides(args)
     methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
+    if args.network_alone:
+        methods = _with_network_alone(methods, overrides, args.batch, args.exact_arrival)
     for method in methods:
         if isinstance(method, BundleMethod):
             with_backend(method.engine, args.backend)
@@ -116,6 +122,21 @@ def eval_command(args: argparse.Namespace) -> int:
         write_outputs(run, args.out, text)
     print(json.dumps(run.report, indent=1) if args.json else text)
     return 0
+
+
+def _with_network_alone(methods: list[Method], overrides: Overrides, batch: int, exact_arrival: bool) -> list[Method]:
+    """``methods`` with, after each bundle, the same bundle with steering off (named ``NAME (steering 0)``)."""
+    from dataclasses import replace
+
+    from model.evaluation.methods import BundleMethod
+
+    out: list[Method] = []
+    for method in methods:
+        out.append(method)
+        if isinstance(method, BundleMethod):
+            out.append(BundleMethod(method.path, batch, name=f"{method.name} (steering 0)", exact_arrival=exact_arrival,
+                                    overrides=replace(overrides, steering=0)))
+    return out
 
 
 def _stream_retarget(run: EvalRun, methods: list[Method], target_frames: int) -> str:

@@ -275,3 +275,17 @@ def test_judge_fmd_is_zero_on_the_real_motion_and_grows_as_the_motion_departs(ca
         assert shares[style] == pytest.approx(rows["judge_accuracy_by_style"][style])
         mine = votes[[i for i, n in enumerate(names) if n == style]]
         assert all(shares[t] == pytest.approx(float((mine == judge.styles.index(t)).float().mean())) for t in shares)
+
+
+def test_network_alone_adds_each_bundle_with_steering_off_beside_its_own(dataset: tuple[Path, Path], bundle_dir: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    data, root = dataset
+    monkeypatch.setenv("RSMT_CACHE", str(root))
+    assert main(["eval", "--model", str(bundle_dir), "--model", "interp", "--data", str(data), "--limit", "3",
+                 "--json", "--quiet", "--diversity-cases", "0", "--render-cases", "0", "--no-motion-matching",
+                 "--steering", "30", "--network-alone"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert list(report["methods"]) == ["random", "random (steering 0)", "interp"]
+    own, alone = (report["methods"][n]["output"] for n in ("random", "random (steering 0)"))
+    assert own["steering"]["window"] == 30 and alone["steering"]["window"] == 0
