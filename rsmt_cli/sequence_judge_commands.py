@@ -18,7 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Train the sequence judge (model/evaluation/sequence_judge.py): a dilated temporal convolution over "
             "per-frame rates of change of key-joint distances, joint speeds relative to the root and the root's speed, "
             "on 41-pose windows every --step frames of the train split (every data folder given, backward takes "
-            "included), each style drawn equally often. Prints its accuracy on the --report-split windows: overall, "
+            "included), each style and within it each content drawn equally often, beside windows of the same takes with "
+            "their in-betweens interpolated that it is asked to read as no style (so style is read from the frames "
+            "between two poses). Prints its accuracy on the --report-split windows: overall, "
             "per style, per content (walk-back: the real backward windows) and on interpolated windows (which should "
             "read near chance). About 14 CPU minutes at the defaults on both Bandai-Namco sets. Writes DIR/sequence_judge.json, "
             "DIR/weights.safetensors and DIR/training.json."))
@@ -27,6 +29,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--step", type=int, default=10, help="frames between training windows (default 10)")
     p.add_argument("--steps", type=int, default=1500, help="optimiser steps (default 1500)")
     p.add_argument("--batch", type=int, default=256, help="windows per step (default 256)")
+    p.add_argument("--interpolated-share", type=float, default=0.25,
+                   help="interpolated windows per step as a share of --batch, asked to read as no style (default 0.25; "
+                        "0: none)")
+    p.add_argument("--style-only", action="store_true",
+                   help="draw each style equally often but not each content within it (the first judge's draw)")
     p.add_argument("--report-split", default="val", choices=["val", "test"], help="split the accuracy is reported on")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
@@ -48,15 +55,19 @@ def sequence_judge_command(args: argparse.Namespace) -> int:
     data = require_data_dir(args.data)
     cache = load_motion_cache(Path(data), progress=not args.quiet)
     split = cache.split
-    windows, styles, _ = real_windows(cache, split.train, args.step)
+    windows, styles, contents = real_windows(cache, split.train, args.step)
+    interpolated = real_windows(cache, split.train, args.step * 2, interpolated=True)[0] if args.interpolated_share else None
     index = {s: k for k, s in enumerate(cache.styles)}
     skeleton = cache.skeleton(split.train[0])
     judge = train_sequence_judge(windows, torch.tensor([index[s] for s in styles]), cache.styles, skeleton, cache.fps,
-                                 JudgeTraining(steps=args.steps, batch=args.batch, seed=args.seed))
+                                 JudgeTraining(steps=args.steps, batch=args.batch, seed=args.seed,
+                                               interpolated_share=args.interpolated_share),
+                                 contents=None if args.style_only else contents, interpolated=interpolated)
     report = judge_report(judge, cache, split[args.report_split], args.step)
     command = "rsmt train sequence-judge " + " ".join(shlex.quote(a) for a in [
         "--data", str(data), "--out", str(args.out), "--step", str(args.step), "--steps", str(args.steps),
-        "--batch", str(args.batch), "--report-split", args.report_split, "--seed", str(args.seed)])
+        "--batch", str(args.batch), "--interpolated-share", str(args.interpolated_share),
+        *(["--style-only"] if args.style_only else []), "--report-split", args.report_split, "--seed", str(args.seed)])
     judge.info.update({"command": command, "data": str(data), "report_split": args.report_split,
                        "accuracy": report["accuracy"], "interpolated_accuracy": report["interpolated_accuracy"],
                        "backward_accuracy": report["per_content"].get("walk-back")})

@@ -16,7 +16,11 @@ mirror of the walking direction, and that carry no posture:
 A window is :data:`WINDOW` poses (41: the last context frame and a 40-frame transition; 40 steps).
 A longer sequence is scored as the mean log-probability of its windows 20 frames apart, a shorter
 one (at least 3 poses) as one window. Trained on real windows of every take of the training split
-(both data sets when both are given, the backward takes included), each style drawn equally often.
+(both data sets when both are given, the backward takes included), each style drawn equally often and,
+within a style, each content (walk, walk-back, dash, ...) equally often, so a minute of backward walking
+counts as much as half an hour of forward walking. Beside them it sees the same windows with their
+in-betweens interpolated (first and last poses kept) and is asked to read those as no style at all (a
+uniform answer): a style is then read from how the frames between two poses move, not from the poses.
 
 Stored as ``sequence_judge.json`` (styles, joints, the standardisation, the training record) and
 ``weights.safetensors``; no pickle.
@@ -165,41 +169,92 @@ class JudgeTraining:
     width: int = 64
     seed: int = 0
     weight_decay: float = 1e-4
+    # Interpolated windows per step, as a share of ``batch``, and the weight of their uniform-answer term.
+    interpolated_share: float = 0.25
+    interpolated_weight: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.steps < 1 or self.batch < 1 or self.width < 1:
+            raise ValueError("steps, batch and width must be at least 1")
+        if not 0.0 <= self.interpolated_share <= 1.0 or self.interpolated_weight < 0:
+            raise ValueError("interpolated_share must be in [0, 1] and interpolated_weight 0 or more")
 
 
 def train_sequence_judge(windows: Tensor, labels: Tensor, styles: Sequence[str], skeleton: Skeleton, fps: float,
-                         settings: JudgeTraining | None = None) -> SequenceJudge:
-    """Fit a judge on real windows ``[N, WINDOW, J, 3]`` (global positions) with ``labels [N]`` into ``styles``;
-    every style is drawn equally often."""
+                         settings: JudgeTraining | None = None, contents: Sequence[str] | None = None,
+                         interpolated: Tensor | None = None) -> SequenceJudge:
+    """Fit a judge on real windows ``[N, WINDOW, J, 3]`` (global positions) with ``labels [N]`` into ``styles``.
+
+    Every style is drawn equally often and, with ``contents`` (one per window), every content within a
+    style too. ``interpolated [M, WINDOW, J, 3]``: windows whose in-betweens are interpolated, each step's
+    ``interpolated_share`` of them scored against a uniform answer (module docstring).
+    """
     settings = settings or JudgeTraining()
-    if windows.shape[1] != WINDOW:
+    if windows.shape[1] != WINDOW or (interpolated is not None and interpolated.shape[1] != WINDOW):
         raise ValueError(f"windows must have {WINDOW} poses, got {windows.shape[1]}")
+    if contents is not None and len(contents) != len(windows):
+        raise ValueError(f"one content per window: {len(contents)} for {len(windows)} windows")
     began = time.perf_counter()
     gen = torch.Generator().manual_seed(settings.seed)
     torch.manual_seed(settings.seed)
-    x = torch.cat([step_features(windows[lo:lo + 1024], skeleton, fps) for lo in range(0, len(windows), 1024)])
+    x = _features(windows, skeleton, fps)
     flat = x.reshape(-1, x.shape[-1])
     mean, std = flat.mean(0), flat.std(0).clamp_min(1.0)  # cm/s: below 1 cm/s is not style
     x = (x - mean) / std
+    xi = None if interpolated is None or not len(interpolated) else (_features(interpolated, skeleton, fps) - mean) / std
+    n_interp = 0 if xi is None else round(settings.batch * settings.interpolated_share)
     net = SequenceJudgeNet(x.shape[-1], len(styles), settings.width)
     opt = torch.optim.AdamW(net.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=settings.lr, total_steps=settings.steps)
-    present = [k for k in range(len(styles)) if bool((labels == k).any())]
-    by_style = [torch.nonzero(labels == k).squeeze(1) for k in present]
+    groups = _groups(labels, contents)  # per style present: the rows of each of its contents
     net.train()
     loss_value = math.nan
     for _ in range(settings.steps):
-        pick = torch.randint(len(present), (settings.batch,), generator=gen)
-        rows = torch.stack([by_style[int(s)][torch.randint(len(by_style[int(s)]), (1,), generator=gen)[0]] for s in pick])
-        batch = x[rows]
+        rows = _draw(groups, settings.batch, gen)
         # A little noise on the inputs, so the judge reads the motion rather than the capture's exact numbers.
-        batch = batch + 0.05 * torch.randn(batch.shape, generator=gen)
+        batch = x[rows] + 0.05 * torch.randn((len(rows), *x.shape[1:]), generator=gen)
         loss = nn.functional.cross_entropy(net(batch), labels[rows])
+        if xi is not None and n_interp > 0:
+            pick = torch.randint(len(xi), (n_interp,), generator=gen)
+            flat_answer = -torch.log_softmax(net(xi[pick]), dim=-1).mean()  # cross-entropy to a uniform answer
+            loss = loss + settings.interpolated_weight * flat_answer
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
         loss_value = float(loss.detach())
-    info = {"train_windows": int(len(windows)), "steps": settings.steps, "batch": settings.batch,
+    info = {"train_windows": int(len(windows)), "interpolated_windows": 0 if xi is None else int(len(xi)),
+            "balance": "style, then content" if contents is not None else "style",
+            "interpolated_share": settings.interpolated_share if xi is not None else 0.0,
+            "interpolated_weight": settings.interpolated_weight if xi is not None else 0.0,
+            "steps": settings.steps, "batch": settings.batch,
             "final_loss": round(loss_value, 4), "train_seconds": round(time.perf_counter() - began, 1)}
     return SequenceJudge(list(styles), skeleton, float(fps), net, mean, std, settings.width, info)
+
+
+def _features(windows: Tensor, skeleton: Skeleton, fps: float) -> Tensor:
+    return torch.cat([step_features(windows[lo:lo + 1024], skeleton, fps) for lo in range(0, len(windows), 1024)])
+
+
+def _groups(labels: Tensor, contents: Sequence[str] | None) -> list[list[Tensor]]:
+    """For each style present in ``labels``, the row indices of each of its contents (one group without contents)."""
+    out = []
+    for k in labels.unique().tolist():
+        rows = torch.nonzero(labels == k).squeeze(1)
+        if contents is None:
+            out.append([rows])
+            continue
+        names = sorted({contents[int(r)] for r in rows})
+        out.append([rows[torch.tensor([contents[int(r)] == c for r in rows])] for c in names])
+    return out
+
+
+def _draw(groups: list[list[Tensor]], batch: int, gen: torch.Generator) -> Tensor:
+    """``batch`` rows: a style uniformly, then one of its contents uniformly, then a window of it."""
+    style = torch.randint(len(groups), (batch,), generator=gen).tolist()
+    rows = []
+    for s in style:
+        g = groups[s]
+        members = g[int(torch.randint(len(g), (1,), generator=gen))]
+        rows.append(members[int(torch.randint(len(members), (1,), generator=gen))])
+    return torch.stack(rows)

@@ -64,6 +64,43 @@ def test_trains_saves_and_loads(cache: MotionCache, tmp_path: Path) -> None:
     assert sorted(p.name for p in (tmp_path / "j").iterdir()) == ["sequence_judge.json", "weights.safetensors"]
 
 
+def test_the_draw_gives_every_content_of_a_style_its_share() -> None:
+    from model.evaluation.sequence_judge import _draw, _groups
+
+    labels = torch.tensor([0] * 90 + [0] * 10 + [1] * 50)
+    contents = ["walk"] * 90 + ["walk-back"] * 10 + ["run"] * 50
+    rows = _draw(_groups(labels, contents), 4000, torch.Generator().manual_seed(0))
+    drawn = [contents[int(r)] for r in rows]
+    # style 0 half the time, split evenly between its two contents, whatever their window counts
+    assert abs(drawn.count("walk-back") / 4000 - 0.25) < 0.03 and abs(drawn.count("run") / 4000 - 0.5) < 0.03
+    by_style = _draw(_groups(labels, None), 4000, torch.Generator().manual_seed(0))
+    assert abs(sum(contents[int(r)] == "walk-back" for r in by_style) / 4000 - 0.05) < 0.02
+
+
+def test_interpolated_windows_are_pushed_towards_no_style(cache: MotionCache) -> None:
+    windows, styles, contents = real_windows(cache, cache.split.train)
+    interp, _, _ = real_windows(cache, cache.split.train, interpolated=True)
+    index = {s: k for k, s in enumerate(cache.styles)}
+    labels = torch.tensor([index[s] for s in styles])
+    settings = JudgeTraining(steps=80, batch=32, width=16)
+    plain = train_sequence_judge(windows, labels, cache.styles, cache.skeleton(0), cache.fps, settings)
+    flat = train_sequence_judge(windows, labels, cache.styles, cache.skeleton(0), cache.fps,
+                                JudgeTraining(steps=80, batch=32, width=16, interpolated_weight=2.0),
+                                contents=contents, interpolated=interp)
+    uniform = torch.full((len(cache.styles),), 1.0 / len(cache.styles), dtype=torch.float64)
+
+    def spread(judge: SequenceJudge) -> float:  # KL from uniform of the answers on interpolated windows
+        lp = judge.log_probs(interp)
+        return float((lp.exp() * (lp - uniform.log())).sum(-1).mean())
+
+    assert spread(flat) < spread(plain)
+    assert flat.info["interpolated_windows"] == len(interp) and flat.info["balance"] == "style, then content"
+    with pytest.raises(ValueError):
+        train_sequence_judge(windows, labels, cache.styles, cache.skeleton(0), cache.fps, settings, contents=contents[:3])
+    with pytest.raises(ValueError):
+        JudgeTraining(interpolated_share=1.5)
+
+
 def test_cli_command_writes_the_judge(data: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                       capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setenv("RSMT_CACHE", str(data[1]))
