@@ -54,7 +54,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         raise
     state.registry = registry
     state.metrics.watch_style_caches(lambda: [(m.name, m.engine.styles) for m in registry])
-    registry.start_schedulers(state.metrics)
+    registry.start_schedulers(state.metrics, state.settings.asap_share)
 
     restore = install_signal_hook(state, asyncio.get_running_loop())
 

@@ -137,10 +137,10 @@ class Registry:
     def live_characters(self) -> int:
         return sum(m.scheduler.live for m in self if m.scheduler is not None)
 
-    def start_schedulers(self, metrics: Metrics | None) -> None:
+    def start_schedulers(self, metrics: Metrics | None, asap_share: float = 0.1) -> None:
         for m in self:
             m.queue.metrics = metrics
-            m.scheduler = Scheduler(m.engine, m.step, metrics, m.name)
+            m.scheduler = Scheduler(m.engine, m.step, metrics, m.name, asap_share=asap_share)
             m.scheduler.start()
 
     def close_queues(self) -> int:

@@ -125,6 +125,10 @@ class Settings(BaseSettings):
         default=None, ge=1, description="live streamed characters one API key may drive, over all its connections "
         "(default with keys on: a quarter of max_characters, so one key cannot take every slot; with keys off: no "
         "share, max_characters alone)")
+    asap_share: float = Field(
+        default=0.1, ge=0.0, le=1.0, description="the largest share of time that steps of pace-asap characters may "
+        "make realtime characters late: an asap step starts when it ends before the next realtime frame is due, and "
+        "one that cannot (a batch whose step is longer than the gap) only on this share of the time (0: never)")
     max_pending_messages: int = Field(
         default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )

@@ -4,7 +4,9 @@ every connection with one batched engine step per tick.
 Characters are grouped by pace, each group in one :class:`~model.inference.engine.CharacterBatch`:
 
 * ``realtime`` characters step together once per frame period (1 / model fps), on a fixed clock;
-* ``asap`` characters step together back to back, as fast as the engine goes, while any waits.
+* ``asap`` characters step together back to back, as fast as the engine goes, while any waits, but
+  never so as to make a realtime frame late beyond a small share of the time
+  (:mod:`service.streaming.asap_gate`).
 
 So a tick is one ``step()`` of one batch; only when both groups are due at the same moment does a
 tick make two calls. Keeping the groups in separate batches (rather than one batch stepped at the
@@ -37,6 +39,7 @@ from model.inference.errors import EngineError
 from model.motion.clip import Clip
 from service.errors import ServiceError, from_engine
 from service.metrics import Metrics
+from service.streaming.asap_gate import AsapGate
 from service.streaming.commands import Add, Command, Park, Remove, Request, Retarget, SetStyle, Unpark
 from service.streaming.frames import encode_binary, encode_json
 from service.streaming.stream import PACES, Stream
@@ -55,8 +58,10 @@ class _Tick:
 class Scheduler:
     """The stepping loop of one model. Create, :meth:`start` on the event loop, :meth:`stop` at shutdown."""
 
-    def __init__(self, engine: Engine, executor: Executor, metrics: Metrics | None = None, name: str = "model") -> None:
+    def __init__(self, engine: Engine, executor: Executor, metrics: Metrics | None = None, name: str = "model",
+                 asap_share: float = 0.1) -> None:
         self.engine = engine
+        self._gate = AsapGate(asap_share)  # owned by the event loop
         self.name = name
         self.fps = float(engine.config.fps)
         self.metrics = metrics
@@ -149,14 +154,8 @@ class Scheduler:
             commands: list[Command] = []
             try:
                 now = loop.time()
-                rt_live = any(not s.parked for s in self.streams["realtime"])
-                asap_live = any(not s.parked for s in self.streams["asap"])
-                if not rt_live:
-                    next_rt = None
-                elif next_rt is None:
-                    next_rt = now
-                rt_due = rt_live and next_rt is not None and now >= next_rt - 5e-4
-                if not (rt_due or asap_live or self._commands):
+                next_rt, rt_due, asap_fits, asap_go = self._plan(now, next_rt, period)
+                if not (rt_due or asap_go or self._commands):
                     self._wake.clear()
                     timeout = None if next_rt is None else max(0.0, next_rt - now)
                     try:
@@ -167,7 +166,10 @@ class Scheduler:
                     continue
                 commands, self._commands = self._commands, []
                 started = loop.time()
-                result = await loop.run_in_executor(self._executor, self._tick, commands, rt_due, asap_live)
+                result = await loop.run_in_executor(self._executor, self._tick, commands, rt_due, asap_go)
+                for pace, _, _, seconds, _ in result.steps:
+                    if pace == "asap":
+                        self._gate.record(seconds, asap_fits)
                 if rt_due and next_rt is not None:
                     next_rt += period
                     if next_rt < loop.time() - period:  # fell behind: restart the clock, never burst
@@ -175,7 +177,7 @@ class Scheduler:
                 self._deliver(result, loop.time())
                 self.ticks += 1
                 self._observe(result, loop.time() - started)
-                if asap_live:
+                if asap_go:
                     await asyncio.sleep(0)  # let connections send between back-to-back ticks
             except Exception:  # the loop must survive anything a tick throws
                 log.exception("scheduler %s: tick failed", self.name)
@@ -184,6 +186,20 @@ class Scheduler:
                         command.reply.set_exception(
                             ServiceError("internal", f"{command.kind} failed; the server log has the details"))
                 await asyncio.sleep(period)
+
+    def _plan(self, now: float, next_rt: float | None, period: float) -> tuple[float | None, bool, bool, bool]:
+        """What a tick at ``now`` steps: ``(next realtime time, realtime due, an asap step fits, asap steps)``."""
+        rt_live = any(not s.parked for s in self.streams["realtime"])
+        asap_live = any(not s.parked for s in self.streams["asap"])
+        if not rt_live:
+            next_rt = None
+        elif next_rt is None:
+            next_rt = now
+        rt_due = next_rt is not None and now >= next_rt - 5e-4
+        # When the next realtime frame is due: an asap step of this tick must end before it.
+        due_next = None if next_rt is None else next_rt + (period if rt_due else 0.0)
+        fits = self._gate.fits(now, due_next)
+        return next_rt, rt_due, fits, asap_live and self._gate.allows(now, due_next)
 
     def _observe(self, result: _Tick, tick_s: float) -> None:
         if self.metrics is None:
