@@ -32,6 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--interpolated-share", type=float, default=0.25,
                    help="interpolated windows per step as a share of --batch, asked to read as no style (default 0.25; "
                         "0: none)")
+    p.add_argument("--reversed-share", type=float, default=0.25,
+                   help="share of the real windows of each step played backwards in time, with their own style "
+                        "(default 0.25; 0: none)")
     p.add_argument("--style-only", action="store_true",
                    help="draw each style equally often but not each content within it (the first judge's draw)")
     p.add_argument("--report-split", default="val", choices=["val", "test"], help="split the accuracy is reported on")
@@ -61,12 +64,14 @@ def sequence_judge_command(args: argparse.Namespace) -> int:
     skeleton = cache.skeleton(split.train[0])
     judge = train_sequence_judge(windows, torch.tensor([index[s] for s in styles]), cache.styles, skeleton, cache.fps,
                                  JudgeTraining(steps=args.steps, batch=args.batch, seed=args.seed,
-                                               interpolated_share=args.interpolated_share),
+                                               interpolated_share=args.interpolated_share,
+                                               reversed_share=args.reversed_share),
                                  contents=None if args.style_only else contents, interpolated=interpolated)
     report = judge_report(judge, cache, split[args.report_split], args.step)
     command = "rsmt train sequence-judge " + " ".join(shlex.quote(a) for a in [
         "--data", str(data), "--out", str(args.out), "--step", str(args.step), "--steps", str(args.steps),
         "--batch", str(args.batch), "--interpolated-share", str(args.interpolated_share),
+        "--reversed-share", str(args.reversed_share),
         *(["--style-only"] if args.style_only else []), "--report-split", args.report_split, "--seed", str(args.seed)])
     judge.info.update({"command": command, "data": str(data), "report_split": args.report_split,
                        "accuracy": report["accuracy"], "interpolated_accuracy": report["interpolated_accuracy"],

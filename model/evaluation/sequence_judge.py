@@ -18,7 +18,8 @@ A longer sequence is scored as the mean log-probability of its windows 20 frames
 one (at least 3 poses) as one window. Trained on real windows of every take of the training split
 (both data sets when both are given, the backward takes included), each style drawn equally often and,
 within a style, each content (walk, walk-back, dash, ...) equally often, so a minute of backward walking
-counts as much as half an hour of forward walking. Beside them it sees the same windows with their
+counts as much as half an hour of forward walking, and a share of them played backwards in time (a
+style walks backwards as it walks forwards). Beside them it sees the same windows with their
 in-betweens interpolated (first and last poses kept) and is asked to read those as no style at all (a
 uniform answer): a style is then read from how the frames between two poses move, not from the poses.
 
@@ -172,10 +173,15 @@ class JudgeTraining:
     # Interpolated windows per step, as a share of ``batch``, and the weight of their uniform-answer term.
     interpolated_share: float = 0.25
     interpolated_weight: float = 0.5
+    # The share of each step's real windows played backwards in time (labelled with their own style): a style
+    # walks backwards as it walks forwards, and the backward takes are a minute or two per style.
+    reversed_share: float = 0.25
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch < 1 or self.width < 1:
             raise ValueError("steps, batch and width must be at least 1")
+        if not 0.0 <= self.reversed_share <= 1.0:
+            raise ValueError("reversed_share must be in [0, 1]")
         if not 0.0 <= self.interpolated_share <= 1.0 or self.interpolated_weight < 0:
             raise ValueError("interpolated_share must be in [0, 1] and interpolated_weight 0 or more")
 
@@ -202,6 +208,7 @@ def train_sequence_judge(windows: Tensor, labels: Tensor, styles: Sequence[str],
     mean, std = flat.mean(0), flat.std(0).clamp_min(1.0)  # cm/s: below 1 cm/s is not style
     x = (x - mean) / std
     xi = None if interpolated is None or not len(interpolated) else (_features(interpolated, skeleton, fps) - mean) / std
+    xr = (_features(windows.flip(1), skeleton, fps) - mean) / std if settings.reversed_share > 0 else None
     n_interp = 0 if xi is None else round(settings.batch * settings.interpolated_share)
     net = SequenceJudgeNet(x.shape[-1], len(styles), settings.width)
     opt = torch.optim.AdamW(net.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
@@ -212,7 +219,11 @@ def train_sequence_judge(windows: Tensor, labels: Tensor, styles: Sequence[str],
     for _ in range(settings.steps):
         rows = _draw(groups, settings.batch, gen)
         # A little noise on the inputs, so the judge reads the motion rather than the capture's exact numbers.
-        batch = x[rows] + 0.05 * torch.randn((len(rows), *x.shape[1:]), generator=gen)
+        batch = x[rows]
+        if xr is not None:
+            back = torch.rand(len(rows), generator=gen) < settings.reversed_share
+            batch = torch.where(back[:, None, None], xr[rows], batch)
+        batch = batch + 0.05 * torch.randn((len(rows), *x.shape[1:]), generator=gen)
         loss = nn.functional.cross_entropy(net(batch), labels[rows])
         if xi is not None and n_interp > 0:
             pick = torch.randint(len(xi), (n_interp,), generator=gen)
@@ -227,6 +238,7 @@ def train_sequence_judge(windows: Tensor, labels: Tensor, styles: Sequence[str],
             "balance": "style, then content" if contents is not None else "style",
             "interpolated_share": settings.interpolated_share if xi is not None else 0.0,
             "interpolated_weight": settings.interpolated_weight if xi is not None else 0.0,
+            "reversed_share": settings.reversed_share,
             "steps": settings.steps, "batch": settings.batch,
             "final_loss": round(loss_value, 4), "train_seconds": round(time.perf_counter() - began, 1)}
     return SequenceJudge(list(styles), skeleton, float(fps), net, mean, std, settings.width, info)

@@ -99,6 +99,23 @@ def test_interpolated_windows_are_pushed_towards_no_style(cache: MotionCache) ->
         train_sequence_judge(windows, labels, cache.styles, cache.skeleton(0), cache.fps, settings, contents=contents[:3])
     with pytest.raises(ValueError):
         JudgeTraining(interpolated_share=1.5)
+    with pytest.raises(ValueError):
+        JudgeTraining(reversed_share=-0.1)
+
+
+def test_windows_played_backwards_are_read_better_when_trained_on(cache: MotionCache) -> None:
+    windows, styles, _ = real_windows(cache, cache.split.train)
+    index = {s: k for k, s in enumerate(cache.styles)}
+    labels = torch.tensor([index[s] for s in styles])
+    back = windows.flip(1)
+
+    def nll(share: float) -> float:
+        judge = train_sequence_judge(windows, labels, cache.styles, cache.skeleton(0), cache.fps,
+                                     JudgeTraining(steps=80, batch=32, width=16, reversed_share=share))
+        assert judge.info["reversed_share"] == share
+        return float(-judge.log_probs(back).gather(1, labels[:, None]).mean())
+
+    assert nll(0.5) < nll(0.0)
 
 
 def test_cli_command_writes_the_judge(data: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
