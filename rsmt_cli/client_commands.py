@@ -58,8 +58,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     styles = sub.add_parser("styles", help="register and list style clips")
     ssub = styles.add_subparsers(dest="styles_command", required=True, metavar="ACTION")
-    add = ssub.add_parser("add", help="register a style clip (BVH); prints its style_id")
+    add = ssub.add_parser("add", help="register a style clip (BVH), or 2 to 5 clips of one style as one style; "
+                                      "prints its style_id")
     add.add_argument("clip", type=Path, help="style clip .bvh")
+    add.add_argument("more", type=Path, nargs="*", metavar="CLIP",
+                     help="more clips of the same style (up to 5 in all), encoded together with the first into one "
+                          "style; their order does not change it")
     add.add_argument("--name", help="display name (default: the file name)")
     add.add_argument("--model", help="model to encode for (default: the server's default)")
     add.add_argument("--start", type=int, default=0, metavar="S",
@@ -155,6 +159,12 @@ def _styles_add(args: argparse.Namespace) -> int:
     from rsmt_client.bvh import BvhFile
 
     clip: Path | str = args.clip
+    if args.more:
+        if args.start or args.frames is not None:
+            raise ValueError("--start and --frames cut one clip; cut each of several clips before registering them")
+        with _client(args) as c:
+            _print(c.register_style_clips([args.clip, *args.more], name=args.name or args.clip.stem, model=args.model))
+        return 0
     if args.start or args.frames is not None:
         # Checked here, before any request: an out-of-range cut is this command's error (exit 2), with the
         # file's frame count in the message.

@@ -73,7 +73,8 @@ def resolve_style(model: LoadedModel, caller: Caller, style_id: str | None,
 
 
 def style_info(model: LoadedModel, style: StyleEntry, cached: bool) -> dict[str, Any]:
-    return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "cached": cached, "model": model.name}
+    return {"style_id": style.style_id, "name": style.name, "frames": style.frames, "clips": style.clips,
+            "cached": cached, "model": model.name}
 
 
 def encode_registration(model: LoadedModel, motion: BvhMotion | PoseMotion, name: str) -> tuple[EncodedStyle, Clip]:

@@ -42,11 +42,22 @@ def motion_to_clip(motion: BvhMotion | PoseMotion, engine: Engine, limits: Motio
     Raises:
         ServiceError: ``bad_motion``, ``skeleton_mismatch``, ``too_few_frames`` or ``too_many_frames``.
     """
+    return conform_motion(parse_motion(motion, engine, limits, what), engine, what)
+
+
+def parse_motion(motion: BvhMotion | PoseMotion, engine: Engine, limits: MotionLimits, what: str) -> Clip:
+    """A payload as a clip on the rig it was sent on (a BVH's own; JSON poses are on the model's), not yet
+    mapped onto the model's rig (:func:`conform_motion`); raises as :func:`motion_to_clip` does."""
     if isinstance(motion, BvhMotion):
         clip = _bvh_clip(motion.bvh, engine, limits, what)
     else:
         clip = _pose_clip(motion, engine.skeleton, float(motion.fps or engine.config.fps), limits, what)
     _check_resampled_length(clip, engine.config.fps, limits, what)
+    return clip
+
+
+def conform_motion(clip: Clip, engine: Engine, what: str) -> Clip:
+    """A parsed payload (:func:`parse_motion`) on the model's rig at its fps; ``skeleton_mismatch`` otherwise."""
     try:
         return engine.conform(clip, what)
     except EngineError as exc:

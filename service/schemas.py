@@ -78,6 +78,8 @@ class PoseMotion(BaseModel):
 
 
 Motion = Annotated[BvhMotion | PoseMotion, Field(description="BVH text or JSON poses")]
+# The most clips one style is registered from (the engine's own bound: model.inference.style_sets.MAX_STYLE_CLIPS).
+MAX_STYLE_CLIPS = 5
 
 
 class _StyleChoice(BaseModel):
@@ -148,16 +150,32 @@ class StyleCreate(BaseModel):
                               json_schema_extra={"examples": [{"name": "proud", "motion": {"bvh": _EXAMPLE_BVH}}]})
 
     name: str = Field(min_length=1, max_length=200)
-    motion: Motion
+    motion: Motion | None = Field(None, description="the style clip (or give motions)")
+    motions: list[Motion] | None = Field(
+        None, min_length=1, max_length=MAX_STYLE_CLIPS,
+        description=f"1 to {MAX_STYLE_CLIPS} clips of one style, on one rig, encoded together into one style (or "
+                    "give motion); their order does not change the style or its id")
     model: ModelName | None = Field(None, description="model to encode for (default: the default model)")
+
+    @model_validator(mode="after")
+    def _one_motion(self) -> StyleCreate:
+        if (self.motion is None) == (self.motions is None):
+            raise ValueError("give exactly one of motion (one clip) or motions (1 to 5 clips)")
+        return self
+
+    @property
+    def clips(self) -> list[BvhMotion | PoseMotion]:
+        """The clips sent, as a list (one for ``motion``)."""
+        return [self.motion] if self.motion is not None else list(self.motions or [])
 
 
 class StyleInfo(BaseModel):
-    style_id: str = Field(description="content hash of clip + skeleton + model version (any replica recomputes it); "
+    style_id: str = Field(description="content hash of clip(s) + skeleton + model version (any replica recomputes it); "
                                       "builtin:NAME for a built-in style")
     name: str
-    frames: int = Field(description="frames of the clip at the model's fps (of a built-in style: of the clip its code "
-                                    "was encoded from)")
+    frames: int = Field(description="frames of the clip at the model's fps, of all its clips together for a style of "
+                                    "several (of a built-in style: of the clip its code was encoded from)")
+    clips: int = Field(1, description="the clips the style was encoded from (POST /v1/styles with motions: 1 to 5)")
     cached: bool = Field(description="true when this clip was already registered (nothing was encoded); always true "
                                      "for a built-in style")
     model: str

@@ -81,8 +81,9 @@ class Settings(BaseSettings):
     style_cache_entries: int = Field(default=1024, ge=1)
     style_cache_bytes: int = Field(default=256 << 20, ge=1)
     style_cache_entries_per_key: int = Field(
-        default=256, ge=1, description="registered styles one API key may hold per model (its least recently used go "
-        "first); with keys off the one anonymous owner is bounded by style_cache_entries alone")
+        default=256, ge=1, description="registered styles one API key may hold per model, a style of n clips counting n "
+        "(its least recently used go first); with keys off the one anonymous owner is bounded by style_cache_entries "
+        "alone")
 
     # -- style store (replicas)
     style_store: str = Field(

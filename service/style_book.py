@@ -5,7 +5,8 @@ client sees; the styles a client can list, fetch, delete and use by id are the o
 A style id is a content hash, so two keys registering the same clip get the same id: ownership is
 keyed by ``(owner, style id)`` and each key has its own entry (and its own eviction).
 
-Bounds: each owner keeps at most ``per_owner`` entries (its least recently used ones go first), and
+Bounds: each owner keeps at most ``per_owner`` clips' worth of styles (a style of n clips counts n; its least
+recently used ones go first, and its newest style stays even when it alone is over), and
 the book as a whole at most ``max_entries`` entries and ``max_bytes`` bytes; over the whole-book
 bound, the owner holding the most (entries, or bytes) loses its least recently used entry, so a flood
 from one key evicts that key's styles before anyone else's.
@@ -58,7 +59,7 @@ class StyleBook:
                 self._bytes[owner] -= book.pop(style.style_id).nbytes
             book[style.style_id] = style
             self._bytes[owner] = self._bytes.get(owner, 0) + style.nbytes
-            while len(book) > self.per_owner:
+            while len(book) > 1 and sum(s.clips for s in book.values()) > self.per_owner:
                 self._evict(owner)
             self._bound()
             return had

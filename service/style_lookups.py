@@ -11,6 +11,8 @@ from service.engine_jobs import Registered, lookup_style
 from service.errors import ServiceError
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from model.inference.engine import EncodedStyle
     from model.motion.clip import Clip
     from service.registry import LoadedModel
@@ -32,9 +34,10 @@ async def registered_style(state: ServiceState, model: LoadedModel, caller: Call
         raise
 
 
-async def file_style(state: ServiceState, model: LoadedModel, owner: str, style: EncodedStyle, clip: Clip) -> bool:
-    """File an encoded registration under ``owner``; True when the owner had it already."""
-    return await state.store_lane.call(model.book.add, owner, style, clip)
+async def file_style(state: ServiceState, model: LoadedModel, owner: str, style: EncodedStyle,
+                     clips: Sequence[Clip]) -> bool:
+    """File an encoded registration (of one clip or several) under ``owner``; True when the owner had it already."""
+    return await state.store_lane.call(model.book.add, owner, style, clips)
 
 
 async def on_lane(state: ServiceState, fn: Any, *args: Any) -> Any:

@@ -26,6 +26,7 @@ class EncodedStyle:
     context: StyleContext
     nbytes: int = 0
     weights: str = ""  # the weight set it was encoded by and runs on: the bundle's own, or an adapter's name
+    clips: int = 1  # the clips it was encoded from (:mod:`model.inference.style_sets`); ``frames`` is their total
 
 
 @dataclass(eq=False)

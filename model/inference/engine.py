@@ -153,16 +153,21 @@ class Engine:
         with torch.inference_mode():
             return self.weights(weights).sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
 
-    def encode_style(self, clip: Clip, name: str = "", weights: str = "") -> tuple[EncodedStyle, bool]:
-        """Encode a style clip, or return the cached encoding; the bool says whether it was cached.
-        ``weights``: the weight set that encodes it and that its transitions run on (the bundle's own by
-        default; a style adapter's name for that adapter's)."""
+    def style_clip(self, clip: Clip) -> Clip:
+        """A style clip on this model's rig (:meth:`conform`), refused when its length is outside what the model reads."""
         clip = self.conform(clip, "style clip")
         c = self.config
         if not c.style_frames_min <= clip.num_frames <= c.style_frames_max:
             error = TooFewFrames if clip.num_frames < c.style_frames_min else TooManyFrames
             raise error(f"a style clip needs {c.style_frames_min} to {c.style_frames_max} frames at {c.fps:g} fps; "
                         f"got {clip.num_frames}")
+        return clip
+
+    def encode_style(self, clip: Clip, name: str = "", weights: str = "") -> tuple[EncodedStyle, bool]:
+        """Encode a style clip, or return the cached encoding; the bool says whether it was cached.
+        ``weights``: the weight set that encodes it and that its transitions run on (the bundle's own by
+        default; a style adapter's name for that adapter's)."""
+        clip = self.style_clip(clip)
         ws = self.weights(weights)
         sid = clip_content_hash(clip, ws.version)
         cached = self.styles.get(sid)

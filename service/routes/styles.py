@@ -25,6 +25,7 @@ from service.schemas import (
 from service.style_book import Caller
 from service.style_hints import builtin_suggestion
 from service.style_lookups import file_style, on_lane
+from service.style_registration import encode_clips_registration
 from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(require_access)],
@@ -37,13 +38,17 @@ def _builtins(model: LoadedModel) -> list[dict[str, Any]]:
 
 @router.post("", status_code=201, response_model=StyleInfo,
              responses={k: ERROR_RESPONSES[k] for k in (400, 404, 413, 422)},
-             summary="register a style clip under your API key; the same clip always gets the same id "
-                     "(cached: true when you registered it already)")
+             summary="register a style clip (motion), or 1 to 5 clips of one style (motions), under your API key; "
+                     "the same clip(s) always get the same id (cached: true when you registered them already)")
 async def create_style(body: StyleCreate, request: Request, registry: RegistryDep, caller: CallerDep) -> dict:
     model = registry.get(body.model)
-    style, clip = await model.run(encode_registration, model, body.motion, body.name,
-                                  gone=disconnect_of(request.receive))
-    had = await file_style(request.app.state.service, model, caller.owner, style, clip)  # the store's lane
+    gone = disconnect_of(request.receive)
+    if body.motion is not None:
+        style, clip = await model.run(encode_registration, model, body.motion, body.name, gone=gone)
+        clips = [clip]
+    else:
+        style, clips = await model.run(encode_clips_registration, model, body.clips, body.name, gone=gone)
+    had = await file_style(request.app.state.service, model, caller.owner, style, clips)  # the store's lane
     return style_info(model, style, had)
 
 

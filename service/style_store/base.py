@@ -25,14 +25,18 @@ class StyleEntry(Protocol):
     @property
     def frames(self) -> int: ...
 
+    @property
+    def clips(self) -> int: ...
+
 
 @dataclass(frozen=True)
 class StyleMeta:
-    """A stored style without its code: id, name and length."""
+    """A stored style without its code: id, name, length (of all its clips) and how many clips."""
 
     style_id: str
     name: str
     frames: int
+    clips: int = 1
 
 
 class StyleStore(Protocol):
@@ -41,8 +45,9 @@ class StyleStore(Protocol):
     A store that cannot be reached raises :class:`service.errors.ServiceError` ``style_store_unavailable``.
     """
 
-    def add(self, owner: str, style: EncodedStyle, clip: Clip) -> bool:
-        """File ``style`` (encoded from ``clip``) under ``owner``; True when the owner already had it."""
+    def add(self, owner: str, style: EncodedStyle, clips: Sequence[Clip]) -> bool:
+        """File ``style`` (encoded from ``clips``, on the model's rig) under ``owner``; True when the owner already
+        had it. A style of n clips counts as n of the owner's styles against the per-key cap."""
         ...
 
     def get(self, caller: Caller, style_id: str) -> EncodedStyle | None:

@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 from service.style_book import StyleBook
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from model.inference.engine import EncodedStyle
     from model.motion.clip import Clip
 
@@ -18,6 +20,6 @@ if TYPE_CHECKING:
 class MemoryStyleStore(StyleBook):
     """A :class:`StyleBook` as a :class:`service.style_store.StyleStore`: the encoded style is all it keeps."""
 
-    def add(self, owner: str, style: EncodedStyle, clip: Clip | None = None) -> bool:
-        """File ``style`` under ``owner``; the clip is not needed in memory (the code is kept)."""
+    def add(self, owner: str, style: EncodedStyle, clips: Sequence[Clip] = ()) -> bool:
+        """File ``style`` under ``owner``; the clips are not needed in memory (the code is kept)."""
         return super().add(owner, style)

@@ -9,7 +9,9 @@ Per model (name and version), under ``rsmt:styles:<model>:<version>:``:
   registering a clip another key has costs what registering a new one does;
 * ``refs:<id>``: the owners (API key digests) that registered it; the clip goes when the last one lets go;
 * ``own:<owner>``: that owner's ids, scored by last use (Redis's clock), so its least recently used go
-  first over the per-key cap; ``owners``: every owner with styles (for admin listings).
+  first over the per-key cap; ``owners``: every owner with styles (for admin listings);
+* ``sizes:<owner>``: the clips of each of that owner's styles of several clips (``motions``): a style of n
+  clips counts n against the per-key cap, as in the memory book (a style of one clip has no entry).
 
 Each operation is one Lua script, so concurrent replicas never see half an update. With a TTL every key of
 a style is given that TTL again whenever it is registered or used. Codes are never stored: each replica
@@ -34,6 +36,8 @@ from redis.backoff import ExponentialBackoff
 from redis.exceptions import RedisError
 from redis.retry import Retry
 
+from model.inference.errors import EngineError
+from model.inference.style_sets import encode_style_set
 from model.motion.clip import Clip
 from service.errors import ServiceError
 from service.style_book import Caller
@@ -60,12 +64,12 @@ local function stamp(own)
 end
 """
 
-# ARGV: prefix, owner, id, clip, meta, cap, ttl, name  ->  {had, evicted}
+# ARGV: prefix, owner, id, clip, meta, cap, ttl, name, clips  ->  {had, evicted}
 _ADD = _STAMP + """
 local p, owner, sid = ARGV[1], ARGV[2], ARGV[3]
-local cap, ttl = tonumber(ARGV[6]), tonumber(ARGV[7])
+local cap, ttl, n = tonumber(ARGV[6]), tonumber(ARGV[7]), tonumber(ARGV[9])
 local own, refs, clip, meta = p .. 'own:' .. owner, p .. 'refs:' .. sid, p .. 'clip:' .. sid, p .. 'meta:' .. sid
-local names = p .. 'names:' .. owner
+local names, sizes = p .. 'names:' .. owner, p .. 'sizes:' .. owner
 local exists = redis.call('EXISTS', meta) == 1 and redis.call('EXISTS', clip) == 1
 local had = exists and redis.call('ZSCORE', own, sid) ~= false
 redis.call('SET', clip, ARGV[4])  -- the same bytes whoever registered it: written every time (no timing tell)
@@ -74,11 +78,16 @@ redis.call('HSET', names, sid, ARGV[8])
 redis.call('ZADD', own, stamp(own), sid)
 redis.call('SADD', refs, owner)
 redis.call('SADD', p .. 'owners', owner)
+if n > 1 then redis.call('HSET', sizes, sid, n) else redis.call('HDEL', sizes, sid) end
+local held = 0
+for _, s in ipairs(redis.call('ZRANGE', own, 0, -1)) do held = held + (tonumber(redis.call('HGET', sizes, s)) or 1) end
 local evicted = 0
-while redis.call('ZCARD', own) > cap do
+while held > cap and redis.call('ZCARD', own) > 1 do
   local victim = redis.call('ZPOPMIN', own)[1]
   local vrefs = p .. 'refs:' .. victim
+  held = held - (tonumber(redis.call('HGET', sizes, victim)) or 1)
   redis.call('HDEL', names, victim)
+  redis.call('HDEL', sizes, victim)
   redis.call('SREM', vrefs, owner)
   if redis.call('SCARD', vrefs) == 0 then
     redis.call('DEL', vrefs, p .. 'clip:' .. victim, p .. 'meta:' .. victim)
@@ -87,6 +96,7 @@ while redis.call('ZCARD', own) > cap do
 end
 if ttl > 0 then
   for _, k in ipairs({clip, meta, refs, own, names}) do redis.call('EXPIRE', k, ttl) end
+  if redis.call('EXISTS', sizes) == 1 then redis.call('EXPIRE', sizes, ttl) end
 end
 return {had and 1 or 0, evicted}
 """
@@ -113,7 +123,10 @@ local mine = redis.call('ZSCORE', own, sid) ~= false
 if not mine and admin ~= '1' then return false end
 local m = redis.call('GET', meta)
 if not m then
-  if mine then redis.call('ZREM', own, sid) end
+  if mine then
+    redis.call('ZREM', own, sid)
+    redis.call('HDEL', p .. 'sizes:' .. owner, sid)
+  end
   return false
 end
 if touch == '1' then
@@ -122,6 +135,7 @@ if touch == '1' then
     if ttl > 0 then
       redis.call('EXPIRE', own, ttl)
       redis.call('EXPIRE', p .. 'names:' .. owner, ttl)
+      if redis.call('EXISTS', p .. 'sizes:' .. owner) == 1 then redis.call('EXPIRE', p .. 'sizes:' .. owner, ttl) end
     end
   end
   if ttl > 0 then
@@ -156,6 +170,7 @@ for _, o in ipairs(owners) do
         table.insert(out, redis.call('HGET', p .. 'names:' .. o, sid) or '')
       else
         redis.call('ZREM', own, sid)
+        redis.call('HDEL', p .. 'sizes:' .. o, sid)
       end
     end
   end
@@ -175,6 +190,7 @@ for _, o in ipairs(owners) do
   local own = p .. 'own:' .. o
   if redis.call('ZREM', own, sid) == 1 and live then found = 1 end
   redis.call('HDEL', p .. 'names:' .. o, sid)
+  redis.call('HDEL', p .. 'sizes:' .. o, sid)
   redis.call('SREM', refs, o)
   if redis.call('ZCARD', own) == 0 then redis.call('SREM', p .. 'owners', o) end
 end
@@ -210,13 +226,16 @@ class RedisStyleStore:
         self._list, self._delete = client.register_script(_LIST), client.register_script(_DELETE)
 
     # ------------------------------------------------------------------ the StyleStore questions
-    def add(self, owner: str, style: EncodedStyle, clip: Clip) -> bool:
+    def add(self, owner: str, style: EncodedStyle, clips: Sequence[Clip]) -> bool:
         # The shared copy carries no key's name (the id stands in): names live per owner.
-        stored = StoredClip(style.style_id, style.style_id, float(clip.fps), tuple(clip.skeleton.names), self.model,
-                            clip.rotations.detach().float().numpy(), clip.root_positions.detach().float().numpy())
+        first = clips[0]
+        stored = StoredClip(style.style_id, style.style_id, float(first.fps), tuple(first.skeleton.names), self.model,
+                            torch.cat([c.rotations.detach().float() for c in clips]).numpy(),
+                            torch.cat([c.root_positions.detach().float() for c in clips]).numpy(),
+                            tuple(c.num_frames for c in clips) if len(clips) > 1 else ())
         meta = _meta_json(stored.meta())
         had, evicted = self._call(self._add, self.prefix, owner, style.style_id, encode_clip(stored), meta,
-                                  self.per_owner, self.ttl, style.name)
+                                  self.per_owner, self.ttl, style.name, stored.clips)
         self.evictions += int(evicted)
         return bool(had)
 
@@ -268,9 +287,13 @@ class RedisStyleStore:
         if stored.joints != tuple(skeleton.names):
             log.warning("stored style %s is on another rig than model %s, ignored", style_id, self.model)
             return None
-        clip = Clip(skeleton, torch.from_numpy(stored.rotations), torch.from_numpy(stored.root_positions), stored.fps,
-                    stored.name)
-        style, _ = self.engine.encode_style(clip, stored.name)
+        clips = [Clip(skeleton, torch.from_numpy(rot), torch.from_numpy(root), stored.fps, stored.name)
+                 for rot, root in stored.parts()]
+        try:
+            style, _ = encode_style_set(self.engine, clips, stored.name)
+        except EngineError as exc:  # clips this model does not read (another model's limits)
+            log.warning("stored style %s cannot be encoded by model %s, ignored: %s", style_id, self.model, exc)
+            return None
         if style.style_id != style_id:
             log.warning("stored style %s encodes to %s on this replica (another model version?)", style_id, style.style_id)
         return style
@@ -296,4 +319,5 @@ def _meta(raw: bytes, name: bytes | str | None = None) -> StyleMeta:
     m = json.loads(raw)
     if isinstance(name, bytes):
         name = name.decode()
-    return StyleMeta(str(m["style_id"]), name or str(m.get("name") or m["style_id"]), int(m["frames"]))
+    return StyleMeta(str(m["style_id"]), name or str(m.get("name") or m["style_id"]), int(m["frames"]),
+                     int(m.get("clips", 1)))

@@ -27,7 +27,8 @@ from rsmt_client import (
     stream_url,
 )
 
-from model.motion.bvh_clip import load_clip
+from model.data.synthetic import synthetic_walk
+from model.motion.bvh_clip import dump_clip, load_clip
 from model.motion.rotations import quat_angle
 from rsmt_cli.main import main as rsmt_main
 from tests.clients.conftest import serve_command
@@ -70,6 +71,27 @@ def test_health_model_and_styles(client, motions, style_id):
     with pytest.raises(RsmtError) as err:
         client.style(other["style_id"])
     assert err.value.code == "unknown_style" and err.value.status == 404
+
+
+def test_a_style_from_several_clips(server, client, motions, style_id):
+    info = client.register_style_clips([motions["style"], motions["style2"].read_text()], name="both")
+    assert info["clips"] == 2 and info["frames"] == 120 + 90 and info["name"] == "both" and info["style_id"] != style_id
+    again = client.register_style_clips([motions["style2"], motions["style"]])  # another order: the same style
+    assert again["style_id"] == info["style_id"] and again["cached"] is True and again["name"] == "style2"
+    a = client.transition(motions["context"], motions["target"], FRAMES, style_id=info["style_id"], seed=SEED)
+    assert a.style_id == info["style_id"] and a.num_frames == FRAMES
+    client.delete_style(info["style_id"])  # forgotten on purpose: not registered again
+    with pytest.raises(ValueError, match="1 to 5 clips; got 6"):
+        client.register_style_clips([motions["style"]] * 6)
+
+    async def run() -> dict:
+        async with AsyncClient(server.url, api_key=API_KEY) as c:
+            return await c.register_style_clips([motions["style"], motions["style2"]])
+
+    assert asyncio.run(run())["style_id"] == info["style_id"]
+    with pytest.raises(RsmtError) as err:
+        client.register_style_clips([motions["style"], dump_clip(synthetic_walk(8))])  # too short a style clip
+    assert err.value.code == "too_few_frames" and "motions[1]" in str(err.value)
 
 
 def test_transition_gives_numpy_arrays_and_is_repeatable(client, motions, style_id):
@@ -362,10 +384,16 @@ def test_cli_commands(server, motions, tmp_path, capsys):
     assert rsmt_main(["client", "styles", "add", str(motions["style"]), "--name", "walk", *common]) == 0
     added = json.loads(capsys.readouterr().out)
     assert added["name"] == "walk" and added["style_id"].startswith("sty_")
+    assert rsmt_main(["client", "styles", "add", str(motions["style"]), str(motions["style2"]), *common]) == 0
+    both = json.loads(capsys.readouterr().out)
+    assert both["clips"] == 2 and both["name"] == "style" and both["style_id"] != added["style_id"]
+    assert rsmt_main(["client", "styles", "add", str(motions["style"]), str(motions["style2"]), "--frames", "30",
+                      *common]) == 2
+    assert "cut one clip" in capsys.readouterr().err
     assert rsmt_main(["client", "styles", "list", "--json", *common]) == 0
     listed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert added["style_id"] in {s["style_id"] for s in listed}
-    assert {"style_id": "builtin:walk", "name": "walk", "frames": 40, "cached": True, "model": "rsmt",
+    assert {"style_id": "builtin:walk", "name": "walk", "frames": 40, "clips": 1, "cached": True, "model": "rsmt",
             "builtin": True} in listed
     assert rsmt_main(["client", "styles", "list", *common]) == 0
     table = capsys.readouterr().out.splitlines()

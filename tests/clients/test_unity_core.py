@@ -51,14 +51,17 @@ def test_monobehaviour_and_asset_code_type_check(tmp_path):
 def test_harness_against_live_server(harness_exe, server, motions, tmp_path, encoding):
     out = tmp_path / "result.json"
     proc = run_harness(harness_exe, "run", "--url", server.url, "--api-key", API_KEY, "--context", str(motions["context"]),
-                       "--target", str(motions["target"]), "--style", str(motions["style"]), "--frames", str(FRAMES),
-                       "--seed", str(SEED), "--deterministic", "--encoding", encoding, "--retarget", str(motions["target2"]),
+                       "--target", str(motions["target"]), "--style", str(motions["style"]), "--style2",
+                       str(motions["style2"]), "--frames", str(FRAMES), "--seed", str(SEED), "--deterministic",
+                       "--encoding", encoding, "--retarget", str(motions["target2"]),
                        "--retarget-after", "4", "--retarget-frames", "12", "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(out.read_text())
     assert r["hello"] == {"joints": 21, "fps": 30, "units": "cm", "encoding": encoding, "metres_per_unit": 0.01}
     with Client(server.url, api_key=API_KEY) as c:
         assert r["style_id"] == c.register_style(motions["style"])["style_id"]  # same clip, same content hash
+        two = c.register_style_clips([motions["style2"], motions["style"]])  # the harness's two clips, another order
+        assert r["multi"] == {"style_id": two["style_id"], "clips": 2, "frames": two["frames"]}
         http = c.transition(motions["context"], motions["target"], FRAMES, style_id=r["style_id"], seed=SEED,
                             deterministic=True)
     frames = r["frames"]

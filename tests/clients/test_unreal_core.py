@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import httpx
 import numpy as np
 import pytest
 from rsmt_client import Client
@@ -105,3 +106,17 @@ def test_replay_captured_session(core_test_exe, captures, encoding, chunk):
     http = captures["http"]
     np.testing.assert_allclose(m_roots, http.root_positions, atol=1e-4)
     np.testing.assert_allclose(m_rots, http.rotations, atol=1e-4)
+
+
+def test_style_registration_body_of_several_clips(core_test_exe, server, motions):
+    """The core's POST /v1/styles body for two clips, sent to the server: one style of both, the id the Python
+    client gets for the same clips in the other order."""
+    proc = run([str(core_test_exe), "style-body", "ue-two", str(motions["style"]), str(motions["style2"])], timeout=60)
+    r = httpx.post(server.url + "/v1/styles", content=proc.stdout.encode(), timeout=60,
+                   headers={"Content-Type": "application/json", "X-API-Key": API_KEY})
+    assert r.status_code == 201, r.text
+    with Client(server.url, api_key=API_KEY) as c:
+        two = c.register_style_clips([motions["style2"], motions["style"]])
+    assert r.json()["style_id"] == two["style_id"] and r.json()["clips"] == 2 and r.json()["name"] == "ue-two"
+    six = run([str(core_test_exe), "style-body", "six", *[str(motions["style"])] * 6], timeout=60, check=False)
+    assert six.returncode == 1 and six.stdout == ""

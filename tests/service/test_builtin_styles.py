@@ -68,9 +68,9 @@ def test_the_model_lists_its_builtin_styles_and_every_key_uses_them(server) -> N
     assert a["frames"] == b["frames"]
 
     # Listed for every key, first and marked, beside (not instead of) the key's own registered style.
-    builtins = [{"style_id": "builtin:brisk", "name": "brisk", "frames": 90, "cached": True, "model": "rsmt",
+    builtins = [{"style_id": "builtin:brisk", "name": "brisk", "frames": 90, "clips": 1, "cached": True, "model": "rsmt",
                  "builtin": True},
-                {"style_id": "builtin:slow", "name": "slow", "frames": 60, "cached": True, "model": "rsmt",
+                {"style_id": "builtin:slow", "name": "slow", "frames": 60, "clips": 1, "cached": True, "model": "rsmt",
                  "builtin": True}]
     assert httpx.get(server.url + "/v1/styles", headers=headers(KEY_B)).json()["styles"] == builtins
     listed = httpx.get(server.url + "/v1/styles", headers=headers(KEY_A)).json()["styles"]

@@ -9,6 +9,7 @@ entry there must name exactly one block, so the list cannot go stale silently.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -148,6 +149,8 @@ def test_the_service_docs_examples_run(server, tmp_path) -> None:
     assert '"style_id": "builtin:elderly"' in endpoints and '"frames": 40' in endpoints
     assert re.search(r'^"sty_[0-9a-f]{24}"$', endpoints, flags=re.M)  # the registered style, used by id
     assert endpoints.count('"inline"') == 0 and "\n204\n" in endpoints
+    three = json.loads((tmp_path / "style3.json").read_text())  # a style from three clips, then used by id
+    assert (three["clips"], three["frames"]) == (3, 270) and f'\n"{three["style_id"]}"\n' in endpoints
     assert frames_of(tmp_path / "transition.bvh") == 40
     assert '"name": "transition.bvh"' in endpoints  # the viewer's clip reader
     assert "rsmt_frames_generated_total" in (tmp_path / "metrics.txt").read_text()

@@ -71,3 +71,16 @@ def test_admin_sees_and_deletes_everyones(encoded):
     assert book.delete(A, only_b.style_id) is False
     assert book.delete(ADMIN, shared.style_id) is True
     assert ids(book, A) == [] and ids(book, B) == [only_b.style_id]
+
+
+def test_per_owner_cap_counts_the_clips_of_a_style(encoded):
+    book = StyleBook(per_owner=4, max_entries=100, max_bytes=10_000)
+    single = [style(encoded, i) for i in range(3)]
+    three = dataclasses.replace(style(encoded, 9), clips=3)
+    for s in single:
+        book.add("a", s)
+    book.add("a", three)  # 3 + 3 clips > 4: the two oldest one-clip styles go
+    assert ids(book, A) == [single[2].style_id, three.style_id] and book.evictions == 2
+    five = dataclasses.replace(style(encoded, 10), clips=5)
+    book.add("a", five)  # over the cap alone: the newest stays, alone
+    assert ids(book, A) == [five.style_id]

@@ -14,6 +14,7 @@ import torch
 from model.data.synthetic import synthetic_walk
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
+from model.inference.style_sets import encode_style_set
 from service.errors import ServiceError
 from service.settings import Settings
 from service.style_book import Caller
@@ -39,6 +40,24 @@ def test_codec_round_trip_and_refusals():
     for bad in (b"", b"pickle" + data, data[:-4], data[:12]):
         with pytest.raises(CodecError):
             decode_clip(bad)
+
+
+def test_codec_round_trip_of_a_style_of_several_clips():
+    rng = np.random.default_rng(1)
+    rot, root = rng.normal(size=(9, 2, 4)).astype(np.float32), rng.normal(size=(9, 3)).astype(np.float32)
+    stored = StoredClip("sty_y", "three", 30.0, ("hips", "spine"), "rsmt", rot, root, (2, 3, 4))
+    data = encode_clip(stored)
+    assert data.startswith(b"RSMTSTY2") and stored.meta() == {"style_id": "sty_y", "name": "three", "frames": 9,
+                                                              "clips": 3}
+    back = decode_clip(data)
+    assert back.clip_frames == (2, 3, 4) and back.clips == 3
+    parts = back.parts()
+    assert [p[0].shape[0] for p in parts] == [2, 3, 4] and np.array_equal(parts[2][1], root[5:])
+    assert decode_clip(encode_clip(StoredClip("s", "n", 30.0, ("hips",), "m", rot[:, :1], root))).parts()[0][0].shape[0] == 9
+    with pytest.raises(CodecError):
+        encode_clip(StoredClip("sty_y", "three", 30.0, ("hips", "spine"), "rsmt", rot, root, (2, 3, 5)))
+    with pytest.raises(CodecError):  # lengths that do not add up, as read
+        decode_clip(data.replace(b'"clips":[2,3,4]', b'"clips":[2,3,3]'))
 
 
 def test_settings_and_factory(monkeypatch):
@@ -71,7 +90,7 @@ def clip_of(engine: Engine, frames: int = 30, yaw: float = 0.0):
 
 def register(store: RedisStyleStore, owner: str, clip, name: str = "walk") -> tuple[str, bool]:
     style, _ = store.engine.encode_style(clip, name)
-    return style.style_id, store.add(owner, style, clip)
+    return style.style_id, store.add(owner, style, [clip])
 
 
 @pytest.fixture
@@ -122,6 +141,25 @@ def test_redis_store_orders_uses_even_when_the_clock_does_not_move_on(stores, en
     assert [s.style_id for s in one.styles_of(A)] == [ids[0], ids[1]]
     ids.append(register(one, "a", clip_of(engines[0], yaw=20.0))[0])
     assert [s.style_id for s in one.styles_of(A)] == [ids[1], ids[2]] and one.evictions == 1
+
+
+def test_redis_store_keeps_a_style_of_several_clips_for_every_replica(stores, engines):
+    one, two = stores
+    clips = [clip_of(engines[0], frames=30 + 5 * i, yaw=15.0 * i) for i in range(3)]
+    style, _ = encode_style_set(engines[0], clips, "three")
+    assert style.clips == 3 and one.add("a", style, clips) is False
+    meta = one.peek(A, style.style_id)
+    assert meta is not None and (meta.frames, meta.clips, meta.name) == (105, 3, "three")
+    engines[1].styles.delete(style.style_id)  # the second replica never encoded it
+    got = two.get(A, style.style_id)
+    assert got is not None and got.style_id == style.style_id and got.clips == 3 and got.frames == 105
+    assert all(torch.equal(getattr(got.context, k), getattr(style.context, k)) for k in ("keys1", "values2", "gamma1"))
+    # The per-key cap (2) counts clips: this style of three is over it alone, so it stays the one entry, and
+    # registering a one-clip style afterwards leaves that one (1 + 3 > 2).
+    assert [s.style_id for s in one.styles_of(A)] == [style.style_id]
+    single = register(one, "a", clip_of(engines[0], yaw=70.0))[0]
+    assert [s.style_id for s in one.styles_of(A)] == [single] and one.evictions == 1
+    assert one.client.exists(one.prefix + "clip:" + style.style_id) == 0 and one.client.keys(one.prefix + "sizes:*") == []
 
 
 def test_redis_store_ttl(redis_server, engines):

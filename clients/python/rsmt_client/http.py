@@ -10,7 +10,7 @@ for a DELETE) with backoff (:class:`RetryPolicy`), raise
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 import httpx
@@ -136,6 +136,13 @@ class Client(_Settings):
         """
         return self._run(ops.register_style(self._state, motion, name, model))
 
+    def register_style_clips(self, motions: Sequence[Any], name: str | None = None,
+                             model: str | None = None) -> dict[str, Any]:
+        """``POST /v1/styles`` with 1 to 5 clips of one style (each as :meth:`register_style` takes one), encoded
+        together into one style: the same clips in any order get the same ``style_id``, used like any other.
+        Returns ``{"style_id", "name", "frames", "clips", "cached"}``; registered again on ``unknown_style`` too."""
+        return self._run(ops.register_style_clips(self._state, motions, name, model))
+
     def styles(self, model: str | None = None) -> list[dict[str, Any]]:
         return self._run(ops.styles(model))
 
@@ -236,6 +243,10 @@ class AsyncClient(_Settings):
 
     async def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> dict[str, Any]:
         return await self._run(ops.register_style(self._state, motion, name, model))
+
+    async def register_style_clips(self, motions: Sequence[Any], name: str | None = None,
+                                   model: str | None = None) -> dict[str, Any]:
+        return await self._run(ops.register_style_clips(self._state, motions, name, model))
 
     async def styles(self, model: str | None = None) -> list[dict[str, Any]]:
         return await self._run(ops.styles(model))

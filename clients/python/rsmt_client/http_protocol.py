@@ -14,7 +14,7 @@ same by construction::
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Generator, Mapping
+from collections.abc import Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -51,6 +51,7 @@ class Request:
 
 Operation = Generator[Request, httpx.Response, T]
 REMEMBERED_STYLES = 256  # style clips a client keeps to register again (its most recently registered)
+MAX_STYLE_CLIPS = 5  # the most clips one style is registered from (POST /v1/styles, motions)
 
 
 @dataclass
@@ -184,6 +185,22 @@ def register_style(state: ClientState, motion: Any, name: str | None,
                    model_name: str | None) -> Operation[dict[str, Any]]:
     cuts = yield from cutter(state, model_name)
     body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": cuts.style(motion_payload(motion))}
+    if model_name is not None:
+        body["model"] = model_name
+    info = (yield Request("POST", "/v1/styles", json=body)).json()
+    state.remember(model_name, info["style_id"], body)
+    return info
+
+
+def register_style_clips(state: ClientState, motions: Sequence[Any], name: str | None,
+                         model_name: str | None) -> Operation[dict[str, Any]]:
+    """``POST /v1/styles`` with ``motions``: 1 to 5 clips of one style, encoded together into one style (each clip
+    cut to what the model reads, as :func:`register_style` cuts one)."""
+    if not 1 <= len(motions) <= MAX_STYLE_CLIPS:
+        raise ValueError(f"a style is registered from 1 to {MAX_STYLE_CLIPS} clips; got {len(motions)}")
+    cuts = yield from cutter(state, model_name)
+    body: dict[str, Any] = {"name": name or default_style_name(motions[0]),
+                            "motions": [cuts.style(motion_payload(m)) for m in motions]}
     if model_name is not None:
         body["model"] = model_name
     info = (yield Request("POST", "/v1/styles", json=body)).json()

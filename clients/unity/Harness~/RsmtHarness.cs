@@ -391,6 +391,13 @@ static class RsmtHarness
         using (var http = new RsmtHttpClient(url, apiKey))
         {
             style = http.RegisterStyleAsync(styleBvh, "harness-style").Result;
+            if (a.ContainsKey("style2"))  // a style from two clips, registered as one
+            {
+                var multi = http.RegisterStyleClipsAsync(new List<string> { styleBvh, File.ReadAllText(a["style2"]) },
+                                                         "harness-two-clips").Result;
+                output.Append("\"multi\":{\"style_id\":").Append(Json.Quote(multi.StyleId)).Append(",\"clips\":")
+                      .Append(multi.Clips).Append(",\"frames\":").Append(multi.Frames).Append("},");
+            }
         }
         output.Append("\"style_id\":").Append(Json.Quote(style.StyleId));
 

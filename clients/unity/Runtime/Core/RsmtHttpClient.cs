@@ -2,6 +2,7 @@
 // (honouring Retry-After) and 503. System.Net.Http works in the Editor and on desktop/mobile players;
 // in WebGL use UnityWebRequest with the same JSON bodies (RsmtMessages / Json.Quote build them).
 using System;
+using System.Collections.Generic;
 using System.Globalization;
 using System.Net;
 using System.Net.Http;
@@ -15,6 +16,7 @@ namespace Rsmt.Link
         public string StyleId;
         public string Name;
         public int Frames;
+        public int Clips = 1;
         public bool Cached;
     }
 
@@ -95,11 +97,34 @@ namespace Rsmt.Link
             bvhText = Cutter.Style(bvhText);
             string body = "{\"name\":" + Json.Quote(name) + ",\"motion\":" + RsmtMessages.BvhMotion(bvhText) + "}";
             var json = await SendAsync(HttpMethod.Post, "/v1/styles", body).ConfigureAwait(false);
+            return StyleInfo(json, name);
+        }
+
+        /// <summary>POST /v1/styles with 1 to 5 clips of one style, encoded together into one style (the same clips in
+        /// any order get the same id); each clip is cut as RegisterStyleAsync cuts one.</summary>
+        public async Task<RsmtStyleInfo> RegisterStyleClipsAsync(IList<string> bvhTexts, string name)
+        {
+            if (bvhTexts == null || bvhTexts.Count < 1 || bvhTexts.Count > MaxStyleClips)
+                throw new ArgumentException("a style is registered from 1 to " + MaxStyleClips + " clips; got "
+                                            + (bvhTexts == null ? 0 : bvhTexts.Count));
+            if (Cutter == null) Cutter = new RsmtMotionCutter(RsmtMotionLimits.FromModel(await ModelAsync().ConfigureAwait(false)));
+            var motions = new List<string>();
+            foreach (var bvh in bvhTexts) motions.Add(RsmtMessages.BvhMotion(Cutter.Style(bvh)));
+            string body = "{\"name\":" + Json.Quote(name) + ",\"motions\":[" + string.Join(",", motions) + "]}";
+            return StyleInfo(await SendAsync(HttpMethod.Post, "/v1/styles", body).ConfigureAwait(false), name);
+        }
+
+        /// <summary>The most clips one style is registered from.</summary>
+        public const int MaxStyleClips = 5;
+
+        static RsmtStyleInfo StyleInfo(JsonValue json, string name)
+        {
             return new RsmtStyleInfo
             {
                 StyleId = json.GetString("style_id", null),
                 Name = json.GetString("name", name),
                 Frames = json.GetInt("frames", 0),
+                Clips = json.GetInt("clips", 1),
                 Cached = json.GetBool("cached", false),
             };
         }

@@ -198,6 +198,11 @@ static void TestProtocol() {
     CHECK(ParseJson(BuildRetarget("hero", "", 20), v, &err) && v.Find("target") == nullptr && Near(v.NumberOr("frames", 0), 20));
     CHECK(ParseJson(BuildCancel("hero"), v, &err) && v.StringOr("type", "") == "cancel");
     CHECK(ParseJson(BuildPing("p1"), v, &err) && v.StringOr("id", "") == "p1");
+    CHECK(ParseJson(BuildStyleRegistration("two", {BvhMotionJson("A"), BvhMotionJson("B")}), v, &err) &&
+          v.StringOr("name", "") == "two" && v.Find("motions") != nullptr && v.Find("motions")->array.size() == 2 &&
+          v.Find("motions")->array[1].StringOr("bvh", "") == "B" && v.Find("motion") == nullptr);
+    CHECK(BuildStyleRegistration("none", {}).empty());
+    CHECK(BuildStyleRegistration("six", std::vector<std::string>(6, BvhMotionJson("A"))).empty());
     // A layout that does not fit the skeleton is refused.
     Session other;
     std::string wrong = MakeHello(2);
@@ -532,6 +537,16 @@ int main(int argc, char** argv) {
         const std::size_t chunk = argc >= 4 ? static_cast<std::size_t>(std::strtoul(argv[3], nullptr, 10)) : 64;
         return Replay(argv[2], chunk > 0 ? chunk : 64);
     }
-    std::fprintf(stderr, "usage: %s selftest | replay FILE.rec [CHUNK]\n", argv[0]);
+    if (argc >= 4 && std::strcmp(argv[1], "style-body") == 0) {  // the POST /v1/styles body of BVH files
+        std::vector<std::string> motions;
+        for (int i = 3; i < argc; ++i) {
+            std::ifstream in(argv[i], std::ios::binary);
+            motions.push_back(BvhMotionJson(std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>())));
+        }
+        const std::string body = BuildStyleRegistration(argv[2], motions);
+        std::fwrite(body.data(), 1, body.size(), stdout);
+        return body.empty() ? 1 : 0;
+    }
+    std::fprintf(stderr, "usage: %s selftest | replay FILE.rec [CHUNK] | style-body NAME CLIP.bvh...\n", argv[0]);
     return 2;
 }

@@ -338,4 +338,14 @@ std::string BuildPing(const std::string& id) {
     return "{\"type\":\"ping\",\"id\":" + JsonQuote(id) + "}";
 }
 
+std::string BuildStyleRegistration(const std::string& name, const std::vector<std::string>& motionsJson) {
+    if (motionsJson.empty() || motionsJson.size() > kMaxStyleClips) return std::string();
+    std::string s = "{\"name\":" + JsonQuote(name) + ",\"motions\":[";
+    for (std::size_t i = 0; i < motionsJson.size(); ++i) {
+        if (i) s += ',';
+        s += motionsJson[i];
+    }
+    return s + "]}";
+}
+
 }  // namespace rsmt

@@ -155,4 +155,11 @@ RSMTCORE_API std::string BuildStyle(const std::string& character, const std::str
 RSMTCORE_API std::string BuildCancel(const std::string& character);
 RSMTCORE_API std::string BuildPing(const std::string& id);
 
+// ---------------------------------------------------------------- HTTP bodies
+// The most clips one style is registered from (POST /v1/styles, "motions").
+constexpr std::size_t kMaxStyleClips = 5;
+// POST /v1/styles for 1 to kMaxStyleClips clips of one style (Motion payloads: BvhMotionJson / PoseMotionJson),
+// encoded together into one style whose id does not depend on their order; empty when the count is out of range.
+RSMTCORE_API std::string BuildStyleRegistration(const std::string& name, const std::vector<std::string>& motionsJson);
+
 }  // namespace rsmt

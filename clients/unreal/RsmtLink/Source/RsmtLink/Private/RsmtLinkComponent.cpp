@@ -433,6 +433,23 @@ void URsmtLinkComponent::RegisterStyle(const FString& StyleBvh, const FString& N
 	PostStyle("{\"name\":" + rsmt::JsonQuote(ToStd(Name)) + ",\"motion\":" + rsmt::BvhMotionJson(Cuts.Style(ToStd(StyleBvh))) + "}", 0);
 }
 
+void URsmtLinkComponent::RegisterStyleClips(const TArray<FString>& StyleBvhs, const FString& Name)
+{
+	std::vector<std::string> Motions;
+	for (const FString& Bvh : StyleBvhs)
+	{
+		Motions.push_back(rsmt::BvhMotionJson(Cuts.Style(ToStd(Bvh))));
+	}
+	const std::string Body = rsmt::BuildStyleRegistration(ToStd(Name), Motions);
+	if (Body.empty())
+	{
+		OnError.Broadcast(TEXT("validation_error"), FString::Printf(TEXT("a style is registered from 1 to %d clips; got %d"),
+			static_cast<int32>(rsmt::kMaxStyleClips), StyleBvhs.Num()));
+		return;
+	}
+	PostStyle(Body, 0);
+}
+
 // POST /v1/styles; Then (a re-registration after unknown_style) is sent once the style is registered.
 void URsmtLinkComponent::PostStyle(const std::string& Body, int32 Attempt, const std::string& Then)
 {

@@ -96,6 +96,12 @@ public:
 	UFUNCTION(BlueprintCallable, Category = "RSMT")
 	void RegisterStyle(const FString& StyleBvh, const FString& Name);
 	/**
+	 * POST /v1/styles with 1 to 5 BVH clips of one style, encoded together into one style (the same clips in any order
+	 * get the same id); each clip is cut as RegisterStyle cuts one. OnStyleRegistered gives the id, as for one clip.
+	 */
+	UFUNCTION(BlueprintCallable, Category = "RSMT")
+	void RegisterStyleClips(const TArray<FString>& StyleBvhs, const FString& Name);
+	/**
 	 * Start a transition from the context (>= context_frames frames) to the target's last frame, in Frames frames.
 	 * Whole takes are fine: the context is cut to the frames the model reads, the target to its last two.
 	 */
