@@ -28,6 +28,10 @@ from model.nets.pose_state import PoseState
 
 Tensor = torch.Tensor
 
+# Ground coordinates (x, z) to a vector (x, 0, z): one product instead of picking, zeroing and stacking (the
+# frame's steps are bound by per-operation dispatch at batch 1; a product by 0 and 1 adds no rounding).
+GROUND_TO_3D = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
 
 @dataclass
 class StepParts:
@@ -56,7 +60,7 @@ def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int],
     positions ``[N, 3]``, for each row's :class:`CanonicalFrame` ``yaw [N]`` and ``origin [N, 3]``."""
     frame = CanonicalFrame(yaw, origin)
     grot = frame.rotations_from(sixd_to_quat(pose.rot))
-    root_pos = frame.positions_from(pose.positions()[:, root])
+    root_pos = frame.positions_from(pose.rel[:, root] + pose.root_xz @ GROUND_TO_3D)  # pose.positions()[:, root]
     return global_to_local_rotations(grot, parents), root_pos
 
 
@@ -95,9 +99,7 @@ class Frame:
         """Steering's shift this frame in the world ``[N, 3]`` (what of it is left for the steps after, once a
         step took part of it up: :meth:`leave_shift`); None when not steered."""
         if self._world_shift is None and self.shift is not None:
-            shift = self.shift
-            self._world_shift = self.turn.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]),
-                                                                      shift[:, 1]], -1))
+            self._world_shift = self.turn.positions_from(self.shift @ GROUND_TO_3D)
         return self._world_shift
 
     def chains_of(self, kinematics: ChainKinematics) -> tuple[Tensor, Tensor] | None:
