@@ -24,13 +24,9 @@ from model.motion.features import CanonicalFrame
 from model.motion.kinematics import ChainKinematics, feet_kinematics, global_to_local_rotations
 from model.motion.rotations import sixd_to_quat
 from model.motion.skeleton import Skeleton
-from model.nets.pose_state import PoseState
+from model.nets.pose_state import GROUND_TO_3D, PoseState
 
 Tensor = torch.Tensor
-
-# Ground coordinates (x, z) to a vector (x, 0, z): one product instead of picking, zeroing and stacking (the
-# frame's steps are bound by per-operation dispatch at batch 1; a product by 0 and 1 adds no rounding).
-GROUND_TO_3D = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
 @dataclass
