@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import torch
 
-# Element-wise operations whose operands broadcast, with a tensor overload for every scalar one.
-_BINARY = frozenset({"aten::mul", "aten::add", "aten::sub", "aten::div", "aten::rsub", "aten::atan2", "aten::pow",
+# Element-wise operations whose operands broadcast, with a tensor overload for every scalar one (not pow: its
+# scalar overload has its own kernels, which need not round as the tensor one does).
+_BINARY = frozenset({"aten::mul", "aten::add", "aten::sub", "aten::div", "aten::rsub", "aten::atan2",
                      "aten::minimum", "aten::maximum", "aten::__and__", "aten::__or__"})
 _COMPARISONS = frozenset({"aten::lt", "aten::gt", "aten::le", "aten::ge", "aten::eq", "aten::ne"})
 
