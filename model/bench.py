@@ -22,6 +22,9 @@ from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
 
 PAPER_SAMPLER: dict[str, int] = {"width": 512, "rnn": 1024, "head": 1024, "style_channels": 512, "phases": 10, "latent": 32}
+# What the bench times with: the wall clock (what a caller waits), or this process's CPU time (every thread of
+# it), which leaves out the time a loaded machine keeps it waiting for a core (--clock cpu).
+CLOCKS: dict[str, Callable[[], float]] = {"wall": time.perf_counter, "cpu": time.process_time}
 PAPER_MANIFOLD = {"experts": 8, "hidden": 512, "gate_hidden": 128, "encoder_hidden": 512, "phases": 10, "latent": 32}
 
 
@@ -35,22 +38,22 @@ def _rss_mb() -> float:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def machine_probe(seconds: float = 1.0) -> dict[str, float]:
-    """A fixed fp32 matrix product (GFLOP/s) and a 64 MiB memory copy (GB/s) on this machine."""
+def machine_probe(seconds: float = 1.0, clock: Callable[[], float] = time.perf_counter) -> dict[str, float]:
+    """A fixed fp32 matrix product (GFLOP/s) and a 64 MiB memory copy (GB/s) on this machine, timed by ``clock``."""
     a = torch.randn(512, 512)
     b = torch.randn(512, 512)
-    n, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds / 2:
+    n, t0 = 0, clock()
+    while clock() - t0 < seconds / 2:
         a @ b
         n += 1
-    gflops = n * 2 * 512**3 / (time.perf_counter() - t0) / 1e9
+    gflops = n * 2 * 512**3 / (clock() - t0) / 1e9
     src = torch.empty(16 * 2**20)  # 64 MiB of float32
     dst = torch.empty_like(src)
-    n, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds / 2:
+    n, t0 = 0, clock()
+    while clock() - t0 < seconds / 2:
         dst.copy_(src)
         n += 1
-    gbps = n * 2 * src.numel() * 4 / (time.perf_counter() - t0) / 1e9
+    gbps = n * 2 * src.numel() * 4 / (clock() - t0) / 1e9
     return {"matmul_gflops": round(gflops, 1), "memcpy_gbps": round(gbps, 1)}
 
 
@@ -94,20 +97,22 @@ def weight_bytes_per_frame(engine: Engine) -> int:
 
 
 def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8, 32, 128, 512),
-                 latency_frames: int = 300, budget_s: float = 6.0) -> BenchResult:
-    """Measure one engine; each throughput point runs for at most ``budget_s / len(batch_sizes)``."""
+                 latency_frames: int = 300, budget_s: float = 6.0,
+                 clock: Callable[[], float] = time.perf_counter) -> BenchResult:
+    """Measure one engine, timed by ``clock`` (:data:`CLOCKS`); each throughput point runs for at most
+    ``budget_s / len(batch_sizes)`` of it."""
     request = WalkRequest.of(engine)
     res = BenchResult(name, per_frame_parameters(engine.bundle), bytes_per_frame=weight_bytes_per_frame(engine))
     times = []
     for _ in range(5):
         engine.styles.delete(engine.style_id(request.style_clip))
-        t0 = time.perf_counter()
+        t0 = clock()
         style, _ = engine.encode_style(request.style_clip)
-        times.append((time.perf_counter() - t0) * 1000)
+        times.append((clock() - t0) * 1000)
     res.style_encode_ms = round(statistics.median(times), 3)
 
     # Latency: one character, each step timed; new transitions start when one ends.
-    timer = frame_timer(engine, style, request)
+    timer = frame_timer(engine, style, request, clock)
     timer()  # warm
     step_ms = sorted(timer() for _ in range(latency_frames))
     res.latency_ms = {"median": round(statistics.median(step_ms), 3), "p99": round(step_ms[int(0.99 * (len(step_ms) - 1))], 3),
@@ -116,11 +121,11 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
     for n in batch_sizes:
         batch = request.batch(engine, style, n)
         batch.step()
-        steps, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < per_point and steps < request.frames - 1:
+        steps, t0 = 0, clock()
+        while clock() - t0 < per_point and steps < request.frames - 1:
             batch.step()
             steps += 1
-        elapsed = time.perf_counter() - t0
+        elapsed = clock() - t0
         res.throughput[n] = round(n * steps / elapsed, 1) if steps else 0.0
     res.rss_mb = round(_rss_mb(), 1)
     return res
@@ -152,8 +157,9 @@ class WalkRequest:
         return batch
 
 
-def frame_timer(engine: Engine, style: EncodedStyle | None = None, request: WalkRequest | None = None) -> Callable[[], float]:
-    """A function that steps one character by one frame and returns the milliseconds it took; a new
+def frame_timer(engine: Engine, style: EncodedStyle | None = None, request: WalkRequest | None = None,
+                clock: Callable[[], float] = time.perf_counter) -> Callable[[], float]:
+    """A function that steps one character by one frame and returns the milliseconds it took (by ``clock``); a new
     transition (of the longest trained length, on a procedural walk) is prepared, untimed, when one
     ends, and its first frame, which also warms the recurrent core on the context, is timed."""
     request = request or WalkRequest.of(engine)
@@ -165,9 +171,9 @@ def frame_timer(engine: Engine, style: EncodedStyle | None = None, request: Walk
         nonlocal batch
         if not len(batch):
             batch = request.batch(engine, style, 1)
-        t0 = time.perf_counter()
+        t0 = clock()
         batch.step()
-        elapsed = (time.perf_counter() - t0) * 1000
+        elapsed = (clock() - t0) * 1000
         batch.drop_finished()
         return elapsed
 
@@ -192,14 +198,15 @@ class PairedLatency:
                 "blocks": self.blocks, "frames_per_block": self.frames}
 
 
-def paired_latency(first: Engine, second: Engine, blocks: int = 8, frames: int = 40, warm: int = 5) -> PairedLatency:
+def paired_latency(first: Engine, second: Engine, blocks: int = 8, frames: int = 40, warm: int = 5,
+                   clock: Callable[[], float] = time.perf_counter) -> PairedLatency:
     """Batch-1 frame times of two engines, ``blocks`` blocks of ``frames`` timed frames each, the engines
     taking turns (which goes first alternates), each block after ``warm`` untimed frames.
 
     Measured one after the other, two engines see different moments of a shared machine: on a noisy
     2-core container the ratio of separate runs moved from 0.20 to 0.51 in an hour. Taking turns puts the drift on
     both; the warm frames let each refill the caches the other emptied, as in a run of its own."""
-    timers = (frame_timer(first), frame_timer(second))
+    timers = (frame_timer(first, clock=clock), frame_timer(second, clock=clock))
     times: tuple[list[float], list[float]] = ([], [])
     for block in range(blocks):
         for i in ((0, 1) if block % 2 == 0 else (1, 0)):

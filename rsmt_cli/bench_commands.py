@@ -22,6 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=["torch", "onnxruntime", "both"], default="torch",
                    help="what runs the bundle's per-frame graphs (default torch); both: each, side by side, with "
                         "their batch-1 times measured taking turns")
+    p.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                   help="time by the wall clock (default) or by this process's CPU time, which leaves out the "
+                        "time a loaded machine keeps it waiting for a core")
     p.add_argument("--no-paper", action="store_true", help="skip the paper-size network")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON here")
     p.set_defaults(func=_run)
@@ -31,6 +34,7 @@ def _run(args: argparse.Namespace) -> int:
     import torch
 
     from model.bench import (
+        CLOCKS,
         bench_engine,
         format_table,
         machine_description,
@@ -48,18 +52,22 @@ def _run(args: argparse.Namespace) -> int:
     sizes = tuple(int(x) for x in args.batch_sizes.split(",") if x.strip())
     path = args.model or DEFAULT_BUNDLE
     bundle = Bundle.load(path)
-    probe = machine_probe()
+    clock = CLOCKS[args.clock]
+    probe = machine_probe(clock=clock)
     backends = ["torch", "onnxruntime"] if args.backend == "both" else [args.backend]
     engines = [with_backend(Engine(bundle, overrides=output_overrides(args)), b) for b in backends]
-    results = [bench_engine(engine, engine_label(engine, path), sizes, budget_s=args.budget) for engine in engines]
+    results = [bench_engine(engine, engine_label(engine, path), sizes, budget_s=args.budget, clock=clock)
+               for engine in engines]
     paired: dict[str, Any] = {}
     if not args.no_paper:
         paper = paper_size_engine(bundle)
-        results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget))
+        results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget, clock=clock))
         for backend, engine in zip(backends, engines):
-            paired[f"{backend}_vs_paper"] = paired_latency(engine, paper)
+            paired[f"{backend}_vs_paper"] = paired_latency(engine, paper, clock=clock)
     if len(engines) == 2:
-        paired["torch_vs_onnxruntime"] = paired_latency(engines[0], engines[1])
+        paired["torch_vs_onnxruntime"] = paired_latency(engines[0], engines[1], clock=clock)
+    if args.clock == "cpu":
+        print("Times are this process's CPU time (--clock cpu), not the wall clock.")
     print(format_table(results, probe))
     for key, pair in paired.items():
         first, second = key.split("_vs_")
@@ -70,7 +78,7 @@ def _run(args: argparse.Namespace) -> int:
         if one:
             rates = ", ".join(f"{n} characters {v / one:.1f}x" for n, v in sorted(r.throughput.items()) if n > 1)
             print(f"{r.name}: {rates} one character's rate.")
-    report = {"machine": machine_description(), "probe": probe, "results": [r.to_dict() for r in results],
+    report = {"machine": machine_description(), "clock": args.clock, "probe": probe, "results": [r.to_dict() for r in results],
               "paired_batch1": {k: v.to_dict() for k, v in paired.items()} or None,
               "seconds": round(time.monotonic() - began, 1)}
     print(f"\nfinished in {report['seconds']} s")

@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import torch
 
+from model.inference.graph_constants import dimensioned_constants
 from model.inference.output.pipeline import FrameSteps
 from model.inference.output.steering import SteeringConfig, steer
 from model.motion.features import FacingChains
@@ -188,7 +189,9 @@ def _trace(module: torch.nn.Module, args: tuple[Tensor, ...]) -> torch.jit.Scrip
             # torch 2.13 marks jit.trace deprecated in favour of torch.compile/export; it still
             # works, and compile needs a long C++ build at start-up that a 2-core server pays badly.
             warnings.simplefilter("ignore", DeprecationWarning)
-            return torch.jit.freeze(torch.jit.trace(module.eval(), args, check_trace=False))
+            traced = torch.jit.trace(module.eval(), args, check_trace=False)
+            dimensioned_constants(traced.graph)  # while the traced graph still knows every value's dimensions
+            return torch.jit.freeze(traced)
     except Exception as exc:  # noqa: BLE001 - any tracing failure falls back to eager
         log.warning("tracing %s failed (%s); using eager", type(module).__name__, exc)
         return None

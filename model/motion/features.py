@@ -123,6 +123,10 @@ class CanonicalFrame:
         q = _expand(self._quat(False), p.dim())
         return quat_rotate(q, p) + _expand(self.origin, p.dim())
 
+    def vectors_from(self, v: Tensor) -> Tensor:
+        """Canonical vectors ``[..., *, 3]`` (velocities, displacements) in the world: turned, not moved."""
+        return quat_rotate(_expand(self._quat(False), v.dim()), v)
+
     def rotations_to(self, r: Tensor) -> Tensor:
         """World rotations ``[..., *, 4]`` into the canonical frame."""
         return quat_mul(_expand(self._quat(True), r.dim()), r)

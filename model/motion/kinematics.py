@@ -71,9 +71,9 @@ def forward_kinematics(
 
 
 class ChainKinematics:
-    """Forward kinematics of only the joints on the way from the root to some ``ends``, a depth level
-    at a time: every joint of a level goes through one rotation and one product, so both legs of a
-    rig cost what one did (at batch 1 the joint-by-joint form is bound by per-operation dispatch).
+    """Forward kinematics of only the joints on the way from the root to some ``ends``: the world rotations
+    a depth level at a time (every joint of a level in one product), then every position in one pass, so both
+    legs of a rig cost what one did (at batch 1 the joint-by-joint form is bound by per-operation dispatch).
 
     :attr:`joints` lists the joints computed, root first, a level after another; the results are
     in that order and :meth:`columns` finds joints in it.
@@ -91,11 +91,23 @@ class ChainKinematics:
         levels = [sorted(j for j, d in depth.items() if d == level) for level in range(max(depth.values(), default=0) + 1)]
         self.joints: tuple[int, ...] = tuple(j for level in levels for j in level)
         self._column = {j: i for i, j in enumerate(self.joints)}  # where each joint is in the results
-        # Per level below the root: its joints, where their parents are in the level above, their offsets
-        # (copied outside inference mode, so autograd may use them whatever mode this object was made in).
+        # Per level below the root: its joints and where their parents are in the level above. For the
+        # positions, computed at once from the world rotations: each joint's parent's column (the root's own,
+        # with a zero offset), the offsets in the results' order, and which joints lie on the way from the root
+        # to each (``ways[k, m]`` is 1 where joint ``m`` is on the way to ``k``, the root excluded). Tensors are
+        # made outside inference mode, so autograd may use them whatever mode this object was made in.
+        parent_column = [0] + [self._column[parents[j]] for j in self.joints[1:]]
+        ways = [[0.0] * len(self.joints) for _ in self.joints]
+        for k, j in enumerate(self.joints):
+            while parents[j] >= 0:
+                ways[k][self._column[j]] = 1.0
+                j = parents[j]
         with torch.inference_mode(False):
-            self._levels = [(level, [levels[i - 1].index(parents[j]) for j in level], offsets[level].clone())
+            self._levels = [(level, [levels[i - 1].index(parents[j]) for j in level])
                             for i, level in enumerate(levels) if i > 0]
+            self._parent_column = torch.tensor(parent_column, dtype=torch.long)
+            self._offsets = torch.cat([torch.zeros_like(offsets[:1]), offsets[list(self.joints[1:])]])
+            self._ways = torch.tensor(ways, dtype=offsets.dtype)
 
     def pick(self, results: Tensor, joints: Sequence[int]) -> Tensor:
         """The rows of ``joints`` (``[..., len(joints), C]``) from results ``[..., K, C]`` of this object."""
@@ -111,21 +123,22 @@ class ChainKinematics:
     def __call__(self, local_rotations: Tensor, root_positions: Tensor) -> tuple[Tensor, Tensor]:
         """World ``(positions [..., K, 3], rotations [..., K, 4])`` of :attr:`joints`, from local
         rotations ``[..., J, 4]`` of the whole skeleton and ``root_positions [..., 3]``."""
-        pos, rot = root_positions.unsqueeze(-2), local_rotations[..., :1, :]
-        positions, rotations = [pos], [rot]
-        for joints, up, offsets in self._levels:
-            if up == list(range(pos.shape[-2])):  # each joint of the level above has one child here: no gather
-                pass
-            elif pos.shape[-2] == 1:  # all children of the one joint above (the root's legs): a view, not a copy
-                pos, rot = pos.expand(*pos.shape[:-2], len(up), 3), rot.expand(*rot.shape[:-2], len(up), 4)
+        rot = local_rotations[..., :1, :]
+        rotations = [rot]
+        for joints, up in self._levels:
+            if up == list(range(rot.shape[-2])) or rot.shape[-2] == 1:  # no gather: one child each, or the root's
+                pass  # (quat_mul broadcasts the root's rotation over its children)
             else:
-                index = constant_index(up, pos.device)
-                pos, rot = pos.index_select(-2, index), rot.index_select(-2, index)
-            pos = pos + quat_rotate(rot, offsets.to(pos.dtype).expand_as(pos))
+                rot = rot.index_select(-2, constant_index(up, rot.device))
             rot = quat_mul(rot, local_rotations.index_select(-2, constant_index(joints, local_rotations.device)))
-            positions.append(pos)
             rotations.append(rot)
-        return torch.cat(positions, dim=-2), torch.cat(rotations, dim=-2)
+        world = torch.cat(rotations, dim=-2)
+        # Each bone turned by its parent's world rotation in one pass, then summed along the way to each joint
+        # (one product with the 0/1 matrix of the ways): at batch 1 a level at a time is bound by dispatch.
+        dtype, device = world.dtype, world.device
+        offsets = self._offsets.to(device, dtype).expand(*world.shape[:-1], 3)
+        bones = quat_rotate(world.index_select(-2, self._parent_column.to(device)), offsets)
+        return root_positions.unsqueeze(-2) + self._ways.to(device, dtype) @ bones, world
 
 
 def feet_kinematics(skeleton: Skeleton) -> ChainKinematics:

@@ -14,7 +14,6 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from model.motion.rotations import sixd_normalize
 from model.nets.pose_state import PoseState, integrate, state_dim
 
 Tensor = torch.Tensor
@@ -95,9 +94,7 @@ class ManifoldDecoder(nn.Module):
         vel, drot = self(state.vector(), root_velocity, root_rot6d, z, phase)
         r = self.config.root
         vel = torch.cat([vel[:, :r], root_velocity.unsqueeze(1), vel[:, r + 1 :]], dim=1)
-        nxt = integrate(state, vel, drot, root=r)
-        rot = torch.cat([nxt.rot[:, :r], sixd_normalize(root_rot6d).unsqueeze(1), nxt.rot[:, r + 1 :]], dim=1)
-        return PoseState(nxt.rel, nxt.vel, rot, nxt.root_xz)
+        return integrate(state, vel, drot, root=r, root_rotation=root_rot6d)
 
 
 class ManifoldEncoder(nn.Module):

@@ -70,6 +70,11 @@ class PoseState:
 
 _FIELDS = ("rel", "vel", "rot", "root_xz")
 
+# Ground coordinates (x, z) to a vector (x, 0, z) by one product, ``xz @ GROUND_TO_3D``: on the per-frame path at
+# batch 1 (bound by per-operation dispatch) it replaces picking, zeroing and stacking; products by 0 and 1 add no
+# rounding.
+GROUND_TO_3D = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
 
 def state_dim(num_joints: int) -> int:
     return num_joints * 12
@@ -87,14 +92,20 @@ def state_from_positions(positions: Tensor, rotations_6d: Tensor, root: int = 0)
     return PoseState(positions - ground.unsqueeze(-2), vel, rotations_6d, root_xz)
 
 
-def integrate(state: PoseState, velocity: Tensor, rotation_delta: Tensor, root: int = 0) -> PoseState:
-    """The next frame: joints move by ``velocity [..., J, 3]``; rotations change by a 6D delta.
+def integrate(state: PoseState, velocity: Tensor, rotation_delta: Tensor, root: int = 0,
+              root_rotation: Tensor | None = None) -> PoseState:
+    """The next frame: joints move by ``velocity [..., J, 3]``; rotations change by a 6D delta, except the
+    root's where ``root_rotation [..., 6]`` imposes it.
 
     Rotations are re-orthonormalised every step (the paper adds 6D deltas and lets them drift off
-    the rotation manifold until a post-process; we never leave it).
+    the rotation manifold until a post-process; we never leave it), the imposed root's with the others
+    (one pass for all joints: the per-frame path is bound by per-operation dispatch at batch 1).
     """
     pos = state.positions() + velocity
-    rot = sixd_normalize(state.rot + rotation_delta)
+    rot = state.rot + rotation_delta
+    if root_rotation is not None:
+        rot = torch.cat([rot[..., :root, :], root_rotation.unsqueeze(-2), rot[..., root + 1 :, :]], dim=-2)
+    rot = sixd_normalize(rot)
     root_xz = pos[..., root, ::2]  # x, z (a view of pos, which nothing else holds)
     ground = torch.stack([root_xz[..., 0], torch.zeros_like(root_xz[..., 0]), root_xz[..., 1]], dim=-1)
     return PoseState(pos - ground.unsqueeze(-2), velocity, rot, root_xz)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import cast
 
+import pytest
+
 from model.bench import BenchResult, bench_engine, format_table, machine_probe, paired_latency, per_frame_parameters
 from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
@@ -74,3 +76,31 @@ def test_the_memory_floor_counts_the_bytes_each_backend_reads():
     res = BenchResult("tiny", per_frame_parameters(bundle), latency_ms={"median": 1.0, "p99": 1.0}, bytes_per_frame=float32)
     assert abs(res.floor_ms({"memcpy_gbps": 10.0, "matmul_gflops": 1.0}) - float32 / 1e10 * 1e3) < 1e-12
     assert "memory floor ms" in format_table([res], {"memcpy_gbps": 10.0, "matmul_gflops": 1.0})
+
+
+def test_the_bench_times_frames_by_the_clock_it_is_given():
+    cfg = SamplerConfig(joints=21, phases=4, latent=8, width=32, rnn=32, head=32, style_channels=32, max_transition=20)
+    man = ManifoldConfig(joints=21, phases=4, latent=8, experts=2, hidden=32, gate_hidden=16, encoder_hidden=32)
+    engine = Engine(Bundle.create(synthetic_skeleton(), cfg, man))
+    ticks = iter(range(10**9))
+
+    def clock() -> float:  # a clock a millisecond on at every reading: every timed span reads 1 ms
+        return next(ticks) / 1000
+
+    res = bench_engine(engine, "tiny", batch_sizes=(1,), latency_frames=20, budget_s=0.5, clock=clock)
+    assert res.latency_ms == {"median": 1.0, "p99": 1.0, "mean": 1.0} and res.style_encode_ms == 1.0
+    paired = paired_latency(engine, engine, blocks=2, frames=3, warm=1, clock=clock)
+    assert paired.first_ms == paired.second_ms == 1.0
+
+
+@pytest.mark.slow  # benches the default bundle
+def test_bench_cli_times_by_cpu_time_on_request(tmp_path, capsys):
+    import json
+
+    from rsmt_cli.main import main
+
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--no-paper", "--clock", "cpu", "--batch-sizes", "1", "--budget", "0.2", "--json", str(out)]) == 0
+    assert "CPU time (--clock cpu)" in capsys.readouterr().out
+    report = json.loads(out.read_text())
+    assert report["clock"] == "cpu" and report["results"][0]["latency_ms"]["median"] > 0

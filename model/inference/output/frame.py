@@ -24,7 +24,7 @@ from model.motion.features import CanonicalFrame
 from model.motion.kinematics import ChainKinematics, feet_kinematics, global_to_local_rotations
 from model.motion.rotations import sixd_to_quat
 from model.motion.skeleton import Skeleton
-from model.nets.pose_state import PoseState
+from model.nets.pose_state import GROUND_TO_3D, PoseState
 
 Tensor = torch.Tensor
 
@@ -51,12 +51,11 @@ class StepParts:
         return self._legs
 
 
-def world_pose(pose: PoseState, yaw: Tensor, origin: Tensor, parents: list[int], root: int) -> tuple[Tensor, Tensor]:
+def world_pose(pose: PoseState, frame: CanonicalFrame, parents: list[int], root: int) -> tuple[Tensor, Tensor]:
     """A generated pose (canonical frame) in world space: local quaternions ``[N, J, 4]`` and root
-    positions ``[N, 3]``, for each row's :class:`CanonicalFrame` ``yaw [N]`` and ``origin [N, 3]``."""
-    frame = CanonicalFrame(yaw, origin)
+    positions ``[N, 3]``, for each row's :class:`CanonicalFrame` (``yaw [N]``, ``origin [N, 3]``)."""
     grot = frame.rotations_from(sixd_to_quat(pose.rot))
-    root_pos = frame.positions_from(pose.positions()[:, root])
+    root_pos = frame.positions_from(pose.rel[:, root] + pose.root_xz @ GROUND_TO_3D)  # pose.positions()[:, root]
     return global_to_local_rotations(grot, parents), root_pos
 
 
@@ -77,27 +76,18 @@ class Frame:
         self.eager = eager
         self.pose, self.yaw, self.origin, self.remaining, self.shift, self.root_joint = (
             pose, yaw, origin, remaining, shift, root)
-        self.local, self.root = world_pose(pose, yaw, origin, parents, root)
+        self.world = CanonicalFrame(yaw, origin)  # each row's
+        self.local, self.root = world_pose(pose, self.world, parents, root)
         self.chains: tuple[Tensor, Tensor] | None = None
         self.chains_by: ChainKinematics | None = None
         self.ankle_moves: Tensor | None = None
-        self._turn: CanonicalFrame | None = None
         self._world_shift: Tensor | None = None
-
-    @property
-    def turn(self) -> CanonicalFrame:
-        """Each row's canonical frame turned to the world, about the origin (for vectors)."""
-        if self._turn is None:
-            self._turn = CanonicalFrame(self.yaw, torch.zeros_like(self.origin))
-        return self._turn
 
     def world_shift(self) -> Tensor | None:
         """Steering's shift this frame in the world ``[N, 3]`` (what of it is left for the steps after, once a
         step took part of it up: :meth:`leave_shift`); None when not steered."""
         if self._world_shift is None and self.shift is not None:
-            shift = self.shift
-            self._world_shift = self.turn.positions_from(torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]),
-                                                                      shift[:, 1]], -1))
+            self._world_shift = self.world.vectors_from(self.shift @ GROUND_TO_3D)
         return self._world_shift
 
     def chains_of(self, kinematics: ChainKinematics) -> tuple[Tensor, Tensor] | None:

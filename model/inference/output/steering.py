@@ -44,7 +44,7 @@ import torch
 from model.inference.output.arrival import arrival_weight
 from model.motion.features import FacingChains
 from model.motion.rotations import quat_rotate, yaw_quat
-from model.nets.pose_state import PoseState
+from model.nets.pose_state import GROUND_TO_3D, PoseState
 from model.nets.sampler import SamplerState
 
 Tensor = torch.Tensor
@@ -107,6 +107,9 @@ class SteeringConfig:
         return cls(**data)
 
 
+_UP = torch.tensor([0.0, 1.0, 0.0])
+
+
 def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Tensor:
     """The ground shift ``[N, 2]`` (x, z in the canonical frame) steering gives each row of ``state``,
     a state just stepped (its ``tta`` counts the frames after the one it holds)."""
@@ -123,7 +126,7 @@ def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Te
 def shifted(state: SamplerState, shift: Tensor) -> SamplerState:
     """``state`` with every row's body moved on the ground by ``shift [N, 2]`` (positions and velocities)."""
     pose = state.pose
-    ground = torch.stack([shift[:, 0], torch.zeros_like(shift[:, 0]), shift[:, 1]], dim=-1)
+    ground = shift @ GROUND_TO_3D  # (x, 0, z)
     return replace(state, pose=PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift))
 
 
@@ -174,7 +177,7 @@ def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | N
         rel, vel, c1, c2 = quat_rotate(yaw_quat(turn).unsqueeze(-2), vectors).chunk(4, dim=-2)
         rot = torch.cat([c1, c2], dim=-1)
     if rise is not None:
-        up = torch.stack([torch.zeros_like(rise), rise, torch.zeros_like(rise)], dim=-1).unsqueeze(1)
+        up = (rise.unsqueeze(-1) * _UP).unsqueeze(1)  # (0, rise, 0)
         rel, vel = rel + up, vel + up
     return replace(state, pose=PoseState(rel, vel, rot, pose.root_xz))
 

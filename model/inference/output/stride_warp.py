@@ -148,7 +148,7 @@ class StrideWarpStep:
             new.update({k: memory[k] for k in self.MEMORY_KEYS})
             return
         # The network's own root velocity: its state's, less the shift steering added to it.
-        velocity = frame.turn.positions_from(frame.pose.vel[:, frame.root_joint]) - shift
+        velocity = frame.world.vectors_from(frame.pose.vel[:, frame.root_joint]) - shift
         own = {k: memory[k] for k in self.MEMORY_KEYS}
         legs = self.warp.legs
         if self.lock_follows:

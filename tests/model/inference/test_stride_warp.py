@@ -15,6 +15,7 @@ from model.inference.output.pipeline import FrameSteps
 from model.inference.output.settings import OutputConfig
 from model.inference.output.stride_warp import StrideWarp, StrideWarpConfig, StrideWarpStep
 from model.inference.traced_step import CompiledFrameOutput
+from model.motion.features import CanonicalFrame
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_to_sixd
 from model.nets.pose_state import state_from_positions
@@ -167,7 +168,8 @@ def test_with_the_lock_the_legs_are_solved_once_for_what_warp_then_lock_give():
         pose = states.index((slice(None), t))
         one, _, mem = output(pose, torch.zeros(1), torch.zeros(1, 3), remaining, mem, eager=False, shift=shift2)
         velocity = pose.vel[:, sk.roles.root] - shift3
-        local, world_root = world_pose(pose, torch.zeros(1), torch.zeros(1, 3), list(sk.parents), sk.roles.root)
+        local, world_root = world_pose(pose, CanonicalFrame(torch.zeros(1), torch.zeros(1, 3)), list(sk.parents),
+                                       sk.roles.root)
         warped, left, warp_mem = warp.apply(local, world_root, remaining, velocity, shift3, warp_mem)
         two, lock_state = lock.apply(warped, world_root, remaining, lock_state, skip_idle=False, shift=left)
         assert torch.allclose(one, two, atol=1e-3)  # acos in the IK magnifies rounding near a straight leg
