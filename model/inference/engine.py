@@ -22,6 +22,7 @@ from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFra
 from model.inference.int8_step import int8_lstm_sampler
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.overrides import Overrides
+from model.inference.reach import Reach, ground_distance, reach_of
 from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep
 from model.motion.clip import Clip
@@ -71,6 +72,7 @@ class Engine:
         self.step_fn = self.weight_sets[""].step_fn
         self.output_fn = CompiledFrameOutput(self.pipeline.frame, traced=compiled)
         self._ids = itertools.count()
+        self.gait_limits = bundle.gait_limits  # the capture's speed per style (None: the root is not capped)
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
         """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with an int8
@@ -109,6 +111,23 @@ class Engine:
     @property
     def version(self) -> str:
         return self.bundle.version
+
+    def max_speed(self, style: EncodedStyle) -> float | None:
+        """The most the root of a character of ``style`` moves on the ground (cm/s): its built-in style's capture
+        maximum, the largest of them for a style registered from a clip; None where the bundle has no gait limits."""
+        return None if self.gait_limits is None else self.gait_limits.max_speed(style.gait or None)
+
+    def _limit(self, ch: Character, root_xz: Tensor, target_pos: Tensor, frames: int) -> None:
+        """Set ``ch``'s speed cap from its style and its reach notice for a target ``frames`` frames away."""
+        speed = self.max_speed(ch.style)
+        if speed is None:
+            ch.speed_cap, ch.reach = float("inf"), None
+            return
+        ch.speed_cap = speed / self.config.fps
+        distance = ground_distance(root_xz, target_pos, self.skeleton.roles.root)
+        ch.reach = reach_of(distance, frames, speed, self.config.fps)
+        if ch.arrival is not None:  # an exact arrival out of reach would drag the body there: it arrives short
+            ch.arrival.out_of_reach = not ch.reach.feasible
 
     # ------------------------------------------------------------------ input
     def conform(self, clip: Clip, what: str = "motion") -> Clip:
@@ -206,10 +225,12 @@ class Engine:
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
-        return Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
-                         retargeted=retargeted, frame=frame, arrival=arrival,
-                         memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions),
-                         prepared=PreparedStart(cstate, tstate, frames, noise, known))
+        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
+                       retargeted=retargeted, frame=frame, arrival=arrival,
+                       memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions),
+                       prepared=PreparedStart(cstate, tstate, frames, noise, known))
+        self._limit(ch, cstate.root_xz[:, -1], tstate.positions(), frames)
+        return ch
 
     @torch.inference_mode()
     def begin(self, characters: list[Character]) -> SamplerState:
@@ -247,8 +268,9 @@ class Engine:
         return state_from_positions(pos, rot6, self.skeleton.roles.root).index((slice(None), 1)), known
 
     def retarget(self, ch: Character, batch: CharacterBatch | None = None, target: Clip | None = None,
-                 frames: int | None = None) -> None:
-        """Change where and/or when a live character arrives, from its next frame on."""
+                 frames: int | None = None) -> Reach | None:
+        """Change where and/or when a live character arrives, from its next frame on; returns its reach notice
+        from where it now stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
         if frames is not None and not 1 <= frames <= self.max_frames:
             raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
         if batch is None and ch.row is None:
@@ -271,9 +293,14 @@ class Engine:
             ch.frames_total = ch.seq + frames
         if batch is not None:
             batch.update_row(ch, updates)
+            row = batch.row_of(ch)
         else:
             for k, v in updates.items():
                 setattr(ch.row, k, v)
+            assert ch.row is not None
+            row = ch.row
+        self._limit(ch, row.pose.root_xz, row.target_pos, ch.remaining)
+        return ch.reach
 
     @torch.inference_mode()
     def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:
@@ -281,8 +308,10 @@ class Engine:
         on other weights re-encodes the target by them; the recurrent state carries over."""
         if batch is not None:
             batch.set_style(ch, style)
-            return
-        restyle_held(ch, style, self.weights(style.weights))  # an unknown weight set fails before anything changes
+        else:
+            restyle_held(ch, style, self.weights(style.weights))  # an unknown weight set fails before anything changes
+        speed = self.max_speed(style)
+        ch.speed_cap = float("inf") if speed is None else speed / self.config.fps
 
     def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
         """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""

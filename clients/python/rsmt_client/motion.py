@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from rsmt_client.bvh import POSITION_CHANNELS, BvhFile, BvhJoint, read_text
+from rsmt_client.reach import Reach
 from rsmt_client.quaternions import (
     check_order,
     euler_to_quat,
@@ -86,6 +87,7 @@ class Poses:
     style_id: str | None = None
     model: str | None = None
     timing_ms: dict[str, float] = field(default_factory=dict)
+    reach: Reach | None = None  # whether the target was within reach (rsmt_client.reach; None: not said)
 
     def __post_init__(self) -> None:
         self.root_positions = np.asarray(self.root_positions, dtype=np.float32).reshape(-1, 3)
