@@ -79,6 +79,9 @@ class Character:
     # whether its target is within that reach (model.inference.reach; None: the bundle has no gait limits).
     speed_cap: float = math.inf
     reach: Reach | None = None
+    # Its target's state in its canonical frame and whether its velocity is known, as asked (the network may aim
+    # nearer where it is out of reach: model.inference.engine.Engine._limit).
+    goal: tuple[PoseState, bool] | None = field(default=None, repr=False)
 
     def replica(self, character_id: str, style: EncodedStyle | None = None) -> Character:
         """Another character in this one's place (its prepared start or its state shared, never mutated by

@@ -141,6 +141,19 @@ class CharacterBatch:
         for k, v in updates.items():
             getattr(self._state, k)[i : i + 1] = v
 
+    @torch.inference_mode()
+    def set_memory(self, ch: Character, key: str, value: Tensor) -> None:
+        """Set a row ``key`` of a character's output memory (``value [1, ...]``), in the batch or on the character
+        (a key the output steps do not keep is left alone)."""
+        self._sync()
+        if ch in self.members:
+            assert self._memory is not None
+            if key in self._memory:
+                i = self.members.index(ch)
+                self._memory[key][i : i + 1] = value
+        elif ch.memory is not None and key in ch.memory:
+            ch.memory[key] = value
+
     def remove(self, ch: Character) -> None:
         if ch in self._pending:
             self._pending.remove(ch)

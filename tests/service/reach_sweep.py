@@ -102,9 +102,9 @@ class GaitFigures:
 def gait_figures(skeleton: Skeleton, pos: np.ndarray, fps: float) -> GaitFigures:
     """:class:`GaitFigures` of positions ``[T, J, 3]`` (toes' rest height: the rig's, :data:`gait.TOE_REST_CM`)."""
     toes = list(gait.toe_joints(skeleton))
-    up = (pos[:, toes, 1] - gait.TOE_REST_CM > gait.AIRBORNE_CM).all(-1)
+    up: np.ndarray = np.asarray((pos[:, toes, 1] - gait.TOE_REST_CM > gait.AIRBORNE_CM).all(-1))
     longest = run = 0
-    for flag in up:
+    for flag in up.tolist():
         run = run + 1 if flag else 0
         longest = max(longest, run)
     root = pos[:, skeleton.roles.root]

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from rsmt_client.bvh import POSITION_CHANNELS, BvhFile, BvhJoint, read_text
-from rsmt_client.reach import Reach
 from rsmt_client.quaternions import (
     check_order,
     euler_to_quat,
@@ -26,6 +25,7 @@ from rsmt_client.quaternions import (
     quat_slerp,
     quat_to_euler,
 )
+from rsmt_client.reach import Reach
 
 
 def read_bvh(path: str | Path) -> str:

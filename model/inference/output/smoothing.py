@@ -12,14 +12,15 @@ network's own and the filter's lag (``a / (1 - a)`` frames) is gone by the time 
 reached. The first frame blends with the last context frame, so the seam stays continuous.
 
 Letting the lag go speeds the root up: a root moving at ``v`` trails its network by ``a v / (1 - a)``,
-made up over the last frames on top of ``v``. So the root's ground step is never longer than the longest
-step the network's root has made (:func:`within_top_step`): a root the speed cap keeps within the style's
-capture maximum (:mod:`model.inference.output.speed_cap`) is not sped past it here, and where the network
-stops at once the lag is made up at the network's own top speed, a frame or two late.
+made up over the last frames on top of ``v``. So a character with a speed cap (its style's capture maximum,
+:mod:`model.inference.output.speed_cap`; kept in this step's memory) never has its root's ground step made
+longer than that cap here (:func:`within_cap`): where the lag cannot be made up within it, the root arrives
+that much late. A character without a cap is filtered as above.
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import torch
@@ -30,6 +31,7 @@ from model.motion.rotations import quat_normalize
 Tensor = torch.Tensor
 
 DEFAULT_FADE = 5
+SPEED_CAP = "speed_cap"  # the memory row of a character's speed cap (cm a frame on the ground; inf: none)
 
 
 def smoothing_weight(strength: float, remaining: Tensor, fade: int = DEFAULT_FADE) -> Tensor:
@@ -39,17 +41,15 @@ def smoothing_weight(strength: float, remaining: Tensor, fade: int = DEFAULT_FAD
     return strength * (remaining.float() / fade).clamp(0.0, 1.0)
 
 
-def within_top_step(root: Tensor, previous: Tensor, raw: Tensor, previous_raw: Tensor,
-                    top: Tensor) -> tuple[Tensor, Tensor]:
-    """``root [N, 3]`` (emitted after ``previous``) with its ground step from ``previous`` no longer than the
-    longest ground step of the unfiltered root so far (``top [N]``, this frame's ``raw - previous_raw`` included),
-    and that longest step."""
-    top = torch.maximum(top, (raw - previous_raw)[:, ::2].norm(dim=-1))
+def within_cap(root: Tensor, previous: Tensor, cap: Tensor) -> Tensor:
+    """``root [N, 3]`` (emitted after ``previous``) with its ground step from ``previous`` no longer than ``cap [N]``
+    (cm; ``inf``: as it is); its height as it is."""
     step = root - previous
     length = step[:, ::2].norm(dim=-1)
-    scale = torch.where(length > top, top / length.clamp_min(1e-6), torch.ones_like(length)).unsqueeze(-1)
+    over = length > cap
+    scale = torch.where(over, cap / length.clamp_min(1e-6), torch.ones_like(length)).unsqueeze(-1)
     ground = torch.tensor([1.0, 0.0, 1.0], dtype=root.dtype)
-    return previous + step * (ground * scale + (1.0 - ground)), top
+    return torch.where(over.unsqueeze(-1), previous + step * (ground * scale + (1.0 - ground)), root)  # bits kept
 
 
 def smooth_frame(rotations: Tensor, roots: Tensor, previous_rotations: Tensor, previous_roots: Tensor,
@@ -74,7 +74,7 @@ class Smoothing:
     """The filter as a frame step (:mod:`model.inference.output.frame`): its memory is the previous emitted
     frame, remembered before the later steps (and exact arrival) bend it, so the filter follows the network."""
 
-    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root", "prev_raw_root", "raw_top_step")
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root", "speed_cap")
 
     def __init__(self, strength: float, root_strength: float) -> None:
         self.strength, self.root_strength = strength, root_strength
@@ -85,16 +85,13 @@ class Smoothing:
         return cls(out.smoothing, out.root_strength) if out.smooths else None
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
-        """The last context frame: the first generated frame blends with it, so the seam stays continuous; the
-        longest step counts the generated frames only (the context may be faster than the style's cap)."""
-        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:], "prev_raw_root": roots[-1:],
-                "raw_top_step": roots.new_zeros(1)}
+        """The last context frame: the first generated frame blends with it, so the seam stays continuous; no
+        speed cap (the engine sets a character's: :data:`SPEED_CAP`)."""
+        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:], SPEED_CAP: torch.full((1,), math.inf)}
 
     def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
         fade = smoothing_weight(1.0, frame.remaining)
-        raw = frame.root
-        frame.local, root = smooth_frame(frame.local, raw, memory["prev_rot"], memory["prev_root"],
+        frame.local, root = smooth_frame(frame.local, frame.root, memory["prev_rot"], memory["prev_root"],
                                          self.strength * fade, self.root_strength * fade)
-        frame.root, new["raw_top_step"] = within_top_step(root, memory["prev_root"], raw, memory["prev_raw_root"],
-                                                          memory["raw_top_step"])
-        new["prev_rot"], new["prev_root"], new["prev_raw_root"] = frame.local, frame.root, raw
+        frame.root = within_cap(root, memory["prev_root"], memory[SPEED_CAP])
+        new["prev_rot"], new["prev_root"], new[SPEED_CAP] = frame.local, frame.root, memory[SPEED_CAP]

@@ -102,7 +102,7 @@ def test_traced_output_matches_eager_at_any_batch():
 
     def memory(rows: slice) -> dict[str, torch.Tensor]:
         starts = [lock.start(rot[:10, i], root[:10, i]) for i in range(3)[rows]]
-        mem = {"prev_rot": rot[9, rows], "prev_root": root[9, rows]}
+        mem = {"prev_rot": rot[9, rows], "prev_root": root[9, rows], "speed_cap": torch.full((len(range(3)[rows]),), 4.0)}
         mem.update({k: torch.cat([s.memory()[k] for s in starts]) for k in FootLockState.MEMORY_KEYS})
         return mem
 
