@@ -2,7 +2,8 @@
 
 Only real takes are read (the cache holds no mirrored or time-rescaled copies: those are made in training),
 and only the train split, the takes the model learnt from. The hips are the rig's root joint; speeds are
-horizontal, frame to frame at the cache's rate.
+horizontal, frame to frame at the cache's rate; the feet's lift is read on the takes' joint positions
+(forward kinematics).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import torch
 from model.data.preprocessed import MotionCache, load_motion_cache
 from model.motion import gait
 from model.motion.gait_limits import GaitLimits, StyleGait, gait_of
+from model.motion.kinematics import forward_kinematics
+from model.motion.rotations import quat_normalize
 
 P99 = 0.99
 
@@ -24,6 +27,7 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
     speeds: dict[str, list[torch.Tensor]] = {}
     heights: dict[str, dict[str, list[float]]] = {}
     counts: dict[str, int] = {}
+    lifts: dict[str, float] = {}
     for i in chosen:
         take = cache.takes[i]
         hips = cache.root_positions(i).double()  # the root joint is the hips (the rig's first joint)
@@ -34,6 +38,11 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
         lo_hi = heights.setdefault(take.style, {}).setdefault(gait_of(take.content), [])
         lo_hi.extend([float(hips[:, 1].min()), float(hips[:, 1].max())])
         counts[take.style] = counts.get(take.style, 0) + 1
+        sk = cache.skeleton(i)
+        pos, _ = forward_kinematics(quat_normalize(cache.rotations(i).float()), cache.root_positions(i).float(),
+                                    sk.offsets_tensor(), sk.parents)
+        lowest = pos[:, list(sk.feet), 1].amin(dim=-1)  # each frame's lowest foot joint
+        lifts[take.style] = max(lifts.get(take.style, 0.0), float(lowest.max() - lowest.min()))
     if not speeds:
         raise ValueError(f"{cache.folder}: no take of {len(chosen)} has two frames to measure a speed on")
     styles = {}
@@ -42,7 +51,8 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
         moving = every[every > gait.MOVING_CM_S]
         p99 = float(torch.quantile(moving, P99)) if len(moving) else float(every.max())
         styles[style] = StyleGait(float(every.max()), p99,
-                                  {g: (min(v), max(v)) for g, v in heights[style].items()}, counts[style])
+                                  {g: (min(v), max(v)) for g, v in heights[style].items()}, counts[style],
+                                  lifts[style])
     source = f"{cache.data_root.name}: train split, {sum(counts.values())} takes at {cache.fps:g} fps"
     return GaitLimits(styles, source, cache.fps)
 

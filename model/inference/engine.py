@@ -20,6 +20,7 @@ from model.inference.character import Character, EncodedStyle, PreparedStart, St
 from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restyle_held
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.int8_step import int8_lstm_sampler
+from model.inference.output.floor_contact import LIFT_CAP
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.output.smoothing import SPEED_CAP
 from model.inference.overrides import Overrides
@@ -141,13 +142,15 @@ class Engine:
         return PoseState(goal.rel, goal.vel, goal.rot, aim)
 
     def _cap(self, ch: Character, speed: float | None, batch: CharacterBatch | None = None) -> None:
-        """Cap ``ch``'s root at ``speed`` cm/s (None: no cap), in the loop and in the output filter's memory."""
+        """Cap ``ch``'s root at ``speed`` cm/s (None: no cap), in the loop and in the output filter's memory, and
+        its feet's lift off the floor at its style's capture's (floor contact's memory)."""
         ch.speed_cap = float("inf") if speed is None else speed / self.config.fps
-        cap = torch.tensor([ch.speed_cap])
-        if batch is not None:
-            batch.set_memory(ch, SPEED_CAP, cap)
-        elif ch.memory is not None and SPEED_CAP in ch.memory:
-            ch.memory[SPEED_CAP] = cap
+        lift = float("inf") if self.gait_limits is None else self.gait_limits.foot_lift(ch.style.gait or None)
+        for key, value in ((SPEED_CAP, ch.speed_cap), (LIFT_CAP, lift)):  # the output steps' rows (floor: LIFT_CAP)
+            if batch is not None:
+                batch.set_memory(ch, key, torch.tensor([value]))
+            elif ch.memory is not None and key in ch.memory:
+                ch.memory[key] = torch.tensor([value])
 
     # ------------------------------------------------------------------ input
     def conform(self, clip: Clip, what: str = "motion") -> Clip:

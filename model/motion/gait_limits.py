@@ -6,7 +6,9 @@ Measured once from a data set's train split (:mod:`model.data.gait_capture`) and
 * ``max_speed_cm_s``: the largest horizontal speed of the hips over every train take of the style, all
   its locomotion included (walks, runs, dashes), frame to frame at the data's rate; ``p99_speed_cm_s``:
   the 99th percentile of the same speeds, over the frames where the hips move faster than 30 cm/s;
-* ``hips_cm``: the hips' height range ``[lowest, highest]`` per gait (:func:`gait_of` the take's content).
+* ``hips_cm``: the hips' height range ``[lowest, highest]`` per gait (:func:`gait_of` the take's content);
+* ``foot_lift_cm``: the most the lowest foot joint of a frame rises above the lowest it reaches in its take (a
+  run's flight): a generated body whose feet are all higher than that above its floor floats, and is lowered.
 
 A style that is not built in (registered from a clip, or fine-tuned) moves within the largest maximum of
 the built-in styles (:meth:`GaitLimits.max_speed` of a name it does not hold).
@@ -41,6 +43,7 @@ class StyleGait:
     p99_speed_cm_s: float
     hips_cm: dict[str, tuple[float, float]] = field(default_factory=dict)
     takes: int = 0
+    foot_lift_cm: float = math.inf  # inf: not measured (a file written before it was)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_speed_cm_s) and self.max_speed_cm_s > 0):
@@ -72,12 +75,19 @@ class GaitLimits:
         own = self.style(name)
         return own.max_speed_cm_s if own is not None else max(s.max_speed_cm_s for s in self.styles.values())
 
+    def foot_lift(self, name: str | None) -> float:
+        """The most the feet of the style ``name`` rise off the floor all at once (cm): its own capture's, or the
+        largest of every built-in style's for a style the capture does not hold."""
+        own = self.style(name)
+        return own.foot_lift_cm if own is not None else max(s.foot_lift_cm for s in self.styles.values())
+
     def to_dict(self) -> dict[str, Any]:
         return {"format": GAIT_LIMITS_FORMAT, "source": self.source, "fps": self.fps,
                 "styles": {n: {"max_speed_cm_s": round(s.max_speed_cm_s, 1),
                                "p99_speed_cm_s": round(s.p99_speed_cm_s, 1),
                                "hips_cm": {g: [round(lo, 1), round(hi, 1)] for g, (lo, hi) in sorted(s.hips_cm.items())},
-                               "takes": s.takes}
+                               "takes": s.takes,
+                               **({"foot_lift_cm": round(s.foot_lift_cm, 1)} if math.isfinite(s.foot_lift_cm) else {})}
                            for n, s in sorted(self.styles.items())}}
 
     @classmethod
@@ -86,7 +96,7 @@ class GaitLimits:
             raise ValueError(f"unsupported gait limits format {data.get('format')!r} (expected {GAIT_LIMITS_FORMAT})")
         styles = {n: StyleGait(float(s["max_speed_cm_s"]), float(s["p99_speed_cm_s"]),
                                {g: (float(r[0]), float(r[1])) for g, r in s.get("hips_cm", {}).items()},
-                               int(s.get("takes", 0)))
+                               int(s.get("takes", 0)), float(s.get("foot_lift_cm", math.inf)))
                   for n, s in data["styles"].items()}
         return cls(styles, str(data.get("source", "")), float(data.get("fps", 30.0)))
 

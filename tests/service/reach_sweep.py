@@ -91,12 +91,14 @@ def positions(skeleton: Skeleton, roots: np.ndarray, rotations: np.ndarray) -> n
 @dataclass(frozen=True)
 class GaitFigures:
     """Of one run's frames (the context's last pose first): frames with both toes more than 15 cm above rest,
-    the longest run of them, the frames counted, and the root's horizontal speeds (cm/s) frame to frame."""
+    the longest run of them, the frames counted, the root's horizontal speeds (cm/s) frame to frame, and the
+    hips' lowest and highest height over the generated frames."""
 
     airborne: int
     longest_airborne: int
     frames: int
     speeds: np.ndarray
+    hips_cm: tuple[float, float]
 
 
 def gait_figures(skeleton: Skeleton, pos: np.ndarray, fps: float) -> GaitFigures:
@@ -109,4 +111,5 @@ def gait_figures(skeleton: Skeleton, pos: np.ndarray, fps: float) -> GaitFigures
         longest = max(longest, run)
     root = pos[:, skeleton.roles.root]
     speeds = np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=-1) * fps
-    return GaitFigures(int(up[1:].sum()), longest, len(pos) - 1, speeds)
+    hips = root[1:, 1]
+    return GaitFigures(int(up[1:].sum()), longest, len(pos) - 1, speeds, (float(hips.min()), float(hips.max())))

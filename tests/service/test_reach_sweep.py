@@ -5,8 +5,9 @@ Each case's frames are read back and checked: the root never moves faster on the
 maximum (the bundle's ``gait_limits.json``), every ``started`` / ``retargeted`` carries the reach notice and it
 says a target is out of reach exactly where the capture's speed does not cover the distance in the frames asked
 (cases within a few per cent of that line are not judged either way), and no run of more than 10 frames has both
-toes more than 15 cm above their rest height. The last is not met by the shipped network: its test is a strict
-xfail that names the figures, on that model's version only (a retrained bundle is judged plainly).
+toes more than 15 cm above their rest height and the hips stay within the style's capture range (3 cm slack). The
+last is not met by the shipped network: its test is a strict xfail that names the figures, on that model's version
+only (a retrained bundle is judged plainly).
 A POST /v1/transition whose target is 9.3 m away in 40 frames answers with the notice and keeps the speed too.
 Skipped without the shared motion data.
 """
@@ -46,6 +47,7 @@ PER_CONNECTION = 20  # characters streamed at once on one connection (one batch 
 AIRBORNE_RUN = 10
 SPEED_SLACK = 1.005  # float32 frames and the emitted root's few-mm lag behind the capped state
 BOUNDARY = 0.04  # a case within 4% of the reach line is not judged (the emitted root trails the state a little)
+HIPS_SLACK_CM = 3.0  # a generated gait may dip or rise a little past the takes' extremes
 SHIPPED_VERSION = "037dc42a2119cf86"  # the default model when the cap came in; it still lifts its feet
 
 
@@ -77,6 +79,12 @@ def _run_group(server: Server, group: list[tuple[int, SweepCase]], skeleton: Any
 
         got = ws.run(set(names), timeout=300.0, on_frame=on_frame)
     return {names[cid][0]: {**result, "target": sent[cid]} for cid, result in got.items()}
+
+
+def _hips_range(limits: GaitLimits, style: str) -> tuple[float, float]:
+    """The style's hips height range over every gait of its capture (walks and runs: the loosest bound)."""
+    ranges = limits.styles[style].hips_cm.values()
+    return min(lo for lo, _ in ranges), max(hi for _, hi in ranges)
 
 
 @pytest.fixture(scope="module")
@@ -125,6 +133,7 @@ def sweep(shared_data: Path, server: Server, limits: GaitLimits) -> list[dict[st
             rows.append({"style": case.style, "kind": kind, "longest": figures.longest_airborne,
                          "airborne": figures.airborne, "frames": figures.frames, "speeds": figures.speeds,
                          "top": float(figures.speeds.max()), "cap": limits.max_speed(case.style),
+                         "hips": figures.hips_cm, "hips_range": _hips_range(limits, case.style),
                          "reach": notice.get("reach"), "expected": expected, "ended": r["end"]["reason"]})
     return rows
 
@@ -152,22 +161,30 @@ def test_a_target_out_of_reach_is_said_to_be(sweep: list[dict[str, Any]]) -> Non
         assert reach["needed_frames"] > reach["frames"] and reach["reachable_cm"] < reach["distance_cm"]
 
 
-def _airborne_figures(sweep: list[dict[str, Any]]) -> str:
+def _gait_figures(sweep: list[dict[str, Any]]) -> str:
     frames = sum(r["frames"] for r in sweep)
     speeds = np.concatenate([r["speeds"] for r in sweep])
     worst = [r for r in sweep if r["longest"] > AIRBORNE_RUN]
+    low = [r for r in sweep if not r["hips_range"][0] - HIPS_SLACK_CM <= r["hips"][0]]
+    high = [r for r in sweep if not r["hips"][1] <= r["hips_range"][1] + HIPS_SLACK_CM]
     return (f"{len(worst)} of {len(sweep)} runs airborne over {AIRBORNE_RUN} frames (longest "
-            f"{max(r['longest'] for r in sweep)}), airborne share {sum(r['airborne'] for r in sweep) / frames:.3f}, "
+            f"{max(r['longest'] for r in sweep)}), airborne share {sum(r['airborne'] for r in sweep) / frames:.3f}; "
+            f"hips under the style's capture range in {len(low)} (lowest "
+            f"{min(r['hips'][0] - r['hips_range'][0] for r in sweep):.0f} cm under it), over it in {len(high)}; "
             f"root speed max {speeds.max():.0f} cm/s, p95 {np.percentile(speeds, 95):.0f}")
 
 
-@pytest.mark.xfail(Bundle.load(DEFAULT_BUNDLE, styles=False).version == SHIPPED_VERSION, strict=True,
-                   reason="the shipped network (version 037dc42a2119cf86) still lifts both toes over 15 cm for more "
-                          "than 10 frames in a few far starts and retargets with the speed cap on (the message names "
-                          "the figures); the model retrained with dataset 1 (issue 50 item 2) is to fix it")
-def test_the_toes_stay_on_the_floor(sweep: list[dict[str, Any]]) -> None:
+def test_the_toes_stay_down_and_the_hips_within_the_capture(sweep: list[dict[str, Any]]) -> None:
     worst = [r for r in sweep if r["longest"] > AIRBORNE_RUN]
-    assert not worst, _airborne_figures(sweep)
+    out = [r for r in sweep if not r["hips_range"][0] - HIPS_SLACK_CM <= r["hips"][0] <= r["hips"][1]
+           <= r["hips_range"][1] + HIPS_SLACK_CM]
+    figures = _gait_figures(sweep)
+    shipped = Bundle.load(DEFAULT_BUNDLE, styles=False).version == SHIPPED_VERSION
+    if shipped and (worst or out):  # known and measured: the model retrained with dataset 1 (issue 50 item 2) is to fix it
+        pytest.xfail(f"the shipped network (version {SHIPPED_VERSION}) folds its legs in far starts and retargets: "
+                     f"{figures}")
+    assert not worst and not out, figures
+    assert not shipped, f"the shipped network now keeps its feet down and its hips up ({figures}): drop its expected failure"
 
 
 def test_a_request_out_of_reach_says_so_and_keeps_the_speed(shared_data: Path, server: Server,

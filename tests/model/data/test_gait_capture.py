@@ -33,10 +33,11 @@ def test_each_style_s_top_speed_is_its_fastest_train_take_s(limits: GaitLimits) 
         assert speed * 0.999 <= got.p99_speed_cm_s <= got.max_speed_cm_s
         lo, hi = got.hips_cm["walk"]
         assert 92.0 - 1.5 - 1e-3 <= lo < hi <= 92.0 + 1.5 + 1e-3  # the synthetic hips bob 1.5 cm about 92
-        assert got.takes > 0
+        assert got.takes > 0 and 0.0 < got.foot_lift_cm < 30.0  # the synthetic feet swing, never all leave the floor
     assert limits.max_speed("slow") == limits.styles["slow"].max_speed_cm_s
     assert limits.max_speed("a-clip-style") == max(s.max_speed_cm_s for s in limits.styles.values())
     assert limits.max_speed(None) == limits.max_speed("a-clip-style")
+    assert limits.foot_lift("a-clip-style") == max(s.foot_lift_cm for s in limits.styles.values())
 
 
 def test_gaits_of_content_labels() -> None:

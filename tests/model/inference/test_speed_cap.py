@@ -143,3 +143,20 @@ def test_a_stream_retargeted_far_mid_walk_stays_within_the_style_and_is_told() -
         batch.drop_finished()
     speeds = _root_speeds(torch.stack(roots), context.root_positions[-1])
     assert len(speeds) == 40 and float(speeds.max()) <= SLOW * 1.001
+
+
+def test_a_floating_body_is_lowered_to_its_style_s_lift_and_a_sinking_one_still_raised() -> None:
+    from model.inference.output.floor_contact import FloorContact
+
+    walk = synthetic_walk(frames=20)
+    contact = FloorContact(synthetic_skeleton())
+    rot, root = walk.rotations[:10], walk.root_positions[:10]
+    floor = contact.floor(rot, root)
+    lowest = float(contact.foot_heights(rot[-1:], root[-1:]).min())
+    for rise, cap, moved in ((30.0, 12.0, 12.0 - (lowest + 30.0 - float(floor))), (30.0, math.inf, 0.0),
+                             (5.0, 12.0, 0.0), (-8.0, 12.0, 8.0 - contact.tolerance - (lowest - float(floor)))):
+        up = root[-1:].clone()
+        up[:, 1] += rise
+        change = contact.lift_of(contact.kinematics(rot[-1:], up)[0], floor, torch.tensor([cap]))
+        assert change[0, 1].item() == pytest.approx(moved, abs=1e-4), (rise, cap)
+        assert change[0, ::2].abs().max() == 0
