@@ -205,5 +205,10 @@ def test_a_request_out_of_reach_says_so_and_keeps_the_speed(shared_data: Path, s
                              "needed_frames": math.ceil(929.0 * bundle.config.fps / speed),
                              "reachable_cm": pytest.approx(speed * 40 / bundle.config.fps, abs=0.1),
                              "max_speed_cm_s": pytest.approx(speed, abs=0.1)}
+    from rsmt_client import Client
+
+    with Client(server.url) as client:  # the Python client hands the notice on
+        got = client.transition(body["context"], body["target"], 40, style_id=f"builtin:{case.style}", seed=1)
+    assert got.reach is not None and not got.reach.feasible and got.reach.needed_frames == data["reach"]["needed_frames"]
     roots = np.array([case.context.root_positions[-1].tolist()] + [f["root_position"] for f in data["frames"]])
     assert float((np.linalg.norm(np.diff(roots[:, ::2], axis=0), axis=-1) * bundle.config.fps).max()) <= speed * SPEED_SLACK
