@@ -12,6 +12,10 @@ train-split walking clip per style of a dataset (:mod:`model.data.style_picks`);
 default bundle's built-in styles are made (and remade after its weights change)::
 
     rsmt bundle add-styles model/default_bundle --from-data "$RSMT_DATA"
+
+``rsmt bundle gait-limits BUNDLE --from-data DATA`` measures the capture's speed and hips height limits
+per style on the data's train split (:mod:`model.data.gait_capture`) and writes ``BUNDLE/gait_limits.json``;
+``rsmt package --gait-data DATA`` does the same for the copy (without it, the copy keeps the bundle's own).
 """
 
 from __future__ import annotations
@@ -52,6 +56,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="built-in styles to encode into the copy: one BVH per style (the file stem is the name) "
                         "or one folder per style (its first BVH); the copy stores their codes, served as style ids "
                         "builtin:NAME")
+    p.add_argument("--gait-data", type=Path, metavar="DATA",
+                   help="measure the capture's gait limits (root speed, hips height) per style on this data's train "
+                        "split and save them in the copy (default: the bundle's own gait_limits.json, if any)")
     add_output_arguments(p, "the bundle")
     # The parts of steering, each flag named as its setting in the bundle (steering.NAME).
     p.add_argument("--turn-window", type=int, default=None, metavar="FRAMES",
@@ -87,6 +94,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="a motion dataset: one walking clip per style from its train split")
     a.add_argument("--frames", type=int, default=180, help="clip length with --from-data (default 180)")
     a.set_defaults(func=_add_styles)
+    g = bsub.add_parser("gait-limits", help="write the bundle's gait_limits.json (the capture's speed and hips height)",
+                        description="Measure, per style, the largest and 99th-percentile hips speed and the hips "
+                                    "height range per gait over the train split of a motion dataset, and write them "
+                                    "to BUNDLE/gait_limits.json (weights, config and styles untouched). The engine "
+                                    "keeps the root within the style's speed and says when a target is out of reach.")
+    g.add_argument("bundle", type=Path, metavar="BUNDLE")
+    g.add_argument("--from-data", type=Path, required=True, metavar="DATA",
+                   help="the training data (folders separated by the path separator, as RSMT_DATA)")
+    g.set_defaults(func=_gait_limits)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -109,6 +125,13 @@ def _run(args: argparse.Namespace) -> int:
     bundle.inference = overrides.inference(bundle.inference)
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
+    if args.gait_data is not None:
+        from model.data.gait_capture import gait_limits_from_data
+
+        bundle.gait_limits = gait_limits_from_data(args.gait_data, bundle.config.fps)
+    elif bundle.gait_limits is None:
+        print(f"rsmt package: {args.model} has no gait limits: the copy's root speed is not capped and no request "
+              "is told its target is out of reach; give --gait-data DATA (the training data)", file=sys.stderr)
     if (args.out / "styles").is_dir():  # never leave a copy with the codes of some earlier weights
         shutil.rmtree(args.out / "styles")
     bundle.save(args.out, weights_dtype="float16" if args.float16 else "float32")
@@ -130,7 +153,19 @@ def _run(args: argparse.Namespace) -> int:
         shutil.copyfile(train_config, args.out / "train_config.json")
     print(json.dumps({"bundle": str(args.out), "version": bundle.version, "name": bundle.meta.name,
                       "output": bundle.output.to_dict(), "inference": bundle.inference.to_dict(),
-                      "styles": sorted(Bundle.load(args.out).styles)}, indent=1))
+                      "styles": sorted(Bundle.load(args.out).styles),
+                      "gait_limits": bundle.gait_limits.to_dict() if bundle.gait_limits else None}, indent=1))
+    return 0
+
+
+def _gait_limits(args: argparse.Namespace) -> int:
+    from model.data.gait_capture import gait_limits_from_data
+    from model.inference.bundle import Bundle
+
+    bundle = Bundle.load(args.bundle, styles=False)  # checks the folder is a bundle, gives its fps
+    limits = gait_limits_from_data(args.from_data, bundle.config.fps)
+    path = limits.save(args.bundle)
+    print(json.dumps({"bundle": str(args.bundle), "file": str(path), **limits.to_dict()}, indent=1))
     return 0
 
 

@@ -50,5 +50,5 @@ def builtin_style(engine: Engine, model_name: str, style_id: str) -> EncodedStyl
         encoded = served.get(name)
         if encoded is None:
             encoded = served[name] = EncodedStyle(PREFIX + name, name, style.frames, style.context, style.nbytes,
-                                                     style.weights)
+                                                     style.weights, gait=name)
     return encoded

@@ -130,7 +130,7 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     rotations, roots = engine.generate([ch])[0]
     generated = time.perf_counter()
     body: dict[str, Any] = {"fps": engine.config.fps, "model": model.name, "style_id": style.style_id, "seed": seed,
-                            "deterministic": req.deterministic}
+                            "deterministic": req.deterministic, "reach": reach_body(ch)}
     if req.output == "bvh":
         body["bvh"] = frames_bvh(rotations, roots, engine.skeleton, engine.config.fps)
     else:
@@ -144,6 +144,13 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
         "parse": round((parsed - start) * 1e3, 3),
     }
     return body
+
+
+def reach_body(ch: Character) -> dict[str, Any] | None:
+    """The ``reach`` field of a response or stream message (docs/api-contract.md): whether the character's
+    target can be reached in the frames asked at its style's capture speed; None where the model has no gait
+    limits."""
+    return None if ch.reach is None else ch.reach.to_dict()
 
 
 def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,

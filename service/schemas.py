@@ -222,12 +222,24 @@ class TransitionRequest(_StyleChoice):
     model: ModelName | None = None
 
 
+class Reach(BaseModel):
+    """Whether the target can be reached in the frames asked at the style's capture speed."""
+
+    feasible: bool = Field(description="false: the root cannot cover distance_cm in frames at max_speed_cm_s")
+    distance_cm: float = Field(description="ground distance from the root to the target's root")
+    frames: int = Field(description="the frames asked for it")
+    needed_frames: int = Field(description="the frames that distance takes at max_speed_cm_s")
+    reachable_cm: float = Field(description="the most the root covers in frames at max_speed_cm_s")
+    max_speed_cm_s: float = Field(description="the style's capture maximum root speed")
+
+
 class TransitionJson(BaseModel):
     frames: list[Pose]
     fps: float
     model: str
     style_id: str
     timing_ms: Timing
+    reach: Reach | None = Field(None, description="null: the model carries no gait limits")
 
 
 class TransitionBvh(BaseModel):
@@ -236,6 +248,7 @@ class TransitionBvh(BaseModel):
     model: str
     style_id: str
     timing_ms: Timing
+    reach: Reach | None = Field(None, description="null: the model carries no gait limits")
 
 
 # ---------------------------------------------------------------------- health

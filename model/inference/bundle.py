@@ -7,6 +7,8 @@ Layout::
       weights.safetensors  the weights and normalisation statistics (no pickle anywhere)
       skeleton.json        the rig the model was trained on
       README.md            the model card (optional for loading)
+      gait_limits.json     the capture's speed and hips height limits per built-in style (optional;
+                           :mod:`model.motion.gait_limits`): the engine keeps the root within them
       styles/              built-in style codes, served as ``builtin:NAME`` (optional; :mod:`model.inference.bundle_styles`)
       adapters/NAME/       weights of their own for a style fine-tuned later (optional; :mod:`model.inference.bundle_adapters`)
 
@@ -29,6 +31,7 @@ from model.inference.bundle_styles import BuiltinStyle, StyleFolderError, load_s
 from model.inference.output.settings import OutputConfig
 from model.inference.settings import InferenceConfig
 from model.inference.weights_hash import weights_hash
+from model.motion.gait_limits import GaitLimits
 from model.motion.skeleton import Skeleton
 from model.nets.manifold import ManifoldConfig, ManifoldDecoder
 from model.nets.phase import PeriodicAutoencoder, PhaseConfig
@@ -72,6 +75,7 @@ class Bundle:
     # Built-in style codes by name: styles/, and each adapter's style (``BuiltinStyle.weights`` names the adapter).
     styles: dict[str, BuiltinStyle] = field(default_factory=dict)
     adapters: dict[str, StyleAdapter] = field(default_factory=dict)  # weights of their own per style (adapters/)
+    gait_limits: GaitLimits | None = None  # the capture's limits per style (gait_limits.json; None: none measured)
 
     @property
     def config(self) -> SamplerConfig:
@@ -136,6 +140,8 @@ class Bundle:
         }
         (path / "config.json").write_text(json.dumps(config, indent=1))
         self.skeleton.save(path / "skeleton.json")
+        if self.gait_limits is not None:
+            self.gait_limits.save(path)
         own = {n: s for n, s in self.styles.items() if not s.weights}
         stale = sorted(n for n, s in own.items() if s.version != self.version)
         if own and not stale:
@@ -218,6 +224,10 @@ class Bundle:
         except RuntimeError as exc:
             raise BundleError(f"{path}: weights do not match the config: {exc}") from exc
         bundle.version = config.get("version") or weights_hash(tensors)
+        try:
+            bundle.gait_limits = GaitLimits.load(path)
+        except ValueError as exc:
+            raise BundleError(str(exc)) from exc
         bundle._load_styles(path, styles)
         bundle.sampler.eval()
         if bundle.phase_model is not None:

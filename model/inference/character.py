@@ -3,11 +3,13 @@ and the poses of a batch step (:mod:`model.inference.engine` runs them)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import torch
 
 from model.inference.output.arrival import ArrivalMemory
+from model.inference.reach import Reach
 from model.inference.traced_step import CompiledStep
 from model.motion.features import CanonicalFrame
 from model.nets.pose_state import PoseState
@@ -27,6 +29,7 @@ class EncodedStyle:
     nbytes: int = 0
     weights: str = ""  # the weight set it was encoded by and runs on: the bundle's own, or an adapter's name
     clips: int = 1  # the clips it was encoded from (:mod:`model.inference.style_sets`); ``frames`` is their total
+    gait: str = ""  # the built-in style whose capture limits it moves within ("": the largest of them all)
 
 
 @dataclass(eq=False)
@@ -73,6 +76,13 @@ class Character:
     # Memory of the output pipeline's frame steps while out of a batch: named rows [1, ...].
     memory: dict[str, Tensor] | None = field(default=None, repr=False)
     prepared: PreparedStart | None = field(default=None, repr=False)
+    # The most its root moves on the ground in a frame (cm; its style's capture maximum, inf: not capped), and
+    # whether its target is within that reach (model.inference.reach; None: the bundle has no gait limits).
+    speed_cap: float = math.inf
+    reach: Reach | None = None
+    # Its target's state in its canonical frame and whether its velocity is known, as asked (the network may aim
+    # nearer where it is out of reach: model.inference.engine.Engine._limit).
+    goal: tuple[PoseState, bool] | None = field(default=None, repr=False)
 
     def replica(self, character_id: str, style: EncodedStyle | None = None) -> Character:
         """Another character in this one's place (its prepared start or its state shared, never mutated by

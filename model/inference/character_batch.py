@@ -8,6 +8,7 @@ import torch
 
 from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
 from model.inference.output.pipeline import OutputPipeline
+from model.inference.output.speed_cap import speed_capped
 from model.inference.traced_step import CompiledFrameOutput
 from model.motion.features import CanonicalFrame
 from model.nets.sampler import SamplerState, StyleContext
@@ -140,6 +141,19 @@ class CharacterBatch:
         for k, v in updates.items():
             getattr(self._state, k)[i : i + 1] = v
 
+    @torch.inference_mode()
+    def set_memory(self, ch: Character, key: str, value: Tensor) -> None:
+        """Set a row ``key`` of a character's output memory (``value [1, ...]``), in the batch or on the character
+        (a key the output steps do not keep is left alone)."""
+        self._sync()
+        if ch in self.members:
+            assert self._memory is not None
+            if key in self._memory:
+                i = self.members.index(ch)
+                self._memory[key][i : i + 1] = value
+        elif ch.memory is not None and key in ch.memory:
+            ch.memory[key] = value
+
     def remove(self, ch: Character) -> None:
         if ch in self._pending:
             self._pending.remove(ch)
@@ -197,6 +211,8 @@ class CharacterBatch:
         assert self._state is not None and self._style is not None
         flags = [m.retargeted for m in self.members]  # which rows steer their facing by the retarget window
         late = torch.tensor(flags) if any(flags) else None
+        caps = [m.speed_cap for m in self.members]
+        before = self._state.pose.root_xz.clone() if min(caps) < float("inf") else None
         if self._inverse is None:  # one weight set: the whole batch in one step
             self._state, shift = self._groups[0][0].step_fn(self._state, self._style, late)  # steering included
         else:
@@ -205,6 +221,8 @@ class CharacterBatch:
             self._state = SamplerState.stack([p[0] for p in parts]).index(self._inverse)
             shifts = [p[1] for p in parts]
             shift = None if shifts[0] is None else torch.cat([s for s in shifts if s is not None])[self._inverse]
+        if before is not None:  # each row's root within its style's capture speed (model.inference.output.speed_cap)
+            self._state, shift = speed_capped(before, self._state, shift, torch.tensor(caps))
         memory = self._memory
         assert memory is not None and self._yaw is not None and self._origin is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])

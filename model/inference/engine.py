@@ -20,8 +20,11 @@ from model.inference.character import Character, EncodedStyle, PreparedStart, St
 from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restyle_held
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.int8_step import int8_lstm_sampler
+from model.inference.output.floor_contact import LIFT_CAP
 from model.inference.output.pipeline import OutputPipeline
+from model.inference.output.smoothing import SPEED_CAP
 from model.inference.overrides import Overrides
+from model.inference.reach import Reach, ground_distance, reach_of
 from model.inference.style_codes import LRUCache, clip_content_hash
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep
 from model.motion.clip import Clip
@@ -71,6 +74,8 @@ class Engine:
         self.step_fn = self.weight_sets[""].step_fn
         self.output_fn = CompiledFrameOutput(self.pipeline.frame, traced=compiled)
         self._ids = itertools.count()
+        self.gait_limits = bundle.gait_limits  # the capture's speed per style (None: the root is not capped)
+        self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
         """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with an int8
@@ -109,6 +114,43 @@ class Engine:
     @property
     def version(self) -> str:
         return self.bundle.version
+
+    def max_speed(self, style: EncodedStyle) -> float | None:
+        """The most the root of a character of ``style`` moves on the ground (cm/s): its built-in style's capture
+        maximum, the largest of them for a style registered from a clip; None where the bundle has no gait limits."""
+        return None if self.gait_limits is None else self.gait_limits.max_speed(style.gait or None)
+
+    def _limit(self, ch: Character, root_xz: Tensor, goal: PoseState, frames: int) -> PoseState:
+        """Set ``ch``'s speed cap from its style and its reach notice for the target state ``goal`` (canonical
+        frame) ``frames`` frames away from a root at ``root_xz [1, 2]``; returns the target the network is to aim
+        at: ``goal``, or where it is out of reach (and :attr:`aim_within_reach`), ``goal`` moved toward the root
+        until the capture's speed covers it, so the network walks there at a gait it knows and arrives short
+        instead of hurrying (the notice still names the true target)."""
+        speed = self.max_speed(ch.style)
+        if speed is None:
+            ch.speed_cap, ch.reach = float("inf"), None
+            return goal
+        self._cap(ch, speed)
+        root = self.skeleton.roles.root
+        ch.reach = reach_of(ground_distance(root_xz, goal.positions(), root), frames, speed, self.config.fps)
+        if ch.arrival is not None:  # an exact arrival out of reach would drag the body there: it arrives short
+            ch.arrival.out_of_reach = not ch.reach.feasible
+        if ch.reach.feasible or not self.aim_within_reach:
+            return goal
+        ahead = goal.root_xz - root_xz
+        aim = root_xz + ahead * (ch.reach.reachable_cm / max(ch.reach.distance_cm, 1e-6))
+        return PoseState(goal.rel, goal.vel, goal.rot, aim)
+
+    def _cap(self, ch: Character, speed: float | None, batch: CharacterBatch | None = None) -> None:
+        """Cap ``ch``'s root at ``speed`` cm/s (None: no cap), in the loop and in the output filter's memory, and
+        its feet's lift off the floor at its style's capture's (floor contact's memory)."""
+        ch.speed_cap = float("inf") if speed is None else speed / self.config.fps
+        lift = float("inf") if self.gait_limits is None else self.gait_limits.foot_lift(ch.style.gait or None)
+        for key, value in ((SPEED_CAP, ch.speed_cap), (LIFT_CAP, lift)):  # the output steps' rows (floor: LIFT_CAP)
+            if batch is not None:
+                batch.set_memory(ch, key, torch.tensor([value]))
+            elif ch.memory is not None and key in ch.memory:
+                ch.memory[key] = torch.tensor([value])
 
     # ------------------------------------------------------------------ input
     def conform(self, clip: Clip, what: str = "motion") -> Clip:
@@ -211,10 +253,12 @@ class Engine:
             noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
-        return Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
-                         retargeted=retargeted, frame=frame, arrival=arrival,
-                         memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions),
-                         prepared=PreparedStart(cstate, tstate, frames, noise, known))
+        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
+                       retargeted=retargeted, frame=frame, arrival=arrival, goal=(tstate, known),
+                       memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions))
+        aim = self._limit(ch, cstate.root_xz[:, -1], tstate, frames)
+        ch.prepared = PreparedStart(cstate, aim, frames, noise, known)
+        return ch
 
     @torch.inference_mode()
     def begin(self, characters: list[Character]) -> SamplerState:
@@ -252,8 +296,9 @@ class Engine:
         return state_from_positions(pos, rot6, self.skeleton.roles.root).index((slice(None), 1)), known
 
     def retarget(self, ch: Character, batch: CharacterBatch | None = None, target: Clip | None = None,
-                 frames: int | None = None) -> None:
-        """Change where and/or when a live character arrives, from its next frame on."""
+                 frames: int | None = None) -> Reach | None:
+        """Change where and/or when a live character arrives, from its next frame on; returns its reach notice
+        from where it now stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
         if frames is not None and not 1 <= frames <= self.max_frames:
             raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
         if batch is None and ch.row is None:
@@ -262,23 +307,28 @@ class Engine:
             target = self.conform(target, "target")
             if ch.arrival is not None:
                 ch.arrival.rotations, ch.arrival.root = quat_normalize(target.rotations[-1]), target.root_positions[-1]
-            tstate, known = self._target_state(target, ch.canonical_frame())
-            sampler = self.weights(ch.style.weights).sampler
-            with torch.inference_mode():
-                vec = sampler.target_input(tstate, torch.tensor([known]))
-                emb = sampler.target_encoder(vec)
-            updates = {"target_vec": vec, "target_pos": tstate.positions(), "target_rot": tstate.rot, "target_emb": emb}
+            ch.goal = self._target_state(target, ch.canonical_frame())
             ch.retargeted = True
-        else:
-            updates = {}
+        updates: dict[str, Tensor] = {}
         if frames is not None:
             updates["tta"] = torch.tensor([frames])
             ch.frames_total = ch.seq + frames
+        row = batch.row_of(ch) if batch is not None else ch.row
+        assert row is not None and ch.goal is not None
+        goal, known = ch.goal
+        aim = self._limit(ch, row.pose.root_xz, goal, ch.remaining)
+        if target is not None or aim is not goal:  # a new target, or one now out of reach: the network's aim changes
+            sampler = self.weights(ch.style.weights).sampler
+            with torch.inference_mode():
+                vec = sampler.target_input(aim, torch.tensor([known]))
+                emb = sampler.target_encoder(vec)
+            updates.update({"target_vec": vec, "target_pos": aim.positions(), "target_rot": aim.rot, "target_emb": emb})
         if batch is not None:
             batch.update_row(ch, updates)
         else:
             for k, v in updates.items():
                 setattr(ch.row, k, v)
+        return ch.reach
 
     @torch.inference_mode()
     def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:
@@ -286,8 +336,9 @@ class Engine:
         on other weights re-encodes the target by them; the recurrent state carries over."""
         if batch is not None:
             batch.set_style(ch, style)
-            return
-        restyle_held(ch, style, self.weights(style.weights))  # an unknown weight set fails before anything changes
+        else:
+            restyle_held(ch, style, self.weights(style.weights))  # an unknown weight set fails before anything changes
+        self._cap(ch, self.max_speed(style), batch)
 
     def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
         """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""

@@ -16,7 +16,7 @@ from typing import Any
 import orjson
 from pydantic import ValidationError
 
-from service.engine_jobs import lookup_style, prepare_character, resolve_style
+from service.engine_jobs import lookup_style, prepare_character, reach_body, resolve_style
 from service.errors import ServiceError, describe_validation
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
@@ -211,7 +211,8 @@ class Session:
         conn.send_message({"type": "started", "character": cid, "slot": stream.slot, "frames": msg.frames,
                            "fps": stream.fps, "style_id": style.style_id, "pace": msg.pace, "model": model.name,
                            "seed": None if msg.deterministic else seed,
-                           "floats_per_frame": floats_per_frame(model.engine.skeleton.num_joints)})
+                           "floats_per_frame": floats_per_frame(model.engine.skeleton.num_joints),
+                           "reach": reach_body(character)})
         model.scheduler.add(stream)
 
     def _check_room(self, cid: str) -> None:
@@ -250,7 +251,8 @@ class Session:
             target = await model.run_stream(motion_to_clip, msg.target, model.engine, model.limits, "target")
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.retarget(stream, target, msg.frames)
-        self.conn.send_message({"type": "retargeted", "character": msg.character, "from_seq": from_seq})
+        self.conn.send_message({"type": "retargeted", "character": msg.character, "from_seq": from_seq,
+                                "reach": reach_body(stream.character)})
 
     async def style(self, msg: StyleMessage) -> None:
         stream, model = self._live(msg.character)

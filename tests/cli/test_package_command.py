@@ -200,3 +200,27 @@ def test_package_keeps_style_adapters_only_for_the_same_weights(tmp_path, capsys
     out = capsys.readouterr()
     assert json.loads(out.out)["styles"] == [] and "fine-tune them again" in out.err
     assert not (tmp_path / "half" / "adapters").exists()
+
+
+def test_gait_limits_are_measured_into_a_bundle_and_packaged_with_it(tmp_path, capsys, monkeypatch):
+    from model.data.synthetic import SYNTHETIC_STYLES, write_synthetic_dataset
+    from model.motion.gait_limits import GAIT_LIMITS_FILE
+
+    monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
+    write_synthetic_dataset(tmp_path / "data", takes_per_pair=2, frames=60)
+    tiny_bundle(6).save(tmp_path / "trained")
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "bare")]) == 0
+    assert "no gait limits" in capsys.readouterr().err and not (tmp_path / "bare" / GAIT_LIMITS_FILE).exists()
+    assert main(["bundle", "gait-limits", str(tmp_path / "trained"), "--from-data", str(tmp_path / "data")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["styles"]) == set(SYNTHETIC_STYLES)
+    measured = Bundle.load(tmp_path / "trained").gait_limits
+    assert measured is not None and measured.styles["slow"].max_speed_cm_s < measured.styles["brisk"].max_speed_cm_s
+    # A copy keeps the source's limits; --gait-data measures them again.
+    assert main(["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "ship"), "--float16"]) == 0
+    assert json.loads(capsys.readouterr().out)["gait_limits"] == measured.to_dict()
+    assert (tmp_path / "ship" / GAIT_LIMITS_FILE).read_text() == (tmp_path / "trained" / GAIT_LIMITS_FILE).read_text()
+    assert main(["package", "--model", str(tmp_path / "bare"), "--out", str(tmp_path / "again"),
+                 "--gait-data", str(tmp_path / "data")]) == 0
+    again = Bundle.load(tmp_path / "again").gait_limits
+    assert again is not None and again.to_dict() == measured.to_dict()

@@ -120,3 +120,24 @@ def test_session_errors_and_limits():
         StreamSession({"type": "hello", "protocol": 2})
     with pytest.raises(RsmtError, match="binary frame"):
         StreamSession.from_hello(b"\x00")
+
+
+def test_the_reach_notice_of_a_stream_is_its_latest_target_s() -> None:
+    from rsmt_client import Reach
+
+    s = _session()
+    far = {"feasible": False, "distance_cm": 930.0, "frames": 40, "needed_frames": 140, "reachable_cm": 266.7,
+           "max_speed_cm_s": 200.0}
+    wire: list[str | bytes] = [
+        json.dumps({"type": "started", "character": "a", "slot": 0, "reach": {**far, "feasible": True}}),
+        _binary(0, 0),
+        json.dumps({"type": "retargeted", "character": "a", "from_seq": 1, "reach": far}),
+        _binary(0, 1),
+        json.dumps({"type": "end", "character": "a", "reason": "arrived", "frames": 2}),
+    ]
+    a, _ = s.begin_collect("a")
+    for raw in wire:
+        if s.take(s.parse(raw), a):
+            break
+    assert s.transition_poses(a).reach == Reach(False, 930.0, 40, 140, 266.7, 200.0)
+    assert Reach.from_message({"reach": None}) is None and Reach.from_message(None) is None

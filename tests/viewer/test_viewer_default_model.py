@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from model.inference.bundle import DEFAULT_BUNDLE
+from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.motion.kinematics import forward_kinematics
 from model.motion.skeleton import Skeleton
 from tests.service.server import Server
@@ -177,3 +177,87 @@ def test_chained_live_clicks_keep_the_feet_on_the_floor(default_browser, default
     deepest = min(record, key=lambda f: f["foot"])
     assert deepest["foot"] > -LIVE_SINK_CM, f"a streamed frame has its lower foot {-deepest['foot']:.0f} cm under the floor"
     assert worst["foot"] < LIVE_FOOT_CM, f"a streamed frame has its lower foot {worst['foot']:.0f} cm above the floor"
+
+
+RECORD_TOES = """
+    const L = window.rsmtViewer.modes.live, sk = window.rsmtViewer.app.skeleton.roles;
+    window.toeRecord = [];
+    const orig = L.onFrame.bind(L);
+    L.onFrame = (fr) => {
+      orig(fr);
+      const p = L.positions, y = (j) => p[j * 3 + 1];
+      window.toeRecord.push({left: y(sk.left_foot[sk.left_foot.length - 1]), right: y(sk.right_foot[sk.right_foot.length - 1]),
+                             root: [fr.root[0], fr.root[2]], hips: y(sk.root)});
+    };
+"""
+FAR_CLICKS = ([450, 0, 0], [-300, 0, 400], [0, 0, -500], [400, 0, 300], [-450, 0, -200], [200, 0, 500])  # cm from the figure
+AIRBORNE_RUN = 10
+SHIPPED_VERSION = "037dc42a2119cf86"  # the default model when the speed cap came in
+TOE_REST_CM, TOE_UP_CM = 4.25, 15.0  # the rig's toes' rest height; both above it by more than this: off the floor
+
+
+HIPS_SLACK_CM = 3.0
+
+
+def _elderly_hips_range() -> tuple[float, float]:
+    limits = Bundle.load(DEFAULT_BUNDLE, styles=False).gait_limits
+    assert limits is not None
+    ranges = limits.styles["elderly"].hips_cm.values()
+    return min(lo for lo, _ in ranges), max(hi for _, hi in ranges)
+
+
+def _longest_airborne(record: list[dict]) -> int:
+    longest = run = 0
+    for f in record:
+        run = run + 1 if min(f["left"], f["right"]) - TOE_REST_CM > TOE_UP_CM else 0
+        longest = max(longest, run)
+    return longest
+
+
+def test_six_far_clicks_keep_the_toes_down_and_say_when_out_of_reach(default_browser, default_server, artefacts) -> None:
+    """Six clicks 4.5-5.4 m away, each while the figure still walks (a retarget), in the slowest style (elderly:
+    213 cm/s at most in the capture, so 4.5 m in the Live tab's 60 frames at most is out of reach): the page shows
+    the server's notice, the root never moves faster than the style's capture, and the toes stay down."""
+    b = default_browser
+    open_viewer(b, default_server, "?mode=live")
+    b.wait_for(f"{V}.mode === 'live'", 10)
+    b.execute(RECORD_TOES)
+    b.execute("document.getElementById('live-style').value = 'id:builtin:elderly'")
+    b.click("#live-start")
+    b.wait_for(f"{V}.live().character !== null && {V}.live().frames > 5", 30, "the walk to start")
+    for n, offset in enumerate(FAR_CLICKS, 1):
+        here = b.execute(f"const m = {V}.modes.live.history, f = m.frames - 1; return [m.roots[f * 3], m.roots[f * 3 + 2]]")
+        point = [here[0] + offset[0], 0, here[1] + offset[2]]
+        p = b.execute(f"return {V}.project(arguments[0])", point)
+        size = b.execute("const r = document.getElementById('view').getBoundingClientRect(); return [r.width, r.height]")
+        if p is not None and 0 < p["x"] < size[0] and 0 < p["y"] < size[1]:
+            b.click_at("#view", p["x"], p["y"])
+        else:  # off the canvas at this zoom: what the click would send
+            b.execute(f"{V}.modes.live.goTo(arguments[0])", point)
+        b.wait_for(f"{V}.live().retargets === {n} && {V}.live().reach && {V}.live().reach.distance_cm > 300", 30,
+                   f"far click {n}'s notice")
+        seen = b.execute(f"return {V}.live().frames")
+        b.wait_for(f"{V}.live().frames > {seen + 20} || {V}.live().character === null", 30, f"frames after click {n}")
+        if b.execute(f"return {V}.live().character") is None:
+            break  # arrived (short) before the next click: the last clicks would start anew, not retarget
+    live = b.execute(f"return {V}.live()")
+    assert live["outOfReach"] >= 1 and not live["reach"]["feasible"]
+    assert "out of reach" in b.execute("return document.getElementById('status').textContent")
+    save(b.screenshot(), artefacts / "viewer-live-far-clicks.png")
+    record = b.execute("return window.toeRecord")
+    roots = np.array([f["root"] for f in record])
+    speeds = np.linalg.norm(np.diff(roots, axis=0), axis=-1) * 30.0
+    assert float(speeds.max()) <= 212.9 * 1.005, f"root speed {speeds.max():.0f} cm/s, over the elderly capture's 213"
+    assert b.execute(f"return {V}.errors") == []
+    longest = _longest_airborne(record)
+    hips = [f["hips"] for f in record]
+    lo, hi = _elderly_hips_range()
+    low = sum(h < lo - HIPS_SLACK_CM for h in hips)
+    figure = (f"both toes over {TOE_UP_CM:g} cm for {longest} frames running, hips under the elderly capture's "
+              f"{lo:.0f} cm in {low} frames (lowest {min(hips):.0f}), of {len(record)} frames streamed")
+    bad = longest > AIRBORNE_RUN or low > 0
+    shipped = Bundle.load(DEFAULT_BUNDLE, styles=False).version == SHIPPED_VERSION
+    if shipped and bad:  # known and measured: the retrained model (issue 50 item 2) is to fix it
+        pytest.xfail(f"the shipped network (version {SHIPPED_VERSION}) folds its legs in chained far retargets: {figure}")
+    assert not bad, figure
+    assert not shipped, f"the shipped network now keeps its toes down and hips up ({figure}): drop its expected failure"

@@ -248,9 +248,11 @@ def transition(state: ClientState, context: Any, target: Any, frames: int, style
         yield from model(state)
     joints = state.joints() if model_name is None else None
     from rsmt_client.motion import Poses
+    from rsmt_client.reach import Reach
 
     return Poses.from_frames(data["frames"], float(data["fps"]), joints=joints, style_id=data.get("style_id"),
-                             model=data.get("model"), timing_ms=dict(data.get("timing_ms") or {}))
+                             model=data.get("model"), timing_ms=dict(data.get("timing_ms") or {}),
+                             reach=Reach.from_message(data))
 
 
 def transition_bvh(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None,

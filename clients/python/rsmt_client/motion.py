@@ -25,6 +25,7 @@ from rsmt_client.quaternions import (
     quat_slerp,
     quat_to_euler,
 )
+from rsmt_client.reach import Reach
 
 
 def read_bvh(path: str | Path) -> str:
@@ -86,6 +87,7 @@ class Poses:
     style_id: str | None = None
     model: str | None = None
     timing_ms: dict[str, float] = field(default_factory=dict)
+    reach: Reach | None = None  # whether the target was within reach (rsmt_client.reach; None: not said)
 
     def __post_init__(self) -> None:
         self.root_positions = np.asarray(self.root_positions, dtype=np.float32).reshape(-1, 3)

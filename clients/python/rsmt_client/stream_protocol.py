@@ -23,6 +23,7 @@ from rsmt_client.errors import RsmtError
 from rsmt_client.frames import Frame, FrameLayout, Message, frame_from_json
 from rsmt_client.motion import Poses, motion_payload
 from rsmt_client.motion_cuts import Cutter
+from rsmt_client.reach import Reach
 
 # The largest message both clients accept from the server (a binary frame of a very large rig is far less).
 MAX_MESSAGE_BYTES = 16 << 20
@@ -167,6 +168,8 @@ class StreamSession:
         poses = result.poses(self.joint_names)
         started = next((m for m in result.messages if m.get("type") == "started"), {})
         poses.style_id, poses.model = started.get("style_id"), started.get("model")
+        notices = [m for m in result.messages if m.get("type") in ("started", "retargeted") and m.get("reach")]
+        poses.reach = Reach.from_message(notices[-1]) if notices else None  # the latest (re)target's
         return poses
 
     # ------------------------------------------------------------------ sending

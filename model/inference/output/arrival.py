@@ -121,11 +121,14 @@ class ArrivalCorrector:
 @dataclass
 class ArrivalMemory:
     """One character's exact arrival: its target pose in world space (local rotations ``[J, 4]``, root ``[3]``)
-    and the corrector's state."""
+    and the corrector's state. ``out_of_reach``: its target is farther than its style's capture speed covers
+    in the frames left (:mod:`model.inference.reach`), so its frames are not bent: it arrives short rather than
+    be dragged onto the target faster than it can walk."""
 
     rotations: Tensor
     root: Tensor
     state: ArrivalState = field(default_factory=ArrivalState)
+    out_of_reach: bool = False
 
 
 class ExactArrival:
@@ -142,12 +145,12 @@ class ExactArrival:
     def __call__(self, rotations: Tensor, roots: Tensor, remaining: Tensor,
                  memories: list[ArrivalMemory | None]) -> tuple[Tensor, Tensor]:
         """A batch's frame (``[N, J, 4]``, ``[N, 3]``; ``remaining [N]``) with the rows whose memory is not None
-        bent toward their targets; the others as they are."""
-        exact = [i for i, m in enumerate(memories) if m is not None]
+        (and whose target is in reach) bent toward their targets; the others as they are."""
+        exact = [i for i, m in enumerate(memories) if m is not None and not m.out_of_reach]
         if not exact:
             return rotations, roots
         idx = torch.tensor(exact)
-        chosen = [m for m in memories if m is not None]
+        chosen = [m for m in memories if m is not None and not m.out_of_reach]
         t_rot = torch.stack([m.rotations for m in chosen])
         t_root = torch.stack([m.root for m in chosen])
         fixed_rot, fixed_root = self.corrector.apply(rotations[idx], roots[idx], t_rot, t_root, remaining[idx],

@@ -6,10 +6,16 @@ foot joint of a frame is more than ``tolerance_cm`` below the floor, the root (a
 body) is raised by the difference; nothing else changes, and frames with the feet on or above the
 floor pass untouched. The floor of a character is the lowest any foot joint reaches in its context,
 so a game's own ground level is kept, whatever it is.
+
+Nor may a body float: where every foot joint of a frame is more than the character's lift cap above its
+floor (its style's capture: the most the lowest foot rose in any of its takes, a run's flight included;
+:mod:`model.motion.gait_limits`, kept in this step's memory and set by the engine), the whole body is
+lowered by the excess. A character without a cap (``inf``, a bundle without gait limits) is only lifted.
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import torch
@@ -22,6 +28,7 @@ Tensor = torch.Tensor
 
 TOLERANCE_CM = 1.0  # real feet dip a little under their resting height; only more than this is corrected
 _UP = torch.tensor([0.0, 1.0, 0.0])
+LIFT_CAP = "lift_cap"  # the memory row of a character's lift cap (cm above its floor; inf: none)
 
 
 class FloorContact:
@@ -54,10 +61,14 @@ class FloorContact:
         """``roots [N, 3]`` raised so no foot joint is more than the tolerance under each row's ``floor [N]``."""
         return roots + self.lift_of(self.kinematics(rotations, roots)[0], floor)
 
-    def lift_of(self, positions: Tensor, floor: Tensor) -> Tensor:
-        """How far ``[N, 3]`` (up only) to raise bodies whose :attr:`kinematics` joints are at world
-        ``positions [N, K, 3]``, so no foot joint is more than the tolerance under each row's ``floor [N]``."""
-        up = (floor - self.tolerance - self.heights_of(positions).amin(dim=-1)).clamp_min(0.0)
+    def lift_of(self, positions: Tensor, floor: Tensor, cap: Tensor | None = None) -> Tensor:
+        """How far ``[N, 3]`` to raise bodies whose :attr:`kinematics` joints are at world ``positions [N, K, 3]``,
+        so no foot joint is more than the tolerance under each row's ``floor [N]`` (and, with ``cap [N]``, to lower
+        them so the lowest is at most ``cap`` above it)."""
+        lowest = self.heights_of(positions).amin(dim=-1)
+        up = (floor - self.tolerance - lowest).clamp_min(0.0)
+        if cap is not None:
+            up = up - (lowest - floor - cap).clamp_min(0.0)
         return up.unsqueeze(-1) * _UP  # (0, up, 0), in two operations rather than a stack of three parts
 
 
@@ -66,7 +77,7 @@ class FloorStep:
     character's context. It runs before the feet are moved, so the feet the lock holds are where the body was
     lifted to; it leaves the lifted legs' kinematics on the frame (a lift moves every joint up alike)."""
 
-    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("floor",)
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("floor", LIFT_CAP)
 
     def __init__(self, contact: FloorContact) -> None:
         self.contact = contact
@@ -76,11 +87,11 @@ class FloorStep:
         return cls(FloorContact(parts.skeleton, kinematics=parts.kinematics)) if parts.settings.floor else None
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
-        return {"floor": self.contact.floor(rotations, roots)}
+        return {"floor": self.contact.floor(rotations, roots), LIFT_CAP: torch.full((1,), math.inf)}
 
     def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
         legs = self.contact.kinematics(frame.local, frame.root)
-        up = self.contact.lift_of(legs[0], memory["floor"])
+        up = self.contact.lift_of(legs[0], memory["floor"], memory[LIFT_CAP])
         frame.root = frame.root + up
         frame.set_chains(self.contact.kinematics, (legs[0] + up.unsqueeze(-2), legs[1]))
-        new["floor"] = memory["floor"]
+        new["floor"], new[LIFT_CAP] = memory["floor"], memory[LIFT_CAP]

@@ -2,8 +2,9 @@
 
 :data:`STEPS` is the list. Most steps run on the whole batch's frame, in one traced graph
 (``FRAME``: :class:`FrameSteps`, traced by :mod:`model.inference.traced_step`); steering runs inside
-the recurrent step (``LOOP``: it moves the sampler's own state, so the next step sees it), and exact
-arrival after the graph, on the rows that asked for it (``AFTER``). Each step's module owns its
+the recurrent step (``LOOP``: it moves the sampler's own state, so the next step sees it), then the
+speed cap (``LOOP`` too, per character: its style's capture speed), and exact arrival after the graph,
+on the rows that asked for it (``AFTER``). Each step's module owns its
 settings, its per-character memory and its start (:mod:`model.inference.output.frame` says what a frame
 step is). To add a step: write its module, and add its line here.
 
@@ -24,6 +25,7 @@ from model.inference.output.foot_lock import FootLockStep
 from model.inference.output.frame import Frame, FrameStep, StepParts
 from model.inference.output.settings import OutputConfig
 from model.inference.output.smoothing import Smoothing
+from model.inference.output.speed_cap import speed_capped
 from model.inference.output.steering import SteeringConfig
 from model.inference.output.stride_warp import StrideWarpStep
 from model.motion.skeleton import Skeleton
@@ -44,6 +46,8 @@ class Step:
 
 STEPS: tuple[Step, ...] = (
     Step("steering", "loop", lambda parts: parts.settings.steering),  # in CompiledStep (model.inference.traced_step)
+    # Per character, its style's capture speed: in CharacterBatch.step (model.inference.character_batch).
+    Step("speed_cap", "loop", lambda parts: speed_capped),
     Step("smoothing", "frame", Smoothing.build),  # to world space first: Frame
     Step("floor_contact", "frame", FloorStep.build),
     Step("stride_warp", "frame", StrideWarpStep.build),

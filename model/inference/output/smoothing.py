@@ -10,10 +10,17 @@ The network keeps stepping on its own unfiltered state, so the filter never feed
 recurrence. Its weight fades to 0 over the last ``fade`` frames, so the arrival frame is the
 network's own and the filter's lag (``a / (1 - a)`` frames) is gone by the time the target is
 reached. The first frame blends with the last context frame, so the seam stays continuous.
+
+Letting the lag go speeds the root up: a root moving at ``v`` trails its network by ``a v / (1 - a)``,
+made up over the last frames on top of ``v``. So a character with a speed cap (its style's capture maximum,
+:mod:`model.inference.output.speed_cap`; kept in this step's memory) never has its root's ground step made
+longer than that cap here (:func:`within_cap`): where the lag cannot be made up within it, the root arrives
+that much late. A character without a cap is filtered as above.
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import torch
@@ -24,6 +31,7 @@ from model.motion.rotations import quat_normalize
 Tensor = torch.Tensor
 
 DEFAULT_FADE = 5
+SPEED_CAP = "speed_cap"  # the memory row of a character's speed cap (cm a frame on the ground; inf: none)
 
 
 def smoothing_weight(strength: float, remaining: Tensor, fade: int = DEFAULT_FADE) -> Tensor:
@@ -31,6 +39,17 @@ def smoothing_weight(strength: float, remaining: Tensor, fade: int = DEFAULT_FAD
     if fade < 1:
         return torch.full(remaining.shape, float(strength))
     return strength * (remaining.float() / fade).clamp(0.0, 1.0)
+
+
+def within_cap(root: Tensor, previous: Tensor, cap: Tensor) -> Tensor:
+    """``root [N, 3]`` (emitted after ``previous``) with its ground step from ``previous`` no longer than ``cap [N]``
+    (cm; ``inf``: as it is); its height as it is."""
+    step = root - previous
+    length = step[:, ::2].norm(dim=-1)
+    over = length > cap
+    scale = torch.where(over, cap / length.clamp_min(1e-6), torch.ones_like(length)).unsqueeze(-1)
+    ground = torch.tensor([1.0, 0.0, 1.0], dtype=root.dtype)
+    return torch.where(over.unsqueeze(-1), previous + step * (ground * scale + (1.0 - ground)), root)  # bits kept
 
 
 def smooth_frame(rotations: Tensor, roots: Tensor, previous_rotations: Tensor, previous_roots: Tensor,
@@ -55,7 +74,7 @@ class Smoothing:
     """The filter as a frame step (:mod:`model.inference.output.frame`): its memory is the previous emitted
     frame, remembered before the later steps (and exact arrival) bend it, so the filter follows the network."""
 
-    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root")
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root", "speed_cap")
 
     def __init__(self, strength: float, root_strength: float) -> None:
         self.strength, self.root_strength = strength, root_strength
@@ -66,11 +85,13 @@ class Smoothing:
         return cls(out.smoothing, out.root_strength) if out.smooths else None
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
-        """The last context frame: the first generated frame blends with it, so the seam stays continuous."""
-        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:]}
+        """The last context frame: the first generated frame blends with it, so the seam stays continuous; no
+        speed cap (the engine sets a character's: :data:`SPEED_CAP`)."""
+        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:], SPEED_CAP: torch.full((1,), math.inf)}
 
     def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
         fade = smoothing_weight(1.0, frame.remaining)
-        frame.local, frame.root = smooth_frame(frame.local, frame.root, memory["prev_rot"], memory["prev_root"],
-                                               self.strength * fade, self.root_strength * fade)
-        new["prev_rot"], new["prev_root"] = frame.local, frame.root
+        frame.local, root = smooth_frame(frame.local, frame.root, memory["prev_rot"], memory["prev_root"],
+                                         self.strength * fade, self.root_strength * fade)
+        frame.root = within_cap(root, memory["prev_root"], memory[SPEED_CAP])
+        new["prev_rot"], new["prev_root"], new[SPEED_CAP] = frame.local, frame.root, memory[SPEED_CAP]

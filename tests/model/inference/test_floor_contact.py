@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -64,7 +66,8 @@ def test_the_traced_way_out_lifts_as_eager_does(walk) -> None:
 
     def run(fn) -> torch.Tensor:
         mem = {"prev_rot": rot[9], "prev_root": root[9],
-               "floor": torch.cat([floor.floor(rot[:10, i], root[:10, i]) for i in range(2)])}
+               "floor": torch.cat([floor.floor(rot[:10, i], root[:10, i]) for i in range(2)]),
+               "lift_cap": torch.tensor([math.inf, 12.0])}  # one character uncapped, one lowered past 12 cm
         roots = []
         for t in range(10, 30):
             _, r, mem = fn(states.index((slice(None), t)), yaw, origin, torch.full((2,), 29 - t), mem)

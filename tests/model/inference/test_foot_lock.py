@@ -102,7 +102,7 @@ def test_traced_output_matches_eager_at_any_batch():
 
     def memory(rows: slice) -> dict[str, torch.Tensor]:
         starts = [lock.start(rot[:10, i], root[:10, i]) for i in range(3)[rows]]
-        mem = {"prev_rot": rot[9, rows], "prev_root": root[9, rows]}
+        mem = {"prev_rot": rot[9, rows], "prev_root": root[9, rows], "speed_cap": torch.full((len(range(3)[rows]),), 4.0)}
         mem.update({k: torch.cat([s.memory()[k] for s in starts]) for k in FootLockState.MEMORY_KEYS})
         return mem
 
@@ -175,6 +175,7 @@ def test_floor_contact_and_the_lock_in_the_frame_output_give_what_each_gives_alo
     assert (lock.kinematics is floor.kinematics) == shared
     output = FrameSteps(sk, {"floor_contact": FloorStep(floor), "foot_lock": FootLockStep(lock)})
     mem = {"prev_rot": rot[9:10], "prev_root": root[9:10], "floor": floor.floor(rot[:10], root[:10]),
+           "lift_cap": torch.full((1,), float("inf")),  # only lifted, as FloorContact.lift
            **lock.start(rot[:10], root[:10]).memory()}
     state = lock.start(rot[:10], root[:10])
     ground = floor.floor(rot[:10], root[:10])

@@ -38,7 +38,8 @@ export class LiveMode {
   }
 
   freshStats() {
-    return { frames: 0, arrivals: [], lateness: [], t0: null, arrived0: null, lastLateness: null, retargets: 0, styleChanges: 0 };
+    return { frames: 0, arrivals: [], lateness: [], t0: null, arrived0: null, lastLateness: null, retargets: 0, styleChanges: 0,
+             reach: null, outOfReach: 0 };
   }
 
   async guard(fn) {
@@ -150,11 +151,25 @@ export class LiveMode {
     this.character = null;
   }
 
+  // The server's reach notice of a start or retarget: a click farther than the style's capture speed covers in
+  // the frames asked is not reached (the character arrives short rather than glide), and the person is told.
+  showReach(reach) {
+    this.stats.reach = reach || null;
+    if (!reach || reach.feasible) return;
+    this.stats.outOfReach += 1;
+    const m = (cm) => (cm / 100).toFixed(1);
+    status(`out of reach: ${m(reach.distance_cm)} m needs ${reach.needed_frames} frames at this style's top speed ` +
+           `(${m(reach.max_speed_cm_s)} m/s), not ${reach.frames}: it stops short, at most ${m(reach.reachable_cm)} m on`, "error");
+  }
+
   onMessage(msg) {
     if (msg.type === "started" && msg.character === this.character) {
       this.slot = msg.slot;
       this.stats.t0 = null; // the server's t restarts with every character
       this.els.stop.disabled = false;
+      this.showReach(msg.reach);
+    } else if (msg.type === "retargeted" && msg.character === this.character) {
+      this.showReach(msg.reach);
     } else if (msg.type === "end" && msg.character === this.character) {
       this.character = null;
       this.els.stop.disabled = true;
@@ -192,7 +207,7 @@ export class LiveMode {
       connected: !!(this.stream && this.stream.open), character: this.character, frames: s.frames, seq: this.seq,
       remaining: this.remaining ?? null, fps: s.arrivals.length, latenessMs: s.lastLateness,
       latenessP50Ms: sorted.length ? sorted[Math.floor(sorted.length / 2)] : null, rttMs: this.stream ? this.stream.rttMs : null,
-      retargets: s.retargets, styleChanges: s.styleChanges,
+      retargets: s.retargets, styleChanges: s.styleChanges, reach: s.reach, outOfReach: s.outOfReach,
     };
   }
 
