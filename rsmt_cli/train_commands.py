@@ -270,6 +270,7 @@ def _run_recipe(args: argparse.Namespace) -> int:
     package = recipe.package
     if held:
         package = dataclasses.replace(package, name=f"{package.name or recipe.name}-without-{'-'.join(held)}")
+    _save_gait_limits(last, Path(data), args.manifest)  # into the last stage's bundle: the package copies them
     status = _package(package.arguments(), last, args.out)
     print(f"package: {time.monotonic() - t0:.1f} s", flush=True)
     print(f"total: {_duration(time.monotonic() - began)}", flush=True)
@@ -289,6 +290,21 @@ def _duration(seconds: float) -> str:
     minutes = seconds / 60
     return f"{seconds:.0f} s" + (f" ({int(minutes // 60)} h {minutes % 60:.0f} min)" if minutes >= 60 else
                                  f" ({minutes:.1f} min)" if seconds >= 60 else "")
+
+
+def _save_gait_limits(stage: Path, data: Path, manifest: Path | None) -> None:
+    """The capture's gait limits of the takes the recipe trained on (its train split, with the last stage's rig,
+    units and held-out styles), saved in the stage's bundle, so that the packaged copy caps its root speed to
+    them and tells requests out of reach (model/motion/gait_limits.py)."""
+    from model.data.gait_capture import measure_gait_limits
+    from model.data.preprocessed import load_motion_cache
+    from model.train.pipeline import TrainConfig
+
+    cfg = TrainConfig.load(stage / "train_config.json")
+    cache = load_motion_cache(data, fps=cfg.fps, profile=cfg.profile, manifest=manifest, progress=False,
+                              units=cfg.units)
+    limits = measure_gait_limits(cache, list(cache.make_split(cfg.ratios, cfg.holdout_styles).train))
+    print(f"gait limits: {limits.save(stage)} ({len(limits.styles)} styles)", flush=True)
 
 
 def _package(options: list[str], model: Path, out: Path) -> int:

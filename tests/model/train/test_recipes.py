@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 import torch
 
-from model.data.synthetic import synthetic_skeleton, synthetic_walk, write_synthetic_dataset
+from model.data.synthetic import SYNTHETIC_STYLES, synthetic_skeleton, synthetic_walk, write_synthetic_dataset
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
 from model.train.pipeline import fit_to_skeleton
@@ -124,6 +124,9 @@ def test_a_recipe_runs_end_to_end_packages_and_skips_finished_stages(tmp_path, m
     assert re.search(r"^total: \d+ s", out, re.M)
     ship = Bundle.load(tmp_path / "ship")
     assert ship.meta.name == "rsmt-smoke"
+    # The capture's gait limits of the training takes come with it: every style it trained on, speeds measured.
+    assert ship.gait_limits is not None and set(ship.gait_limits.styles) == set(SYNTHETIC_STYLES)
+    assert all(g.max_speed_cm_s > 0 for g in ship.gait_limits.styles.values()) and "gait limits: " in out
     assert (ship.output.smoothing, ship.output.foot_lock, ship.inference.int8_lstm) == (0.3, True, True)
     # The last stage's bundle, packaged: its config is the last preset's, its weights float16.
     last = Bundle.load(stage_folder(run_dir, load_recipe("smoke").stages[-1])).tensors()
