@@ -9,6 +9,8 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -79,3 +81,25 @@ class Server:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             return self.proc.wait(5)
+
+
+@contextmanager
+def server_with_style_store(store: str, bundle_dir: Path, env: dict[str, str] | None = None) -> Iterator[Server]:
+    """A test server whose styles live in ``store``: ``"memory"`` (the process's own) or ``"redis"`` (a Redis
+    server of its own, started first and removed after)."""
+    from tests.service.processes import RedisProcess
+
+    env = dict(env or {})
+    redis = None
+    if store == "redis":
+        redis = RedisProcess().start()
+        env["RSMT_STYLE_STORE"] = redis.url
+    elif store != "memory":
+        raise ValueError(f"style store 'memory' or 'redis', got {store!r}")
+    srv = Server(bundle_dir, env=env).start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+        if redis is not None:
+            redis.cleanup()

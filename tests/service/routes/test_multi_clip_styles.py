@@ -15,23 +15,14 @@ import torch
 from model.motion.clip import Clip
 from model.motion.skeleton import Skeleton
 from tests.service.conftest import bvh, context_clip, poses, target_clip, walk
-from tests.service.processes import RedisProcess
-from tests.service.server import Server
+from tests.service.server import Server, server_with_style_store
 from tests.service.wsclient import Ws, poses_of, start_message
 
 
 @pytest.fixture(scope="module", params=["memory", pytest.param("redis", marks=pytest.mark.slow)])
 def server(request, bundle_dir) -> Iterator[Server]:
-    redis = None
-    env: dict[str, str] = {}
-    if request.param == "redis":
-        redis = RedisProcess().start()
-        env["RSMT_STYLE_STORE"] = redis.url
-    srv = Server(bundle_dir, env=env).start()
-    yield srv
-    srv.stop()
-    if redis is not None:
-        redis.cleanup()
+    with server_with_style_store(request.param, bundle_dir) as srv:
+        yield srv
 
 
 def _three() -> list[dict]:

@@ -13,8 +13,7 @@ import httpx
 import pytest
 
 from tests.service.conftest import bvh, walk
-from tests.service.processes import RedisProcess
-from tests.service.server import Server
+from tests.service.server import Server, server_with_style_store
 
 pytestmark = pytest.mark.slow  # Redis and timed registrations
 
@@ -25,16 +24,8 @@ PAIRS = 12
 
 @pytest.fixture(scope="module", params=["memory", "redis"])
 def server(request, bundle_dir) -> Iterator[Server]:
-    redis = None
-    env = {"RSMT_API_KEYS": f"{KEY_A},{KEY_B}"}
-    if request.param == "redis":
-        redis = RedisProcess().start()
-        env["RSMT_STYLE_STORE"] = redis.url
-    srv = Server(bundle_dir, env=env).start()
-    yield srv
-    srv.stop()
-    if redis is not None:
-        redis.cleanup()
+    with server_with_style_store(request.param, bundle_dir, {"RSMT_API_KEYS": f"{KEY_A},{KEY_B}"}) as srv:
+        yield srv
 
 
 def _register(server: Server, key: str, motion: dict, name: str) -> tuple[httpx.Response, float]:
