@@ -146,9 +146,11 @@ RECORD = """
       orig(fr);
       const p = L.positions, y = (j) => p[j * 3 + 1];
       const feet = [...sk.left_foot, ...sk.right_foot].map(y);
-      window.liveRecord.push({character: L.character, head: y(sk.head), hips: y(sk.root), foot: Math.min(...feet)});
+      window.liveRecord.push({character: L.character, head: y(sk.head), hips: y(sk.root), foot: Math.min(...feet),
+                              left: y(sk.left_foot[sk.left_foot.length - 1]),
+                              right: y(sk.right_foot[sk.right_foot.length - 1]), root: [fr.root[0], fr.root[2]]});
     };
-"""
+"""  # every streamed frame: head, hips, lowest foot joint and toes heights, the root on the ground
 
 
 def test_chained_live_clicks_keep_the_feet_on_the_floor(default_browser, default_server, artefacts) -> None:
@@ -179,17 +181,6 @@ def test_chained_live_clicks_keep_the_feet_on_the_floor(default_browser, default
     assert worst["foot"] < LIVE_FOOT_CM, f"a streamed frame has its lower foot {worst['foot']:.0f} cm above the floor"
 
 
-RECORD_TOES = """
-    const L = window.rsmtViewer.modes.live, sk = window.rsmtViewer.app.skeleton.roles;
-    window.toeRecord = [];
-    const orig = L.onFrame.bind(L);
-    L.onFrame = (fr) => {
-      orig(fr);
-      const p = L.positions, y = (j) => p[j * 3 + 1];
-      window.toeRecord.push({left: y(sk.left_foot[sk.left_foot.length - 1]), right: y(sk.right_foot[sk.right_foot.length - 1]),
-                             root: [fr.root[0], fr.root[2]], hips: y(sk.root)});
-    };
-"""
 FAR_CLICKS = ([450, 0, 0], [-300, 0, 400], [0, 0, -500], [400, 0, 300], [-450, 0, -200], [200, 0, 500])  # cm from the figure
 AIRBORNE_RUN = 10
 SHIPPED_VERSION = "037dc42a2119cf86"  # the default model when the speed cap came in
@@ -221,7 +212,7 @@ def test_six_far_clicks_keep_the_toes_down_and_say_when_out_of_reach(default_bro
     b = default_browser
     open_viewer(b, default_server, "?mode=live")
     b.wait_for(f"{V}.mode === 'live'", 10)
-    b.execute(RECORD_TOES)
+    b.execute(RECORD)
     b.execute("document.getElementById('live-style').value = 'id:builtin:elderly'")
     b.click("#live-start")
     b.wait_for(f"{V}.live().character !== null && {V}.live().frames > 5", 30, "the walk to start")
@@ -244,7 +235,7 @@ def test_six_far_clicks_keep_the_toes_down_and_say_when_out_of_reach(default_bro
     assert live["outOfReach"] >= 1 and not live["reach"]["feasible"]
     assert "out of reach" in b.execute("return document.getElementById('status').textContent")
     save(b.screenshot(), artefacts / "viewer-live-far-clicks.png")
-    record = b.execute("return window.toeRecord")
+    record = b.execute("return window.liveRecord")
     roots = np.array([f["root"] for f in record])
     speeds = np.linalg.norm(np.diff(roots, axis=0), axis=-1) * 30.0
     assert float(speeds.max()) <= 212.9 * 1.005, f"root speed {speeds.max():.0f} cm/s, over the elderly capture's 213"
