@@ -296,14 +296,12 @@ def _save_gait_limits(stage: Path, data: Path, manifest: Path | None) -> None:
     """The capture's gait limits of the takes the recipe trained on (its train split, with the last stage's rig,
     units and held-out styles), saved in the stage's bundle, so that the packaged copy caps its root speed to
     them and tells requests out of reach (model/motion/gait_limits.py)."""
-    from model.data.gait_capture import measure_gait_limits
-    from model.data.preprocessed import load_motion_cache
+    from model.data.gait_capture import gait_limits_from_data
     from model.train.pipeline import TrainConfig
 
     cfg = TrainConfig.load(stage / "train_config.json")
-    cache = load_motion_cache(data, fps=cfg.fps, profile=cfg.profile, manifest=manifest, progress=False,
-                              units=cfg.units)
-    limits = measure_gait_limits(cache, list(cache.make_split(cfg.ratios, cfg.holdout_styles).train))
+    limits = gait_limits_from_data(data, cfg.fps, profile=cfg.profile, manifest=manifest, units=cfg.units,
+                                   ratios=cfg.ratios, holdout_styles=cfg.holdout_styles)
     print(f"gait limits: {limits.save(stage)} ({len(limits.styles)} styles)", flush=True)
 
 

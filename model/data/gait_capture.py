@@ -8,11 +8,12 @@ horizontal, frame to frame at the cache's rate; the feet's lift is read on the t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
 
-from model.data.preprocessed import MotionCache, load_motion_cache
+from model.data.preprocessed import MotionCache, ProfileArg, load_motion_cache
 from model.motion import gait
 from model.motion.gait_limits import GaitLimits, StyleGait, gait_of
 from model.motion.kinematics import forward_kinematics
@@ -57,6 +58,15 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
     return GaitLimits(styles, source, cache.fps)
 
 
-def gait_limits_from_data(data: Path, fps: float, workers: int = 1) -> GaitLimits:
-    """:func:`measure_gait_limits` of the data folder(s) ``data`` (its preprocessed cache, built when missing)."""
-    return measure_gait_limits(load_motion_cache(data, fps=fps, workers=workers, progress=False))
+def gait_limits_from_data(data: Path, fps: float, workers: int = 1, *, profile: ProfileArg = None,
+                          manifest: Path | None = None, units: str | float = "auto", ratios: Sequence[float] | None = None,
+                          holdout_styles: Sequence[str] = ()) -> GaitLimits:
+    """:func:`measure_gait_limits` of the data folder(s) ``data`` (its preprocessed cache, built when missing), read
+    with that rig ``profile``, ``manifest`` and ``units``, over the train split of those ``ratios`` and
+    ``holdout_styles`` (default: the cache's own split)."""
+    cache = load_motion_cache(data, fps=fps, profile=profile, manifest=manifest, workers=workers, progress=False,
+                              units=units)
+    if ratios is None and not holdout_styles:
+        return measure_gait_limits(cache)
+    split = cache.make_split(holdout_styles=holdout_styles) if ratios is None else cache.make_split(ratios, holdout_styles)
+    return measure_gait_limits(cache, list(split.train))
