@@ -17,6 +17,7 @@ from model.data.preprocessed import MotionCache, ProfileArg, load_motion_cache
 from model.motion import gait
 from model.motion.gait_limits import GaitLimits, StyleGait, gait_of
 from model.motion.kinematics import forward_kinematics
+from model.motion.planted_feet import planted_rise
 from model.motion.rotations import quat_normalize
 
 P99 = 0.99
@@ -29,6 +30,7 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
     heights: dict[str, dict[str, list[float]]] = {}
     counts: dict[str, int] = {}
     lifts: dict[str, float] = {}
+    rises: dict[str, float] = {}
     for i in chosen:
         take = cache.takes[i]
         hips = cache.root_positions(i).double()  # the root joint is the hips (the rig's first joint)
@@ -44,6 +46,8 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
                                     sk.offsets_tensor(), sk.parents)
         lowest = pos[:, list(sk.feet), 1].amin(dim=-1)  # each frame's lowest foot joint
         lifts[take.style] = max(lifts.get(take.style, 0.0), float(lowest.max() - lowest.min()))
+        rise = planted_rise(pos, (sk.roles.left_foot, sk.roles.right_foot), cache.fps)
+        rises[take.style] = max(rises.get(take.style, 0.0), rise)
     if not speeds:
         raise ValueError(f"{cache.folder}: no take of {len(chosen)} has two frames to measure a speed on")
     styles = {}
@@ -53,7 +57,7 @@ def measure_gait_limits(cache: MotionCache, takes: list[int] | None = None) -> G
         p99 = float(torch.quantile(moving, P99)) if len(moving) else float(every.max())
         styles[style] = StyleGait(float(every.max()), p99,
                                   {g: (min(v), max(v)) for g, v in heights[style].items()}, counts[style],
-                                  lifts[style])
+                                  lifts[style], rises[style])
     source = f"{cache.data_root.name}: train split, {sum(counts.values())} takes at {cache.fps:g} fps"
     return GaitLimits(styles, source, cache.fps)
 

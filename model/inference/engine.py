@@ -21,6 +21,7 @@ from model.inference.character_batch import CharacterBatch, by_weights, inverse_
 from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
 from model.inference.int8_step import int8_lstm_sampler
 from model.inference.output.floor_contact import LIFT_CAP
+from model.inference.output.foot_plant import PLANT_CAP
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.output.smoothing import SPEED_CAP
 from model.inference.overrides import Overrides
@@ -143,10 +144,14 @@ class Engine:
 
     def _cap(self, ch: Character, speed: float | None, batch: CharacterBatch | None = None) -> None:
         """Cap ``ch``'s root at ``speed`` cm/s (None: no cap), in the loop and in the output filter's memory, and
-        its feet's lift off the floor at its style's capture's (floor contact's memory)."""
+        its feet's lift off the floor and its planted feet's rise at its style's capture's (floor contact's and the
+        foot plant's memory)."""
         ch.speed_cap = float("inf") if speed is None else speed / self.config.fps
-        lift = float("inf") if self.gait_limits is None else self.gait_limits.foot_lift(ch.style.gait or None)
-        for key, value in ((SPEED_CAP, ch.speed_cap), (LIFT_CAP, lift)):  # the output steps' rows (floor: LIFT_CAP)
+        gait = ch.style.gait or None
+        lift = float("inf") if self.gait_limits is None else self.gait_limits.foot_lift(gait)
+        rise = float("inf") if self.gait_limits is None else self.gait_limits.planted_rise(gait)
+        # The output steps' rows: the speed cap's, floor contact's, the foot plant's.
+        for key, value in ((SPEED_CAP, ch.speed_cap), (LIFT_CAP, lift), (PLANT_CAP, rise)):
             if batch is not None:
                 batch.set_memory(ch, key, torch.tensor([value]))
             elif ch.memory is not None and key in ch.memory:

@@ -8,7 +8,9 @@ Measured once from a data set's train split (:mod:`model.data.gait_capture`) and
   the 99th percentile of the same speeds, over the frames where the hips move faster than 30 cm/s;
 * ``hips_cm``: the hips' height range ``[lowest, highest]`` per gait (:func:`gait_of` the take's content);
 * ``foot_lift_cm``: the most the lowest foot joint of a frame rises above the lowest it reaches in its take (a
-  run's flight): a generated body whose feet are all higher than that above its floor floats, and is lowered.
+  run's flight): a generated body whose feet are all higher than that above its floor floats, and is lowered;
+* ``planted_rise_cm``: the most a planted foot's lowest joint stands above its take's floor
+  (:mod:`model.motion.planted_feet`): a generated foot planted higher floats, and is brought down.
 
 A style that is not built in (registered from a clip, or fine-tuned) moves within the largest maximum of
 the built-in styles (:meth:`GaitLimits.max_speed` of a name it does not hold).
@@ -44,6 +46,7 @@ class StyleGait:
     hips_cm: dict[str, tuple[float, float]] = field(default_factory=dict)
     takes: int = 0
     foot_lift_cm: float = math.inf  # inf: not measured (a file written before it was)
+    planted_rise_cm: float = math.inf  # inf: not measured (a file written before it was)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_speed_cm_s) and self.max_speed_cm_s > 0):
@@ -81,13 +84,21 @@ class GaitLimits:
         own = self.style(name)
         return own.foot_lift_cm if own is not None else max(s.foot_lift_cm for s in self.styles.values())
 
+    def planted_rise(self, name: str | None) -> float:
+        """The most a planted foot of the style ``name`` stands above the floor (cm): its own capture's, or the
+        largest of every built-in style's for a style the capture does not hold (inf: not measured)."""
+        own = self.style(name)
+        return own.planted_rise_cm if own is not None else max(s.planted_rise_cm for s in self.styles.values())
+
     def to_dict(self) -> dict[str, Any]:
         return {"format": GAIT_LIMITS_FORMAT, "source": self.source, "fps": self.fps,
                 "styles": {n: {"max_speed_cm_s": round(s.max_speed_cm_s, 1),
                                "p99_speed_cm_s": round(s.p99_speed_cm_s, 1),
                                "hips_cm": {g: [round(lo, 1), round(hi, 1)] for g, (lo, hi) in sorted(s.hips_cm.items())},
                                "takes": s.takes,
-                               **({"foot_lift_cm": round(s.foot_lift_cm, 1)} if math.isfinite(s.foot_lift_cm) else {})}
+                               **({"foot_lift_cm": round(s.foot_lift_cm, 1)} if math.isfinite(s.foot_lift_cm) else {}),
+                               **({"planted_rise_cm": round(s.planted_rise_cm, 1)}
+                                  if math.isfinite(s.planted_rise_cm) else {})}
                            for n, s in sorted(self.styles.items())}}
 
     @classmethod
@@ -96,7 +107,8 @@ class GaitLimits:
             raise ValueError(f"unsupported gait limits format {data.get('format')!r} (expected {GAIT_LIMITS_FORMAT})")
         styles = {n: StyleGait(float(s["max_speed_cm_s"]), float(s["p99_speed_cm_s"]),
                                {g: (float(r[0]), float(r[1])) for g, r in s.get("hips_cm", {}).items()},
-                               int(s.get("takes", 0)), float(s.get("foot_lift_cm", math.inf)))
+                               int(s.get("takes", 0)), float(s.get("foot_lift_cm", math.inf)),
+                               float(s.get("planted_rise_cm", math.inf)))
                   for n, s in data["styles"].items()}
         return cls(styles, str(data.get("source", "")), float(data.get("fps", 30.0)))
 

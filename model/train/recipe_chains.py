@@ -74,6 +74,7 @@ class PackageSettings:
     retarget_turn_window: int | None = None
     retarget_max_turn_deg: float | None = None
     floor: bool | None = None
+    foot_plant: bool | None = None
     stride_warp: float | None = None
     max_step_cm: float | None = None
 
@@ -84,7 +85,8 @@ class PackageSettings:
             args += ["--name", self.name]
         if self.smoothing is not None:
             args += ["--smoothing", repr(self.smoothing)]
-        for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm), ("--floor", self.floor)):
+        for flag, value in (("--foot-lock", self.foot_lock), ("--int8-lstm", self.int8_lstm), ("--floor", self.floor),
+                            ("--foot-plant", self.foot_plant)):
             if value is not None:
                 args += [flag, "on" if value else "off"]
         for flag, frames in (("--steering", self.steering), ("--turn-window", self.turn_window),

@@ -16,13 +16,14 @@ def test_package_writes_float16_weights_and_the_settings(tmp_path, capsys):
     source.save(tmp_path / "trained")
     (tmp_path / "trained" / "train_config.json").write_text('{"name": "recipe"}')
     args = ["package", "--model", str(tmp_path / "trained"), "--out", str(tmp_path / "ship"), "--float16",
-            "--name", "shipped", "--smoothing", "0.3", "--foot-lock", "on", "--int8-lstm", "on"]
+            "--name", "shipped", "--smoothing", "0.3", "--foot-lock", "on", "--int8-lstm", "on", "--foot-plant", "on"]
     assert main(args) == 0
     report = json.loads(capsys.readouterr().out)
     ship = Bundle.load(tmp_path / "ship")
     assert report["version"] == ship.version != source.version  # float16 storage changes the hash
     assert ship.meta.name == "shipped" and report["name"] == "shipped"
     assert (ship.output.smoothing, ship.output.foot_lock, ship.inference.int8_lstm) == (0.3, True, True)
+    assert ship.output.foot_plant and not source.output.foot_plant
     config = json.loads((tmp_path / "ship" / "config.json").read_text())
     assert config["output"]["smoothing"] == 0.3 and config["inference"] == {"int8_lstm": True}
     assert (tmp_path / "ship" / "train_config.json").read_text() == '{"name": "recipe"}'

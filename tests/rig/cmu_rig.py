@@ -92,14 +92,17 @@ def scaled(clip: Clip, cm_per_unit: float) -> Clip:
 
 
 def convert_takes(sources: list[tuple[Path, str, str]], out: Path, units: str = "inch",
-                  fps: float = 120.0) -> list[ConvertedTake]:
+                  fps: float = 120.0, frames: int | None = None) -> list[ConvertedTake]:
     """Write each ``(Bandai-Namco BVH, style, content)`` on the CMU-style rig under ``out`` as
-    ``take_NN.bvh`` (no labels in the name) in ``units`` at ``fps``, and ``out/manifest.csv``."""
+    ``take_NN.bvh`` (no labels in the name) in ``units`` at ``fps``, and ``out/manifest.csv``; ``frames``: only
+    the first that many frames of each source take (at its own rate; None: all)."""
     out.mkdir(parents=True, exist_ok=True)
     scale = CM_PER_UNIT[units]
     converted = []
     for n, (source, style, content) in enumerate(sources):
         clip = cmu_clip(load_clip(source, profile="bandai-namco", dtype=torch.float64))
+        if frames is not None:
+            clip = clip.window(0, min(frames, clip.num_frames))
         positions = clip.global_positions()
         toes = [clip.skeleton.roles.left_foot[-1], clip.skeleton.roles.right_foot[-1]]
         toe_speed = (positions[1:, toes] - positions[:-1, toes]).norm(dim=-1)

@@ -153,8 +153,8 @@ class FootLock:
 
 
 class FootLockStep:
-    """The foot lock as a frame step (:mod:`model.inference.output.frame`), last of the steps that move feet:
-    it reads the legs the steps before computed, reaches the ankles the stride warp moved, and judges
+    """The foot lock as a frame step (:mod:`model.inference.output.frame`), last of the steps that move feet but
+    the foot plant: it reads the legs the steps before computed, reaches the ankles the stride warp moved, and judges
     planted feet against what the warp left of steering's shift."""
 
     MEMORY_KEYS: ClassVar[tuple[str, ...]] = FootLockState.MEMORY_KEYS

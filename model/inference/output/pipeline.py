@@ -22,6 +22,7 @@ import torch
 from model.inference.output.arrival import ArrivalCorrector, ExactArrival
 from model.inference.output.floor_contact import FloorStep
 from model.inference.output.foot_lock import FootLockStep
+from model.inference.output.foot_plant import FootPlantStep
 from model.inference.output.frame import Frame, FrameStep, StepParts
 from model.inference.output.settings import OutputConfig
 from model.inference.output.smoothing import Smoothing
@@ -52,6 +53,7 @@ STEPS: tuple[Step, ...] = (
     Step("floor_contact", "frame", FloorStep.build),
     Step("stride_warp", "frame", StrideWarpStep.build),
     Step("foot_lock", "frame", FootLockStep.build),
+    Step("foot_plant", "frame", FootPlantStep.build),  # last of the feet: on the floor, whatever moved them
     Step("exact_arrival", "after", lambda parts: ExactArrival(ArrivalCorrector(parts.skeleton))),  # per request
 )
 

@@ -22,7 +22,8 @@ class OutputConfig:
     for the target (:mod:`model.inference.output.steering`; its window 0: off). ``floor``: lift a body whose
     feet sink under the floor of its context (:mod:`model.inference.output.floor_contact`). ``stride_warp``: the
     longest stride the feet are stretched to where steering carries the body, as a share of the
-    network's stride beyond 1 (:mod:`model.inference.output.stride_warp`; 0: off)."""
+    network's stride beyond 1 (:mod:`model.inference.output.stride_warp`; 0: off). ``foot_plant``: bring a planted
+    foot that stands higher than its style's capture down to the floor (:mod:`model.inference.output.foot_plant`)."""
 
     smoothing: float = 0.0
     foot_lock: bool = False
@@ -30,6 +31,7 @@ class OutputConfig:
     steering: SteeringConfig = field(default_factory=SteeringConfig)
     floor: bool = False
     stride_warp: float = 0.0
+    foot_plant: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.stride_warp <= 4.0:
@@ -60,7 +62,7 @@ class OutputConfig:
         steer = self.steering if steering is None else self.steering.with_window(int(steering))
         return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer,
                             self.floor if floor is None else bool(floor),
-                            self.stride_warp if stride_warp is None else float(stride_warp))
+                            self.stride_warp if stride_warp is None else float(stride_warp), self.foot_plant)
 
     def in_words(self) -> str:
         """These settings as a short phrase, e.g. ``smoothing 0.3/0.3, foot lock on, steering 40 (facing 5),
@@ -71,14 +73,16 @@ class OutputConfig:
         steering = f", steering {steer.window}{f' ({finish})' if finish else ''}" if steer.on else ""
         return (f"smoothing {self.smoothing:g}/{self.root_strength:g}, foot lock {'on' if self.foot_lock else 'off'}"
                 f"{steering}{', floor contact' if self.floor else ''}"
-                f"{f', stride warp {self.stride_warp:g}' if self.stride_warp and steer.on else ''}")
+                f"{f', stride warp {self.stride_warp:g}' if self.stride_warp and steer.on else ''}"
+                f"{', foot plant' if self.foot_plant else ''}")
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> OutputConfig:
-        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering", "floor", "stride_warp"}
+        unknown = set(data) - {"smoothing", "root_smoothing", "foot_lock", "steering", "floor", "stride_warp",
+                               "foot_plant"}
         if unknown:
             raise ValueError(f"unknown output settings: {', '.join(sorted(unknown))}")
         data = dict(data)

@@ -34,10 +34,12 @@ def test_each_style_s_top_speed_is_its_fastest_train_take_s(limits: GaitLimits) 
         lo, hi = got.hips_cm["walk"]
         assert 92.0 - 1.5 - 1e-3 <= lo < hi <= 92.0 + 1.5 + 1e-3  # the synthetic hips bob 1.5 cm about 92
         assert got.takes > 0 and 0.0 < got.foot_lift_cm < 30.0  # the synthetic feet swing, never all leave the floor
+        assert 0.0 <= got.planted_rise_cm < 100.0  # measured (the synthetic swing slows high up: no bound of a real walk)
     assert limits.max_speed("slow") == limits.styles["slow"].max_speed_cm_s
     assert limits.max_speed("a-clip-style") == max(s.max_speed_cm_s for s in limits.styles.values())
     assert limits.max_speed(None) == limits.max_speed("a-clip-style")
     assert limits.foot_lift("a-clip-style") == max(s.foot_lift_cm for s in limits.styles.values())
+    assert limits.planted_rise("a-clip-style") == max(s.planted_rise_cm for s in limits.styles.values())
 
 
 def test_gaits_of_content_labels() -> None:
@@ -54,6 +56,7 @@ def test_the_limits_travel_with_the_bundle(limits: GaitLimits, tmp_path: Path) -
     assert loaded.gait_limits is not None and set(loaded.gait_limits.styles) == set(limits.styles)
     for name, style in limits.styles.items():
         assert loaded.gait_limits.styles[name].max_speed_cm_s == pytest.approx(style.max_speed_cm_s, abs=0.05)
+        assert loaded.gait_limits.styles[name].planted_rise_cm == pytest.approx(style.planted_rise_cm, abs=0.05)
     (tmp_path / "b" / GAIT_LIMITS_FILE).write_text(json.dumps({"format": "rsmt-gait-limits/0", "styles": {}}))
     with pytest.raises(BundleError, match="gait limits format"):
         Bundle.load(tmp_path / "b")
