@@ -22,6 +22,19 @@ def shared_data() -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def default_model_eager_server():
+    """One server of the default model, eager and warmed at batch 1 (quick to start), for the session's tests that
+    use it as a user would (tests/service/test_docs_examples.py, tests/viewer/test_viewer_default_model.py):
+    one start instead of one a module."""
+    from model.inference.bundle import DEFAULT_BUNDLE
+    from tests.service.server import Server
+
+    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WARMUP_MAX_BATCH": "1", "RSMT_EAGER": "true"}).start(300)
+    yield srv
+    srv.stop()
+
+
 @pytest.fixture
 def one_thread():
     """Run a test on one torch thread: many small tensor ops are faster that way on 2 cores."""
