@@ -35,6 +35,17 @@ def default_model_eager_server():
     srv.stop()
 
 
+@pytest.fixture(scope="session")
+def default_onnx_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``rsmt export onnx`` of the default bundle, once a session: the graphs and sidecar that the export's tests
+    (tests/model/export/test_onnx_export.py) check and the engine samples (tests/clients/test_engine_samples.py) run."""
+    from rsmt_cli.main import main
+
+    out = tmp_path_factory.mktemp("onnx")
+    assert main(["export", "onnx", "--out", str(out)]) == 0
+    return out
+
+
 @pytest.fixture
 def one_thread():
     """Run a test on one torch thread: many small tensor ops are faster that way on 2 cores."""
