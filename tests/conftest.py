@@ -22,6 +22,30 @@ def shared_data() -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def default_model_eager_server():
+    """One server of the default model, eager and warmed at batch 1 (quick to start), for the session's tests that
+    use it as a user would (tests/service/test_docs_examples.py, tests/viewer/test_viewer_default_model.py):
+    one start instead of one a module."""
+    from model.inference.bundle import DEFAULT_BUNDLE
+    from tests.service.server import Server
+
+    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WARMUP_MAX_BATCH": "1", "RSMT_EAGER": "true"}).start(300)
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="session")
+def default_onnx_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``rsmt export onnx`` of the default bundle, once a session: the graphs and sidecar that the export's tests
+    (tests/model/export/test_onnx_export.py) check and the engine samples (tests/clients/test_engine_samples.py) run."""
+    from rsmt_cli.main import main
+
+    out = tmp_path_factory.mktemp("onnx")
+    assert main(["export", "onnx", "--out", str(out)]) == 0
+    return out
+
+
 @pytest.fixture
 def one_thread():
     """Run a test on one torch thread: many small tensor ops are faster that way on 2 cores."""

@@ -24,7 +24,6 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
-from model.export.onnx_bundle import export_onnx
 from model.export.onnx_graphs import STYLE_FIELDS
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import CharacterBatch, Engine
@@ -93,10 +92,8 @@ def _write_names(out: IO[bytes], names: list[str]) -> None:
 
 
 @pytest.fixture(scope="module")
-def graphs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("graphs")
-    export_onnx(Bundle.load(DEFAULT_BUNDLE), out)
-    return out
+def graphs(default_onnx_export: Path) -> Path:
+    return default_onnx_export  # tests/conftest.py: the default bundle's `rsmt export onnx`, once a session
 
 
 def _engine_frames(engine: Engine, context, target, retarget, style_clip) -> torch.Tensor:

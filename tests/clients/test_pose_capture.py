@@ -21,7 +21,7 @@ import torch
 
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import axis_angle_to_quat, matrix_to_quat, quat_mul, quat_rotate, quat_to_matrix, yaw_quat
-from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, mono_tools, run
+from tests.clients.helpers import CORE, CXX_FLAGS, REPO, UNITY, UNREAL, core_objects, gxx, mono_tools, run
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]  # slow: compiles with mcs and g++
 
@@ -133,19 +133,18 @@ def build_unity(tmp: Path, broken: bool = False) -> Path:
 
 
 def build_unreal(tmp: Path, broken: bool = False) -> Path:
-    core = UNREAL / "Source" / "RsmtCore"
-    sources = [core / "Private" / s for s in ("RsmtJson.cpp", "RsmtMath.cpp", "RsmtConvert.cpp", "RsmtProtocol.cpp",
-                                              "RsmtPoseCapture.cpp")]
+    """The pose test program; ``broken``: with RsmtConvert's rotation conversion wrong (compiled here, the other
+    sources' objects shared with the other Unreal builds)."""
+    names = ["RsmtJson.cpp", "RsmtMath.cpp", "RsmtConvert.cpp", "RsmtProtocol.cpp", "RsmtPoseCapture.cpp"]
+    sources = [str(obj) for obj in core_objects(tmp, [n for n in names if not (broken and n == "RsmtConvert.cpp")])]
     if broken:
-        text = sources[2].read_text()
+        text = (CORE / "Private" / "RsmtConvert.cpp").read_text()
         old = "Quat UnrealToModelRotation(const Quat& q) {\n    return Quat{-q.x, -q.z, -q.y, q.w};"
         assert old in text
         (tmp / "RsmtConvert.cpp").write_text(text.replace(old, old.replace("{-q.x, -q.z, -q.y, q.w}", "{q.x, q.z, q.y, q.w}")))
-        sources[2] = tmp / "RsmtConvert.cpp"
+        sources.append(str(tmp / "RsmtConvert.cpp"))
     exe = tmp / "rsmt_pose_test"
-    run([gxx(), "-std=c++17", "-O1", "-Wall", "-Wextra", "-Wshadow", "-Wconversion", "-Wno-sign-conversion", "-pedantic",
-         "-Werror", "-fno-exceptions", "-fno-rtti", f"-I{core / 'Public'}", *map(str, sources),
-         str(UNREAL / "Tests" / "rsmt_pose_test.cpp"), "-o", str(exe)], timeout=600)
+    run([gxx(), *CXX_FLAGS, *sources, str(UNREAL / "Tests" / "rsmt_pose_test.cpp"), "-o", str(exe)], timeout=600)
     return exe
 
 

@@ -28,6 +28,17 @@ def server(bundle_dir):
     srv.stop()
 
 
+@pytest.fixture(scope="session")
+def default_model_server():
+    """One server of the default model for the session's read-only streaming tests on it (the retarget yardstick
+    and the reach sweep), with messages up to 1 MiB (their poses are sent in full): one start instead of one a module."""
+    from model.inference.bundle import DEFAULT_BUNDLE
+
+    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WS_MAX_MESSAGE_BYTES": str(1 << 20)}).start()
+    yield srv
+    srv.stop()
+
+
 @pytest.fixture(scope="module")
 def client(server):
     """An HTTP client of the module's server."""

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import pytest
 
-from model.inference.bundle import DEFAULT_BUNDLE
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow
@@ -101,12 +100,10 @@ def test_every_entry_of_the_not_run_list_names_exactly_one_block() -> None:
 
 
 @pytest.fixture(scope="module")
-def server():
+def server(request: pytest.FixtureRequest) -> Server:
     if not (shutil.which("curl") and shutil.which("jq")):
         pytest.skip("the examples need curl and jq (apt-get install curl jq)")
-    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WARMUP_MAX_BATCH": "1", "RSMT_EAGER": "true"}).start(300)
-    yield srv
-    srv.stop()
+    return request.getfixturevalue("default_model_eager_server")  # tests/conftest.py: shared with the viewer's tests
 
 
 def run(block: Block, server: Server, cwd: Path) -> str:

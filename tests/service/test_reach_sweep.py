@@ -95,10 +95,8 @@ def limits() -> GaitLimits:
 
 
 @pytest.fixture(scope="module")
-def server():
-    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WS_MAX_MESSAGE_BYTES": str(1 << 20)}).start()
-    yield srv
-    srv.stop()
+def server(default_model_server: Server) -> Server:
+    return default_model_server  # tests/service/conftest.py: shared with the other read-only streams of the default model
 
 
 @pytest.fixture(scope="module")

@@ -34,10 +34,8 @@ LIVE_SINK_CM = 3.0  # nor may the feet go into the floor (walks to a target behi
 
 
 @pytest.fixture(scope="module")
-def default_server():
-    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WARMUP_MAX_BATCH": "1", "RSMT_EAGER": "true"}).start(300)
-    yield srv
-    srv.stop()
+def default_server(default_model_eager_server: Server) -> Server:
+    return default_model_eager_server  # tests/conftest.py: shared with tests/service/test_docs_examples.py
 
 
 @pytest.fixture(scope="module")

@@ -11,18 +11,14 @@ import onnx
 import onnxruntime as ort
 import pytest
 
-from rsmt_cli.main import main
-
 pytestmark = pytest.mark.slow  # exports the default bundle's five graphs
 
 GRAPHS = ("prepare", "style", "begin", "step", "output")
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("onnx")
-    assert main(["export", "onnx", "--out", str(out)]) == 0
-    return out
+def exported(default_onnx_export: Path) -> Path:
+    return default_onnx_export  # tests/conftest.py: `rsmt export onnx --out DIR`, once a session
 
 
 def test_every_graph_passes_the_checker_at_opset_15_or_below(exported: Path) -> None:

@@ -49,10 +49,8 @@ def cases(shared_data: Path) -> CaseSet:
 
 
 @pytest.fixture(scope="module")
-def server():
-    srv = Server(DEFAULT_BUNDLE, env={"RSMT_WS_MAX_MESSAGE_BYTES": str(1 << 20)}).start()
-    yield srv
-    srv.stop()
+def server(default_model_server: Server) -> Server:
+    return default_model_server  # tests/service/conftest.py: shared with the other read-only streams of the default model
 
 
 def _stream_one(server: Server, cases: CaseSet, b: int) -> tuple[np.ndarray, np.ndarray, int]:
