@@ -58,7 +58,8 @@ class FinetuneConfig:
 
     # One validation, at the end (``epoch_iterations`` = ``iterations``), and a checkpoint a minute: the
     # validations do not touch the training steps (the same adapter to the bit, however often they run) and
-    # every 50 steps they took about 7% of the run on a 2-core CPU.
+    # every 50 steps they took about 13 s of CPU in a 400-step run (docs/experiments/2026-11-25-unseen-styles.md,
+    # amendment 9).
     loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=400, epoch_iterations=400, lr=3e-4, warmup=20,
                                                                 lr_final=3e-5, checkpoint_every_s=60.0))
     scope: str = "network"
