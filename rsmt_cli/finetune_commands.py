@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import shutil
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from rsmt_cli.train_commands import add_device_argument, resolve_cli_device
 
 MIN_CLIPS, MAX_CLIPS = 1, 5
+_STARTED = time.perf_counter()  # about when the command started: this module is imported before torch is
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -44,19 +48,33 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_run)
 
 
-def _run(args: argparse.Namespace) -> int:
-    import torch
+def _check_paths(args: argparse.Namespace) -> None:
+    """The clip files and the bundle folder, before anything is loaded."""
+    for clip in args.clips:
+        if not clip.is_file():
+            raise FileNotFoundError(f"--clips {clip}: no such file")
+    if len({c.resolve() for c in args.clips}) < len(args.clips):
+        raise ValueError("--clips names the same file twice: give different clips of the new style")
+    if not args.model.is_dir():
+        raise FileNotFoundError(f"--model {args.model}: no such folder (a bundle folder, e.g. model/default_bundle)")
+    if not (args.model / "config.json").is_file():
+        raise ValueError(f"--model {args.model} is not a model bundle: it has no config.json")
 
-    from model.inference.bundle import Bundle
+
+def _run(args: argparse.Namespace) -> int:
     from model.inference.bundle_styles import check_name
-    from model.inference.engine import Engine
-    from model.inference.style_packing import write_adapter
-    from model.motion.bvh_clip import load_clip
-    from model.train.finetune import FinetuneConfig, finetune_style
 
     if not MIN_CLIPS <= len(args.clips) <= MAX_CLIPS:
         raise ValueError(f"--clips takes {MIN_CLIPS} to {MAX_CLIPS} clips of the new style; got {len(args.clips)}")
     check_name(args.name)
+    import torch
+
+    from model.inference.bundle import Bundle
+    from model.inference.engine import Engine
+    from model.inference.style_packing import write_adapter
+    from model.motion.bvh_clip import load_clip
+    from model.train.finetune import FinetuneConfig, check_clips, finetune_style
+
     if args.iterations is not None and args.iterations < 1:
         raise ValueError(f"--iterations must be at least 1; got {args.iterations}")
     if args.blend is not None and not 0.0 < args.blend <= 1.0:
@@ -66,6 +84,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {args.out} is not empty: give a new folder, or --out {args.model} to add the style to "
                          "the bundle in place")
     device = resolve_cli_device(args.device)  # first, so a missing GPU fails before anything is loaded
+    _check_paths(args)
     if args.threads:
         torch.set_num_threads(args.threads)
     bundle = Bundle.load(args.model)
@@ -73,18 +92,21 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.model} already has a built-in style {args.name!r}: pick another --name")
     engine = Engine(bundle)
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
-    style_clip = _new_style(clips, args.clips, args.name, bundle)  # before the long part
     cfg = FinetuneConfig.for_scope(args.scope)
     if args.iterations is not None:
         cfg.loop.iterations = args.iterations
     if args.blend is not None:  # applied to the trained weights: the run folder's checkpoints do not depend on it
         cfg.blend = args.blend
-    cfg.loop.epoch_iterations = max(1, min(cfg.loop.epoch_iterations, cfg.loop.iterations))
+    cfg.loop.epoch_iterations = cfg.loop.iterations  # one validation, at the end (it never changes the steps)
+    check_clips(bundle, clips, cfg)  # before the long part, and before a run folder is made
+    style_clip = _new_style(clips, args.clips, args.name, bundle)
+    loaded = time.perf_counter()
     run = args.run or args.out.parent / f".finetune-{args.name}"
     claim_run_folder(run, {"model": str(args.model.resolve()), "version": bundle.version, "name": args.name,
                            "clips": [str(c.resolve()) for c in args.clips], "scope": args.scope,
                            "iterations": cfg.loop.iterations}, replace=args.run is None)
     adapter, result = finetune_style(bundle, clips, args.name, cfg, run, progress=not args.quiet, device=device)
+    tuned = time.perf_counter()
     if not result.finished:
         print(f"stopped early; run again to resume from {run}")
         return 3
@@ -92,10 +114,29 @@ def _run(args: argparse.Namespace) -> int:
         shutil.copytree(args.model, args.out, dirs_exist_ok=True)  # the bundle as it is, byte for byte
     write_adapter(args.out, adapter, style_clip)
     styles = sorted(Bundle.load(args.out).styles)
+    done = time.perf_counter()
+    timings = {"startup": loaded - _STARTED, "preparing": tuned - loaded - result.seconds, "training": result.seconds,
+               "saving": done - tuned, "total": done - _STARTED}
     print(json.dumps({"bundle": str(args.out), "device": str(device), "seconds": round(result.seconds, 1),
+                      "timings_s": {k: round(v, 1) for k, v in timings.items()}, "cpu_s": round(_cpu_seconds(), 1),
+                      "threads": torch.get_num_threads(), "load_average": _load_average(),
                       "history": result.history[-1:], "adapter_mb": round(adapter.nbytes / 2**20, 2),
                       "styles": [f"builtin:{s}" for s in styles]}, indent=1))
     return 0
+
+
+def _cpu_seconds() -> float:
+    """This process's CPU time so far, every thread's (beside the wall time: on a shared machine, the work)."""
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    return use.ru_utime + use.ru_stime
+
+
+def _load_average() -> float | None:
+    """The machine's 1-minute load average (how shared it was), where the system tells it."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):
+        return None
 
 
 def claim_run_folder(run: Path, request: dict[str, Any], replace: bool = False) -> None:

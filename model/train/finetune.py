@@ -56,8 +56,12 @@ class FinetuneConfig:
     no better, amendment 8). ``blend`` 0.5 then won against 1 and 0.75
     (amendment 3): lower L2P and skate, less of a distant style (active 69% -> 17% on validation)."""
 
-    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=400, epoch_iterations=50, lr=3e-4, warmup=20,
-                                                                lr_final=3e-5))
+    # One validation, at the end (``epoch_iterations`` = ``iterations``), and a checkpoint a minute: the
+    # validations do not touch the training steps (the same adapter to the bit, however often they run) and
+    # every 50 steps they took about 13 s of CPU in a 400-step run (docs/experiments/2026-11-25-unseen-styles.md,
+    # amendment 9).
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(iterations=400, epoch_iterations=400, lr=3e-4, warmup=20,
+                                                                lr_final=3e-5, checkpoint_every_s=60.0))
     scope: str = "network"
     batch: int = 16
     max_transition: int = 40
@@ -95,6 +99,24 @@ def _checked(scope: str) -> str:
     return scope
 
 
+def check_clips(bundle: Bundle, clips: list[Clip], cfg: FinetuneConfig) -> tuple[int, int]:
+    """The style-clip and longest transition lengths fine-tuning on ``clips`` uses; a ValueError naming the
+    shortest clip when one is too short for them, or when ``bundle`` cannot be fine-tuned."""
+    if bundle.phase_model is None:
+        raise ValueError("this bundle has no phase model, which fine-tuning needs to label the clips")
+    if not clips:
+        raise ValueError("fine-tuning needs at least one clip of the new style")
+    c = bundle.config
+    shortest = min(clips, key=lambda clip: clip.num_frames)
+    style_frames = min(cfg.style_frames, shortest.num_frames)
+    transition = min(cfg.max_transition, shortest.num_frames - c.context)
+    need = max(c.context + 5, c.style_frames_min)
+    if transition < 5 or style_frames < c.style_frames_min:
+        raise ValueError(f"{shortest.name or 'a clip'} is too short: {shortest.num_frames} frames at {c.fps:g} fps; "
+                         f"each clip needs at least {need} ({need / c.fps:.2f} s)")
+    return style_frames, transition
+
+
 def trainable_parameters(sampler: TransitionSampler, scope: str = "network") -> list[tuple[str, torch.nn.Parameter]]:
     if _checked(scope) == "style":
         return [(n, p) for n, p in sampler.named_parameters() if n.startswith(STYLE_PREFIXES)]
@@ -107,15 +129,9 @@ def finetune_style(bundle: Bundle, clips: list[Clip], style_name: str, cfg: Fine
     starting from ``bundle``'s weights, which are left as they are. Trains on ``device`` (checkpoints in
     ``folder``, resumed by the same call); the adapter's tensors are on the CPU."""
     dev = resolve_device(device)
-    if bundle.phase_model is None:
-        raise ValueError("this bundle has no phase model, which fine-tuning needs to label the clips")
     c = bundle.config
-    shortest = min(clip.num_frames for clip in clips)
-    style_frames = min(cfg.style_frames, shortest)
-    transition = min(cfg.max_transition, shortest - c.context)
-    if transition < 5 or style_frames < c.style_frames_min:
-        raise ValueError(f"the clips are too short: each needs at least {c.context + 5} frames at {c.fps:g} fps "
-                         f"(the shortest has {shortest})")
+    style_frames, transition = check_clips(bundle, clips, cfg)
+    assert bundle.phase_model is not None  # check_clips refuses a bundle without one
     sampler = copy.deepcopy(bundle.sampler)
     reference = torch.cat([clip.rotations for clip in clips])
     tensors = MotionTensors.from_clips([(clip, 0, "clip") for clip in clips], [style_name], bundle.skeleton, reference,

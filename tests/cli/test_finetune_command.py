@@ -57,6 +57,10 @@ def test_the_new_style_is_built_in_on_its_own_weights_and_the_rest_is_kept(setup
     assert main(_args(tmp_path, bouncy[:3])) == 0
     report = _report(capsys.readouterr().out)
     assert report["styles"] == ["builtin:bouncy", "builtin:brisk", "builtin:slow"] and report["adapter_mb"] > 0
+    # Where the time went, and the work: what a shared machine's wall time alone does not tell.
+    times = report["timings_s"]
+    assert set(times) == {"startup", "preparing", "training", "saving", "total"} and report["cpu_s"] > 0
+    assert times["training"] == report["seconds"] and times["total"] >= times["training"] + times["saving"]
     base, tuned = _files(tmp_path / "base"), _files(tmp_path / "tuned")
     assert {k: v for k, v in tuned.items() if not k.startswith("adapters/")} == base  # weights and styles untouched
     bundle = Bundle.load(tmp_path / "tuned")
@@ -132,3 +136,26 @@ def test_a_run_folder_of_other_settings_is_refused_not_mixed_in(setup, capsys):
     (default / "checkpoint.json").write_text("{}")
     assert main(_args(tmp_path, bouncy[:2])) == 0
     assert "an earlier run without a request is replaced" in capsys.readouterr().err
+
+
+def test_bad_clips_and_bundles_are_told_before_any_run_folder_is_made(setup, capsys):
+    tmp_path, _, bouncy = setup
+    assert main(_args(tmp_path, [*bouncy[:2], tmp_path / "missing.bvh"])) == 2
+    assert "--clips " + str(tmp_path / "missing.bvh") + ": no such file" in capsys.readouterr().err
+    assert main(_args(tmp_path, [bouncy[0], bouncy[1], bouncy[0]])) == 2
+    assert "names the same file twice" in capsys.readouterr().err
+    args = _args(tmp_path, bouncy[:3])
+    args[args.index(str(tmp_path / "base"))] = str(tmp_path / "nowhere")
+    assert main(args) == 2
+    assert "--model " + str(tmp_path / "nowhere") + ": no such folder" in capsys.readouterr().err
+    args[args.index(str(tmp_path / "nowhere"))] = str(tmp_path / "data")  # a folder, but no bundle
+    assert main(args) == 2
+    assert "is not a model bundle" in capsys.readouterr().err
+    short = tmp_path / "short.bvh"  # 12 frames: too short for a style clip or a transition
+    text = bouncy[0].read_text().splitlines()
+    at = next(i for i, line in enumerate(text) if line.startswith("Frames:"))
+    short.write_text("\n".join([*text[:at], "Frames: 12", text[at + 1], *text[at + 2:at + 14]]) + "\n")
+    assert main(_args(tmp_path, [bouncy[0], bouncy[1], short])) == 2
+    err = capsys.readouterr().err
+    assert "short is too short: 12 frames at 30 fps; each clip needs at least 16" in err and "Traceback" not in err
+    assert not (tmp_path / "tuned").exists() and not (tmp_path / ".finetune-bouncy").exists()

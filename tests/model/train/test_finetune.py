@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import pytest
 import torch
@@ -13,7 +14,7 @@ from model.inference.bundle_adapters import StyleAdapter
 from model.nets.manifold import ManifoldConfig
 from model.nets.phase import PhaseConfig
 from model.nets.sampler import SamplerConfig
-from model.train.finetune import FROZEN_PREFIXES, STYLE_PREFIXES, FinetuneConfig, finetune_style
+from model.train.finetune import FROZEN_PREFIXES, STYLE_PREFIXES, FinetuneConfig, check_clips, finetune_style
 from model.train.loop import LoopConfig, LoopResult
 
 
@@ -101,3 +102,27 @@ def test_the_generated_feet_term_changes_what_is_learned_only_when_weighed(bundl
                              progress=False)
     assert seen and seen[0].shape == (len(bundle.skeleton.feet),)
     assert held.version != plain.version
+
+
+def test_how_often_it_validates_never_changes_what_is_learned(bundle, tmp_path):
+    """The default validates once, at the end: validations do not touch the training steps, so the adapter is
+    the same to the bit as with a validation every step."""
+    assert FinetuneConfig().loop.epoch_iterations == FinetuneConfig().loop.iterations
+    every_step = _config("network")
+    every_step.loop.epoch_iterations = 1
+    at_the_end = _config("network")
+    at_the_end.loop.epoch_iterations = at_the_end.loop.iterations
+    a, ra = finetune_style(bundle, _clips(), "bouncy", every_step, tmp_path / "a", progress=False)
+    b, rb = finetune_style(bundle, _clips(), "bouncy", at_the_end, tmp_path / "b", progress=False)
+    assert len(ra.history) == 4 and len(rb.history) == 1
+    assert a.version == b.version
+
+
+def test_a_clip_too_short_is_named(bundle, tmp_path):
+    short = synthetic_walk(frames=12, cadence_hz=1.5, stride_deg=35.0)
+    clips = [*_clips()[:2], replace(short, name="tiny.bvh")]
+    with pytest.raises(ValueError, match=r"tiny\.bvh is too short: 12 frames at 30 fps; each clip needs at least 16"):
+        check_clips(bundle, clips, FinetuneConfig())
+    with pytest.raises(ValueError, match="too short"):
+        finetune_style(bundle, clips, "bouncy", _config("network"), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
