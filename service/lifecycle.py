@@ -54,7 +54,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         raise
     state.registry = registry
     state.metrics.watch_style_caches(lambda: [(m.name, m.engine.styles) for m in registry])
-    registry.start_schedulers(state.metrics, state.settings.asap_share)
+    registry.start_schedulers(state.metrics, state.settings.asap_share, state.settings.step_shares_on,
+                              state.settings.step_share_batch)
 
     restore = install_signal_hook(state, asyncio.get_running_loop())
 

@@ -28,6 +28,7 @@ from service.metrics import Metrics
 from service.motion import MotionLimits
 from service.settings import Settings
 from service.streaming.scheduler import Scheduler
+from service.streaming.step_shares import StepShares
 from service.style_store import StyleStore, style_store_factory
 from service.work_queue import WorkQueue
 
@@ -137,10 +138,12 @@ class Registry:
     def live_characters(self) -> int:
         return sum(m.scheduler.live for m in self if m.scheduler is not None)
 
-    def start_schedulers(self, metrics: Metrics | None, asap_share: float = 0.1) -> None:
+    def start_schedulers(self, metrics: Metrics | None, asap_share: float = 0.1, step_shares: bool = False,
+                         step_share_batch: int = 256) -> None:
         for m in self:
             m.queue.metrics = metrics
-            m.scheduler = Scheduler(m.engine, m.step, metrics, m.name, asap_share=asap_share)
+            m.scheduler = Scheduler(m.engine, m.step, metrics, m.name, asap_share=asap_share,
+                                    shares=StepShares(step_shares, step_share_batch))
             m.scheduler.start()
 
     def close_queues(self) -> int:

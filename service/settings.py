@@ -130,6 +130,14 @@ class Settings(BaseSettings):
         default=0.1, ge=0.0, le=1.0, description="the largest share of time that steps of pace-asap characters may "
         "make realtime characters late: an asap step starts when it ends before the next realtime frame is due, and "
         "one that cannot (a batch whose step is longer than the gap) only on this share of the time (0: never)")
+    step_shares: Literal["equal", "off"] | None = Field(
+        default=None, description="per-key shares of the step budget: `equal` (each API key's characters step in "
+        "batches of their own, and the key that has used the least step time goes first, so one key's many "
+        "characters cannot slow another key's few) or `off` (every key's characters in the same batches). "
+        "Default: equal with keys on, off with keys off")
+    step_share_batch: int = Field(
+        default=256, ge=1, description="with step shares on: the most characters of one key and pace in one batch "
+        "(a key with more steps several batches, one after the other)")
     max_pending_messages: int = Field(
         default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )
@@ -266,6 +274,11 @@ class Settings(BaseSettings):
         if self.max_characters_per_key is not None:
             return self.max_characters_per_key
         return max(1, self.max_characters // 4) if self.auth_enabled else None
+
+    @property
+    def step_shares_on(self) -> bool:
+        """Whether each API key gets its share of the step budget: the setting, else whether keys are on."""
+        return self.auth_enabled if self.step_shares is None else self.step_shares == "equal"
 
     @property
     def styles_per_owner(self) -> int:

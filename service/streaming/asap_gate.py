@@ -28,16 +28,19 @@ class AsapGate:
         self.credit = 0.0  # seconds of asap steps that may still make a realtime tick late
         self._last: float | None = None
 
-    def fits(self, now: float, next_realtime: float | None) -> bool:
-        """Whether an asap step started ``now`` ends before ``next_realtime`` (None: no realtime character)."""
-        return next_realtime is None or now + self.estimate <= next_realtime - MARGIN_S
+    def fits(self, now: float, next_realtime: float | None, estimate: float | None = None) -> bool:
+        """Whether an asap step started ``now`` ends before ``next_realtime`` (None: no realtime character);
+        ``estimate``: the step's length when known better than the running one (one key's batch)."""
+        length = self.estimate if estimate is None else estimate
+        return next_realtime is None or now + length <= next_realtime - MARGIN_S
 
-    def allows(self, now: float, next_realtime: float | None) -> bool:
+    def allows(self, now: float, next_realtime: float | None, estimate: float | None = None) -> bool:
         """Whether an asap step may start ``now``; refills the budget up to ``now``."""
         self._refill(now)
-        if self.fits(now, next_realtime):
+        if self.fits(now, next_realtime, estimate):
             return True
-        return self.share > 0 and self.credit >= min(self.estimate, BURST_S * self.share)
+        length = self.estimate if estimate is None else estimate
+        return self.share > 0 and self.credit >= min(length, BURST_S * self.share)
 
     def record(self, seconds: float, fitted: bool) -> None:
         """An asap step took ``seconds``; one that did not fit (``fitted`` False) is paid from the budget."""

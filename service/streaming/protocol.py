@@ -206,7 +206,7 @@ class Session:
             return
         assert model.scheduler is not None
         stream = Stream(character=character, outbox=conn, slot=conn.next_slot(), pace=msg.pace,
-                        fps=float(model.engine.config.fps), encoding=conn.encoding)
+                        fps=float(model.engine.config.fps), encoding=conn.encoding, owner=conn.owner)
         conn.streams[cid] = stream
         conn.send_message({"type": "started", "character": cid, "slot": stream.slot, "frames": msg.frames,
                            "fps": stream.fps, "style_id": style.style_id, "pace": msg.pace, "model": model.name,

@@ -8,6 +8,10 @@ Characters are grouped by pace, each group in one :class:`~model.inference.engin
   never so as to make a realtime frame late beyond a small share of the time
   (:mod:`service.streaming.asap_gate`).
 
+With per-key step shares on (:mod:`service.streaming.step_shares`, the default with API keys), each
+key's characters step in batches of their own (:mod:`service.streaming.lanes`) and the key that has
+used the least step time goes first, so one key's many characters cannot slow another key's few.
+
 So a tick is one ``step()`` of one batch; only when both groups are due at the same moment does a
 tick make two calls. Keeping the groups in separate batches (rather than one batch stepped at the
 asap rate with realtime members paused in between) matters because every membership change
@@ -42,6 +46,8 @@ from service.metrics import Metrics
 from service.streaming.asap_gate import AsapGate
 from service.streaming.commands import Add, Command, Park, Remove, Request, Retarget, SetStyle, Unpark
 from service.streaming.frames import encode_binary, encode_json
+from service.streaming.lanes import Lanes
+from service.streaming.step_shares import StepShares
 from service.streaming.stream import PACES, Stream
 
 log = logging.getLogger(__name__)
@@ -53,21 +59,33 @@ class _Tick:
     replies: list[tuple[asyncio.Future[int], int | ServiceError]] = field(default_factory=list)
     failed: list[tuple[Stream, str]] = field(default_factory=list)
     steps: list[tuple[str, int, int, float, float]] = field(default_factory=list)  # pace, live rows, rows, s, CPU s
+    charges: list[tuple[str, str, float]] = field(default_factory=list)  # owner, pace, step seconds
+
+
+@dataclass
+class _Plan:
+    """What one tick steps: the keys whose realtime lanes step (first one always, the others only while
+    they end before ``deadline``, a ``time.monotonic()``), and the key whose next asap lane steps."""
+
+    realtime: list[str] = field(default_factory=list)
+    deadline: float | None = None
+    asap: str | None = None
 
 
 class Scheduler:
     """The stepping loop of one model. Create, :meth:`start` on the event loop, :meth:`stop` at shutdown."""
 
     def __init__(self, engine: Engine, executor: Executor, metrics: Metrics | None = None, name: str = "model",
-                 asap_share: float = 0.1) -> None:
+                 asap_share: float = 0.1, shares: StepShares | None = None) -> None:
         self.engine = engine
         self._gate = AsapGate(asap_share)  # owned by the event loop
+        self._shares = shares or StepShares(enabled=False)  # owned by the event loop
         self.name = name
         self.fps = float(engine.config.fps)
         self.metrics = metrics
         self._executor = executor
         # Owned by the step thread.
-        self._batches = {p: CharacterBatch(engine) for p in PACES}
+        self._lanes = Lanes(engine, self._shares.rows)
         self._parked: set[int] = set()  # id() of characters detached for flow control
         self._streams_of: dict[int, Stream] = {}
         # Owned by the event loop.
@@ -77,6 +95,11 @@ class Scheduler:
         self._task: asyncio.Task | None = None
         self._closed = False
         self.ticks = 0
+
+    @property
+    def _batches(self) -> dict[str, CharacterBatch]:
+        """The first lane of each pace: the only one with per-key shares off."""
+        return {p: self._lanes.first(p) for p in PACES}
 
     # ------------------------------------------------------------------ loop-side API
     @property
@@ -154,7 +177,8 @@ class Scheduler:
             commands: list[Command] = []
             try:
                 now = loop.time()
-                next_rt, rt_due, asap_fits, asap_go = self._plan(now, next_rt, period)
+                next_rt, rt_due, asap_fits, plan = self._plan(now, next_rt, period)
+                asap_go = plan.asap is not None
                 if not (rt_due or asap_go or self._commands):
                     self._wake.clear()
                     timeout = None if next_rt is None else max(0.0, next_rt - now)
@@ -166,10 +190,10 @@ class Scheduler:
                     continue
                 commands, self._commands = self._commands, []
                 started = loop.time()
-                result = await loop.run_in_executor(self._executor, self._tick, commands, rt_due, asap_go)
-                for pace, _, _, seconds, _ in result.steps:
-                    if pace == "asap":
-                        self._gate.record(seconds, asap_fits)
+                if plan.deadline is not None:  # the loop's clock to the step thread's
+                    plan.deadline += time.monotonic() - loop.time()
+                result = await loop.run_in_executor(self._executor, self._tick, commands, plan)
+                self._charge(result, asap_fits)
                 if rt_due and next_rt is not None:
                     next_rt += period
                     if next_rt < loop.time() - period:  # fell behind: restart the clock, never burst
@@ -187,19 +211,34 @@ class Scheduler:
                             ServiceError("internal", f"{command.kind} failed; the server log has the details"))
                 await asyncio.sleep(period)
 
-    def _plan(self, now: float, next_rt: float | None, period: float) -> tuple[float | None, bool, bool, bool]:
-        """What a tick at ``now`` steps: ``(next realtime time, realtime due, an asap step fits, asap steps)``."""
-        rt_live = any(not s.parked for s in self.streams["realtime"])
-        asap_live = any(not s.parked for s in self.streams["asap"])
-        if not rt_live:
+    def _plan(self, now: float, next_rt: float | None, period: float) -> tuple[float | None, bool, bool, _Plan]:
+        """What a tick at ``now`` steps: ``(next realtime time, realtime due, an asap step fits, the plan)``."""
+        owner = self._shares.owner
+        waiting = {p: {owner(s.owner) for s in self.streams[p] if not s.parked} for p in PACES}
+        self._shares.keep(owner(s.owner) for p in PACES for s in self.streams[p])
+        if not waiting["realtime"]:
             next_rt = None
         elif next_rt is None:
             next_rt = now
         rt_due = next_rt is not None and now >= next_rt - 5e-4
         # When the next realtime frame is due: an asap step of this tick must end before it.
         due_next = None if next_rt is None else next_rt + (period if rt_due else 0.0)
-        fits = self._gate.fits(now, due_next)
-        return next_rt, rt_due, fits, asap_live and self._gate.allows(now, due_next)
+        plan = _Plan()
+        if rt_due:
+            plan.realtime, plan.deadline = self._shares.order(waiting["realtime"]), due_next
+        first = self._shares.first(waiting["asap"])
+        estimate = None if first is None else self._shares.estimate(first)
+        fits = self._gate.fits(now, due_next, estimate)
+        if first is not None and self._gate.allows(now, due_next, estimate):
+            plan.asap = first
+        return next_rt, rt_due, fits, plan
+
+    def _charge(self, result: _Tick, asap_fits: bool) -> None:
+        """Count each step against its key's share, and asap steps against the asap gate's budget."""
+        for owner, pace, seconds in result.charges:
+            self._shares.charge(owner, seconds, asap=pace == "asap")
+            if pace == "asap":
+                self._gate.record(seconds, asap_fits)
 
     def _observe(self, result: _Tick, tick_s: float) -> None:
         if self.metrics is None:
@@ -238,18 +277,27 @@ class Scheduler:
             self._gauge()
 
     # ------------------------------------------------------------------ the step thread
-    def _tick(self, commands: list[Command], step_realtime: bool, step_asap: bool) -> _Tick:
+    def _tick(self, commands: list[Command], plan: _Plan) -> _Tick:
         result = _Tick()
-        changed: set[str] = set()  # paces whose membership changed: their batch restacks anyway
+        changed: set[int] = set()  # id() of lanes whose membership changed: they restack anyway
         for command in commands:
             self._apply(command, result, changed)
-        for pace, due in (("realtime", step_realtime), ("asap", step_asap)):
-            batch = self._batches[pace]
-            if due and len(batch):
-                self._prune(batch, pace in changed)
-                if len(batch):
-                    self._step(pace, batch, result)
+        for i, owner in enumerate(plan.realtime):
+            for lane in self._lanes.in_turn("realtime", owner):
+                # The least served key's lanes always step; the others' only while they end in time (a key
+                # left out uses nothing, so it soon is the least served one).
+                if i and plan.deadline is not None and time.monotonic() + self._lanes.seconds(lane) > plan.deadline:
+                    continue
+                self._prune_and_step("realtime", owner, lane, changed, result)
+        if plan.asap is not None:
+            for lane in self._lanes.in_turn("asap", plan.asap)[:1]:
+                self._prune_and_step("asap", plan.asap, lane, changed, result)
         return result
+
+    def _prune_and_step(self, pace: str, owner: str, lane: CharacterBatch, changed: set[int], result: _Tick) -> None:
+        self._prune(lane, id(lane) in changed)
+        if len(lane):
+            self._step(pace, owner, lane, result)
 
     def _prune(self, batch: CharacterBatch, restacking: bool) -> None:
         """Drop ended characters, but only when it pays.
@@ -263,10 +311,12 @@ class Scheduler:
         done = [m for m in batch.members if m.done]
         # Exact-arrival characters are never left in: their correction is computed on every step.
         if done and (restacking or 4 * len(done) >= len(batch.members) or any(m.arrival is not None for m in done)):
-            for ch in batch.drop_finished():
+            dropped = batch.drop_finished()
+            for ch in dropped:
                 self._streams_of.pop(id(ch), None)
+            self._lanes.forget(dropped)
 
-    def _apply(self, command: Command, result: _Tick, changed: set[str]) -> None:
+    def _apply(self, command: Command, result: _Tick, changed: set[int]) -> None:
         """Apply one command; a request's reply (or the error that refused it) goes into ``result``."""
         try:
             if isinstance(command, Request):
@@ -281,17 +331,16 @@ class Scheduler:
             if isinstance(command, Request):
                 result.replies.append((command.reply, ServiceError("internal", f"{command.kind} failed: {exc}")))
 
-    def _change_membership(self, command: Command, changed: set[str]) -> None:
-        """Add, remove, park or unpark a character; its pace goes into ``changed`` when its batch will restack."""
+    def _change_membership(self, command: Command, changed: set[int]) -> None:
+        """Add, remove, park or unpark a character; its lane goes into ``changed`` when it will restack."""
         stream = command.stream
         ch = stream.character
-        batch = self._batches[stream.pace]
+        owner = self._shares.owner(stream.owner)
         key = id(ch)
         if isinstance(command, Add):
             self._streams_of[key] = stream
             if not ch.cancelled:
-                batch.add(ch)
-                changed.add(stream.pace)
+                changed.add(id(self._lanes.add(ch, stream.pace, owner)))
         elif isinstance(command, Remove):
             ch.cancelled = True
             if key in self._parked:
@@ -299,40 +348,41 @@ class Scheduler:
                 self._streams_of.pop(key, None)
         elif isinstance(command, Park):
             if not ch.done and key not in self._parked:
-                batch.detach(ch)
+                lane = self._lanes.detach(ch)
                 self._parked.add(key)
-                changed.add(stream.pace)
+                if lane is not None:
+                    changed.add(id(lane))
         elif isinstance(command, Unpark) and key in self._parked:
             self._parked.discard(key)
             if not ch.done:
-                batch.add(ch)
-                changed.add(stream.pace)
+                changed.add(id(self._lanes.add(ch, stream.pace, owner)))
 
     def _answer(self, request: Request) -> int | ServiceError:
         """Apply a retarget or a style change; the ``seq`` of the first frame it affects."""
         ch = request.stream.character
         if ch.done:
             return ServiceError("unknown_character", f"character {ch.id!r} has already ended")
-        batch = None if id(ch) in self._parked else self._batches[request.stream.pace]
+        batch = None if id(ch) in self._parked else self._lanes.lane_of(ch)
         if isinstance(request, Retarget):
             self.engine.retarget(ch, batch, target=request.target, frames=request.frames)
         elif isinstance(request, SetStyle):
             self.engine.set_style(ch, request.style, batch)
         return ch.seq
 
-    def _step(self, pace: str, batch: CharacterBatch, result: _Tick) -> None:
+    def _step(self, pace: str, owner: str, batch: CharacterBatch, result: _Tick) -> None:
         started, cpu_started = time.perf_counter(), time.thread_time()
         try:
             out = batch.step()
         except Exception:
             log.exception("scheduler %s: the %s batch failed to step; ending its characters", self.name, pace)
-            for ch in list(batch.members):
+            for ch in self._lanes.replace(batch):
                 stream = self._streams_of.get(id(ch))
                 if stream is not None:
                     result.failed.append((stream, "the model failed to generate a frame; start again"))
-            self._batches[pace] = CharacterBatch(self.engine)
             return
         seconds, cpu = time.perf_counter() - started, time.thread_time() - cpu_started
+        self._lanes.record(batch, seconds)
+        result.charges.append((owner, pace, seconds))
         # Rows of characters that had ended before this step (kept until a prune) are ignored.
         live = [i for i, ch in enumerate(out.characters) if not ch.cancelled and out.seq[i] < ch.frames_total]
         result.steps.append((pace, len(live), len(out.characters), seconds, cpu))

@@ -60,6 +60,7 @@ class Stream:
     cancelled: bool = False
     scheduler: Stepper | None = None  # set by Scheduler.add
     model: str = ""
+    owner: str = ""  # the API key's owner digest: whose share of the step budget it steps on
     last_due: float = 0.0
 
     @property
