@@ -248,5 +248,9 @@ def test_six_far_clicks_keep_the_toes_down_and_say_when_out_of_reach(default_bro
     shipped = Bundle.load(DEFAULT_BUNDLE, styles=False).version == SHIPPED_VERSION
     if shipped and bad:  # known and measured: the retrained model (issue 50 item 2) is to fix it
         pytest.xfail(f"the shipped network (version {SHIPPED_VERSION}) folds its legs in chained far retargets: {figure}")
+    # The shipped network folds its legs in some runs and not in others: where each click lands in the gait depends
+    # on the browser's and the server's timing (a loaded CI machine: folded, 294 frames; an idle one: 0 frames
+    # airborne, 194 frames). So a clean run of it passes rather than failing as "expected failure gone"; any other
+    # network must be clean every time.
     assert not bad, figure
-    assert not shipped, f"the shipped network now keeps its toes down and hips up ({figure}): drop its expected failure"
+    print(f"far clicks: {figure}")

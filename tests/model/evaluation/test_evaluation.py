@@ -267,7 +267,8 @@ def test_output_steps_can_be_chosen_for_an_evaluation(cache: MotionCache, bundle
     steering = {"window": 0, "momentum": 1.0, "max_step_cm": 10.0, "turn_window": 0, "max_turn_deg": 4.0,
                 "height_window": 0, "max_rise_cm": 2.0, "retarget_turn_window": 0, "retarget_max_turn_deg": 4.0}
     assert smooth.describe()["output"] == {"smoothing": 0.5, "foot_lock": True, "root_smoothing": None,
-                                           "steering": steering, "floor": False, "stride_warp": 0.0}
+                                           "steering": steering, "floor": False, "stride_warp": 0.0,
+                                           "foot_plant": False}
     steered = BundleMethod(bundle_dir, overrides=Overrides(steering=12))
     assert steered.describe()["output"]["steering"] == {**steering, "window": 12}
     assert BundleMethod(bundle_dir, overrides=Overrides(floor=True)).describe()["output"]["floor"] is True
