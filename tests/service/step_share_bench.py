@@ -55,7 +55,8 @@ def realtime_beside_asap(server: Server, asap: int, realtime: int, seconds: floa
             "gaps": float(len(gaps))}
 
 
-def _rate_alone(server: Server, token: str, characters: int, frames: int, seconds: float) -> float:
+def rate_alone(server: Server, token: str, characters: int, frames: int, seconds: float) -> float:
+    """Frames per second of ``characters`` asap characters of ``token`` with no other key on the server."""
     with KeyLoad(server.ws, token, characters, seconds + 1.0, frames) as load:
         since = load.ready_at + 1.0
         load.result()
@@ -63,20 +64,27 @@ def _rate_alone(server: Server, token: str, characters: int, frames: int, second
     return load.rate(since, since + seconds)
 
 
+def rates_together(server: Server, small_key: str, small: int, big_key: str, big: int, frames: int,
+                   seconds: float) -> tuple[float, float]:
+    """Frames per second of ``small`` asap characters of ``small_key`` and of ``big`` of ``big_key``, side by
+    side (each key's load in a process of its own), over ``seconds`` once the small key's load is ready."""
+    with KeyLoad(server.ws, big_key, big, seconds + 120.0, frames) as b, \
+            KeyLoad(server.ws, small_key, small, seconds + 1.0, frames) as s:
+        since = s.ready_at + 1.0
+        s.result()
+        b.stop()
+        b.result()
+    assert not b.errors and not s.errors, (b.errors, s.errors)
+    return s.rate(since, since + seconds), b.rate(since, since + seconds)
+
+
 def two_asap_keys(server: Server, small: int, big: int, seconds: float = 5.0) -> dict[str, float]:
     """Each key's asap frame rate beside the other as a share of its rate alone."""
     with GapProbe(server.ws, characters=0, query=f"token={KEY_B}") as idle:
         frames = idle.frames
-    alone_s = _rate_alone(server, KEY_B, small, frames, seconds)
-    alone_a = _rate_alone(server, KEY_A, big, frames, seconds)
-    with KeyLoad(server.ws, KEY_A, big, seconds + 120.0, frames) as a, \
-            KeyLoad(server.ws, KEY_B, small, seconds + 1.0, frames) as s:
-        since = s.ready_at + 1.0
-        s.result()
-        a.stop()
-        a.result()
-    assert not a.errors and not s.errors, (a.errors, s.errors)
-    together_s, together_a = s.rate(since, since + seconds), a.rate(since, since + seconds)
+    alone_s = rate_alone(server, KEY_B, small, frames, seconds)
+    alone_a = rate_alone(server, KEY_A, big, frames, seconds)
+    together_s, together_a = rates_together(server, KEY_B, small, KEY_A, big, frames, seconds)
     return {"small_alone": alone_s, "big_alone": alone_a, "small_together": together_s, "big_together": together_a,
             "small_share": together_s / max(alone_s, 1e-9), "big_share": together_a / max(alone_a, 1e-9)}
 

@@ -1,6 +1,7 @@
 """Per-key shares of the step budget through a real server (issue 53, item 7): with API keys on, a key with a
 few asap characters keeps a share of the step time beside a key with many, instead of stepping in the big
-key's batch at the big batch's pace. Each key's load runs in a process of its own (tests/service/key_load.py)."""
+key's batch at the big batch's pace. Each key's load runs in a process of its own (tests/service/key_load.py);
+the rates are measured as the bench measures them (tests/service/step_share_bench.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.service.key_load import KeyLoad
+from tests.service import step_share_bench
 from tests.service.probes import GapProbe
 from tests.service.server import Server
 
@@ -32,20 +33,10 @@ def server(bundle_dir) -> Iterator[Server]:
 def test_a_small_asap_key_keeps_its_share_of_the_steps_beside_a_big_one(server):
     with GapProbe(server.ws, characters=0, query=f"token={KEY_S}") as idle:
         frames = idle.frames
-    with KeyLoad(server.ws, KEY_S, SMALL, SECONDS + 1.0, frames) as alone:
-        since = alone.ready_at + 1.0
-        alone.result()
-    rate_alone = alone.rate(since, since + SECONDS)
-    with KeyLoad(server.ws, KEY_A, BIG, SECONDS + 120.0, frames) as big, \
-            KeyLoad(server.ws, KEY_S, SMALL, SECONDS + 1.0, frames) as small:
-        since = small.ready_at + 1.0
-        small.result()
-        big.stop()
-        big.result()
-    rate_small, rate_big = small.rate(since, since + SECONDS), big.rate(since, since + SECONDS)
+    rate_alone = step_share_bench.rate_alone(server, KEY_S, SMALL, frames, SECONDS)
+    rate_small, rate_big = step_share_bench.rates_together(server, KEY_S, SMALL, KEY_A, BIG, frames, SECONDS)
     print(f"key S's {SMALL} asap characters: {rate_alone:.0f} frames/s alone, {rate_small:.0f} beside key A's {BIG} "
           f"({rate_big:.0f} frames/s): {rate_small / rate_alone:.2f} of its rate alone")
-    assert not (alone.errors or small.errors or big.errors), (alone.errors, small.errors, big.errors)
     assert rate_alone > 0 and rate_big > 0  # both keys move
     # Equal step time leaves S about half its rate alone (0.45 measured); in one batch with A's, S's
     # characters step at the big batch's pace, t(2 characters) / t(66 characters) of it (0.10 measured,
