@@ -12,7 +12,8 @@ Without live ``realtime`` characters every ``asap`` step may start.
 
 from __future__ import annotations
 
-SMOOTHING = 0.3  # weight of the newest step in the running estimate of an asap step's length
+from service.streaming.step_length import smoothed
+
 MARGIN_S = 0.002  # an asap step must end this long before the realtime tick is due
 BURST_S = 0.5  # the budget of late asap steps never holds more than this (no burst after a quiet spell)
 
@@ -31,22 +32,24 @@ class AsapGate:
     def fits(self, now: float, next_realtime: float | None, estimate: float | None = None) -> bool:
         """Whether an asap step started ``now`` ends before ``next_realtime`` (None: no realtime character);
         ``estimate``: the step's length when known better than the running one (one key's batch)."""
-        length = self.estimate if estimate is None else estimate
-        return next_realtime is None or now + length <= next_realtime - MARGIN_S
+        return next_realtime is None or now + self._length(estimate) <= next_realtime - MARGIN_S
 
     def allows(self, now: float, next_realtime: float | None, estimate: float | None = None) -> bool:
         """Whether an asap step may start ``now``; refills the budget up to ``now``."""
         self._refill(now)
         if self.fits(now, next_realtime, estimate):
             return True
-        length = self.estimate if estimate is None else estimate
-        return self.share > 0 and self.credit >= min(length, BURST_S * self.share)
+        return self.share > 0 and self.credit >= min(self._length(estimate), BURST_S * self.share)
+
+    def _length(self, estimate: float | None) -> float:
+        """The coming step's length: ``estimate`` when given, else the running one."""
+        return self.estimate if estimate is None else estimate
 
     def record(self, seconds: float, fitted: bool) -> None:
         """An asap step took ``seconds``; one that did not fit (``fitted`` False) is paid from the budget."""
         if seconds < 0:
             raise ValueError(f"a step cannot take {seconds} s")
-        self.estimate = seconds if self.estimate == 0.0 else (1 - SMOOTHING) * self.estimate + SMOOTHING * seconds
+        self.estimate = smoothed(self.estimate or None, seconds)
         if not fitted:
             self.credit -= seconds
 

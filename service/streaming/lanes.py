@@ -13,9 +13,8 @@ Owned by the scheduler's step thread, like the batches themselves.
 from __future__ import annotations
 
 from model.inference.engine import Character, CharacterBatch, Engine
+from service.streaming.step_length import smoothed
 from service.streaming.stream import PACES
-
-SMOOTHING = 0.3  # weight of the newest step in a lane's running step length
 
 
 class Lanes:
@@ -98,8 +97,7 @@ class Lanes:
         return chars
 
     def record(self, lane: CharacterBatch, seconds: float) -> None:
-        old = self._seconds.get(id(lane))
-        self._seconds[id(lane)] = seconds if old is None else (1 - SMOOTHING) * old + SMOOTHING * seconds
+        self._seconds[id(lane)] = smoothed(self._seconds.get(id(lane)), seconds)
 
     def seconds(self, lane: CharacterBatch) -> float:
         """The lane's running step length (0 before its first step)."""

@@ -22,8 +22,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from service.streaming.step_length import smoothed
+
 CREDIT_S = 0.25  # the most step time a key may be behind the busiest one
-SMOOTHING = 0.3  # weight of the newest step in the running estimates of step lengths
 
 
 class StepShares:
@@ -47,8 +48,7 @@ class StepShares:
             raise ValueError(f"a step cannot take {seconds} s")
         self.used[owner] = self.used.get(owner, self._floor()) + seconds
         if asap:
-            old = self.asap_estimate.get(owner, 0.0)
-            self.asap_estimate[owner] = seconds if old == 0.0 else (1 - SMOOTHING) * old + SMOOTHING * seconds
+            self.asap_estimate[owner] = smoothed(self.asap_estimate.get(owner) or None, seconds)
 
     def order(self, owners: Iterable[str]) -> list[str]:
         """``owners`` least used first (ties by name); none stays more than ``CREDIT_S`` behind the busiest."""
