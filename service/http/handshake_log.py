@@ -5,7 +5,8 @@ through ASGI's ``websocket.http.response`` extension. uvicorn's websockets-sansi
 see an app that returned with the handshake not completed and log "ASGI callable returned without completing
 handshake." at ERROR on ``uvicorn.error``, once per refusal, although the client got its 401/429/503. The
 service's route always accepts or refuses (:mod:`service.routes.stream`), so :class:`RefusedHandshakeAtInfo`
-turns that one message into an info line saying what happened.
+turns that one message into an info line saying what happened. uvicorn 0.55 and later no longer log that
+error and say "connection rejected (401 Unauthorized)" at info themselves; the filter then finds nothing to do.
 """
 
 from __future__ import annotations

@@ -50,7 +50,9 @@ def test_refused_handshakes_are_not_errors(server):
     time.sleep(0.5)
     lines = _logs(server).splitlines()[before:]
     assert not [line for line in lines if " ERROR " in line or "without completing handshake" in line], lines
-    assert sum("handshake refused" in line for line in lines) == 3, lines  # at info, still told
+    # At info, still told: our rewording of uvicorn's message (up to 0.54), or uvicorn's own info line (0.55 on).
+    told = [line for line in lines if " INFO " in line and ("handshake refused" in line or "connection rejected (" in line)]
+    assert len(told) == 3, lines
 
 
 def _moving_bones_bvh(frames: int = 40) -> str:
