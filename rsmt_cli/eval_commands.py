@@ -33,7 +33,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="a model bundle folder, or a baseline: interp, zerovel (gt: the ground truth, a sanity "
                         "check); repeat to compare")
     p.add_argument("--data", type=Path, help="folder of BVH takes (default: the RSMT_DATA setting)")
-    p.add_argument("--split", default="test", choices=["train", "val", "test"], help="split to evaluate (default test)")
+    p.add_argument("--split", default="test", choices=["train", "val", "test", "holdout"],
+                   help="split to evaluate (default test; holdout: every take of the --holdout-style styles)")
+    p.add_argument("--holdout-style", action="append", default=[], metavar="STYLE",
+                   help="put STYLE aside from the split, as `rsmt train ... --holdout-style` does (repeatable): motion "
+                        "matching and the reference statistics then use the training split such a model saw")
+    p.add_argument("--clips-only", action="append", default=[], metavar="TAKE",
+                   help="a take (by id, e.g. dataset-1_walk-left_angry_001) that gives no case but may serve as a "
+                        "style clip, such as a clip a style was fine-tuned on (repeatable)")
     p.add_argument("--classifier", type=Path, metavar="DIR",
                    help="style classifier folder (rsmt train classifier) for style accuracy and FMD")
     p.add_argument("--judge", type=Path, metavar="DIR",
@@ -84,6 +91,7 @@ def eval_command(args: argparse.Namespace) -> int:
     from model.evaluation.methods import BundleMethod
     from model.evaluation.motion_matching import MotionMatchingMethod
     from model.evaluation.report import markdown
+    from model.evaluation.runner import eval_split
     from model.evaluation.sequence_judge import SequenceJudge
     from model.evaluation.style_judge import StyleJudge
     from model.export.backends import with_backend
@@ -105,11 +113,12 @@ def eval_command(args: argparse.Namespace) -> int:
     judge = StyleJudge.load(args.judge) if args.judge else None
     judge2 = SequenceJudge.load(args.judge2) if args.judge2 else None
     cache = load_motion_cache(Path(data), progress=not args.quiet)
-    if not args.no_motion_matching:
-        methods.append(MotionMatchingMethod(cache, cache.split.train))
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
                             diversity_samples=args.diversity_samples, render_cases=args.render_cases,
-                            styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise)
+                            styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise,
+                            holdout_styles=tuple(sorted(set(args.holdout_style))), clips_only=tuple(args.clips_only))
+    if not args.no_motion_matching:
+        methods.append(MotionMatchingMethod(cache, eval_split(cache, settings).train))
     run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
                    progress=not args.quiet, judge=judge, judge_path=str(args.judge) if args.judge else None,
                    judge2=judge2, judge2_path=str(args.judge2) if args.judge2 else None)
@@ -175,15 +184,12 @@ def _command(args: argparse.Namespace) -> str:
     parts += ["--target-frames", str(args.target_frames)]
     if args.styles:
         parts += ["--styles", *args.styles]
+    parts += [part for style in args.holdout_style for part in ("--holdout-style", style)]
+    parts += [part for take in args.clips_only for part in ("--clips-only", take)]
     parts += ["--seed", str(args.seed)]
-    if args.noise:
-        parts.append("--noise")
-    if args.exact_arrival:
-        parts.append("--exact-arrival")
-    if args.no_motion_matching:
-        parts.append("--no-motion-matching")
-    if args.stream_retarget:
-        parts.append("--stream-retarget")
+    parts += [flag for flag, on in (("--noise", args.noise), ("--exact-arrival", args.exact_arrival),
+                                    ("--no-motion-matching", args.no_motion_matching),
+                                    ("--stream-retarget", args.stream_retarget)) if on]
     parts += output_flags(args)
     for flag, value, default in (("--diversity-cases", args.diversity_cases, 32),
                                  ("--diversity-samples", args.diversity_samples, 10)):

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -174,7 +174,8 @@ def _rank_style_takes(cache: MotionCache, pool: Sequence[int], style: str, conte
 
 
 def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = None,
-                step: int = CASE_STEP, only_styles: Sequence[str] = (), clip_fallback: Sequence[int] = ()) -> list[EvalCase]:
+                step: int = CASE_STEP, only_styles: Sequence[str] = (), clip_fallback: Sequence[int] = (),
+                clips_only: Collection[str] = ()) -> list[EvalCase]:
     """The cases of ``takes`` (a split), sorted by take id then start; see the module docstring.
 
     Takes shorter than :data:`SPAN` give no case but still serve as style clips (when at least
@@ -185,6 +186,8 @@ def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = No
     ``clip_fallback`` (e.g. the training split) gives a style's clips where ``takes`` has no other take of it
     (dataset 1 has one take per style and content, so its val and test splits rarely hold two of a style);
     where ``takes`` has one, nothing changes.
+    ``clips_only`` names takes (by ``take_id``) that give no case but still serve as style clips: e.g. the clips a
+    style was fine-tuned on, so that its figures come from other takes while its zero-shot clip may be one of them.
     """
     order = sorted(takes, key=lambda i: cache.takes[i].take_id)
     pool = [i for i in order if cache.num_frames(i) >= SPAN]
@@ -200,7 +203,7 @@ def build_cases(cache: MotionCache, takes: Sequence[int], limit: int | None = No
     for i in order:
         n = cache.num_frames(i)
         take = cache.takes[i]
-        if only_styles and take.style not in only_styles:
+        if (only_styles and take.style not in only_styles) or take.take_id in clips_only:
             continue
         for start in range(0, n - SPAN + 1, step):
             cid = f"{take.take_id}@{start}"

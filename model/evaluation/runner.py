@@ -27,6 +27,7 @@ import torch
 from tqdm import tqdm
 
 from model.data.preprocessed import MotionCache
+from model.data.splits import Split
 from model.evaluation import metrics
 from model.evaluation.cases import (
     CASE_STEP,
@@ -80,6 +81,10 @@ class EvalSettings:
     # Bundles sample their per-transition noise, one seed per case and variant from ``seed``, as a request
     # with the API's default ``"deterministic": false`` does; False: no noise (the figures so far).
     noise: bool = False
+    # Styles put aside from the split (its ``holdout`` split, ``split="holdout"``); the training split of motion
+    # matching and the reference statistics is then the one a model trained with the same held-out styles saw.
+    holdout_styles: tuple[str, ...] = ()
+    clips_only: tuple[str, ...] = ()  # take ids that give no case but serve as style clips (fine-tuning clips)
 
 
 @dataclass
@@ -115,6 +120,16 @@ def _render_cases(cases: CaseSet, k: int) -> list[int]:
     return sorted(picked[:: max(1, len(picked) // k)][:k]) if picked else []
 
 
+def eval_split(cache: MotionCache, settings: EvalSettings) -> Split:
+    """The split ``settings`` evaluates on: the cache's default one, or one with ``settings.holdout_styles`` aside."""
+    if settings.split == "holdout" and not settings.holdout_styles:
+        raise ValueError("the holdout split needs the held-out styles (--holdout-style)")
+    unknown = sorted(set(settings.holdout_styles) - set(cache.styles))
+    if unknown:
+        raise ValueError(f"unknown held-out style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
+    return cache.make_split(holdout_styles=settings.holdout_styles) if settings.holdout_styles else cache.split
+
+
 def evaluate(
     cache: MotionCache,
     methods: list[Method],
@@ -130,15 +145,19 @@ def evaluate(
 ) -> EvalRun:
     """Evaluate ``methods`` on the cases of ``settings.split`` of ``cache``; see the module docstring."""
     began = time.perf_counter()
-    split = cache.split
+    split = eval_split(cache, settings)
     takes = split[settings.split]
+    unknown_takes = sorted(set(settings.clips_only) - {t.take_id for t in cache.takes})
+    if unknown_takes:
+        raise ValueError(f"no take {', '.join(unknown_takes)} in the data (clips-only takes are named by take id)")
     if stats is None:
         stats = reference_stats(cache, split.train, progress=progress)
     unknown = sorted(set(settings.styles) - set(cache.styles))
     if unknown:
         raise ValueError(f"unknown style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
     case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles,
-                            clip_fallback=split.train if settings.split != "train" else ())
+                            clip_fallback=split.train if settings.split != "train" else (),
+                            clips_only=settings.clips_only)
     cases = CaseSet.load(cache, case_list)
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]

@@ -16,6 +16,7 @@ from model.evaluation.cases import CONTEXT, LAST_CONTEXT, SPAN, variant
 from model.evaluation.methods import BundleMethod
 from model.evaluation.reference import reference_stats
 from model.evaluation.report import markdown
+from model.evaluation.runner import eval_split as runner_split
 from model.evaluation.style_scores import matched_reference
 from model.inference.bundle import Bundle
 from model.inference.overrides import Overrides
@@ -91,6 +92,30 @@ def test_cases_are_deterministic_and_paired(cache: MotionCache) -> None:
     one = cache.styles[0]
     only = build_cases(cache, takes, only_styles=[one])
     assert only and only == [c for c in cases if c.style == one]
+
+
+def test_clips_only_takes_give_no_case_but_stay_style_clips(cache: MotionCache) -> None:
+    one = cache.styles[0]
+    split = cache.make_split(holdout_styles=[one])
+    held = split.holdout
+    assert held and all(cache.takes[i].style == one for i in held)
+    cases = build_cases(cache, held, clip_fallback=split.train)
+    skipped = cache.takes[cases[0].style_take].take_id  # a take that serves another case as its style clip
+    kept = build_cases(cache, held, clip_fallback=split.train, clips_only=[skipped])
+    assert kept == [c for c in cases if cache.takes[c.take].take_id != skipped]
+    assert any(cache.takes[c.style_take].take_id == skipped for c in kept)
+
+
+def test_holdout_split_and_its_errors(cache: MotionCache) -> None:
+    one = cache.styles[0]
+    settings = EvalSettings(split="holdout", holdout_styles=(one,))
+    assert set(runner_split(cache, settings).holdout) == {i for i, t in enumerate(cache.takes) if t.style == one}
+    with pytest.raises(ValueError, match="needs the held-out styles"):
+        runner_split(cache, EvalSettings(split="holdout"))
+    with pytest.raises(ValueError, match="unknown held-out style"):
+        runner_split(cache, EvalSettings(holdout_styles=("nosuch",)))
+    with pytest.raises(ValueError, match="no take nosuch"):
+        evaluate(cache, [], EvalSettings(clips_only=("nosuch",)), progress=False)
 
 
 def test_variants_and_targets(cache: MotionCache) -> None:
@@ -403,3 +428,24 @@ def test_eval_runs_motion_matching_and_the_second_judge_with_the_gait_figures(
                  "--no-motion-matching", "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "### Feet, direction and speed, all contents" in text and "| motion matching |" not in text
+
+
+def test_eval_command_on_held_out_styles(dataset: tuple[Path, Path], cache: MotionCache, monkeypatch: pytest.MonkeyPatch,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """``--split holdout --holdout-style S``: cases of S's takes only, motion matching from the split without S, and
+    ``--clips-only`` takes giving no case."""
+    data, root = dataset
+    monkeypatch.setenv("RSMT_CACHE", str(root))
+    one = cache.styles[0]
+    split = cache.make_split(holdout_styles=[one])
+    skipped = cache.takes[split.holdout[0]].take_id
+    assert main(["eval", "--model", "interp", "--data", str(data), "--split", "holdout", "--holdout-style", one,
+                 "--clips-only", skipped, "--render-cases", "0", "--diversity-cases", "0", "--json", "--quiet"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["styles"] == [one] and report["split"] == "holdout"
+    assert report["settings"]["holdout_styles"] == [one] and report["settings"]["clips_only"] == [skipped]
+    assert report["takes"] == len(split.holdout) - 1
+    assert report["methods"]["motion matching"]["database_takes"] == len(split.train) < len(cache.split.train)
+    assert f"--holdout-style {one} --clips-only {skipped}" in report["command"]
+    assert main(["eval", "--model", "interp", "--data", str(data), "--split", "holdout", "--quiet"]) != 0
+    assert "needs the held-out styles" in capsys.readouterr().err
