@@ -157,7 +157,9 @@ def matrix_to_quat(m: Tensor) -> Tensor:
     # Candidate k's own component (w for k=0, x, y, z for k=1..3) holds 1 + trace-like sums: pick the largest.
     # cand[..., k, (k + 3) % 4] for each k: rolled one column on, the diagonal (cheaper than a list index).
     t = torch.diagonal(cand.roll(1, dims=-1), dim1=-2, dim2=-1)
-    best = t.argmax(dim=-1, keepdim=True)
+    # max(...).indices, not argmax: the same first largest index, but argmax over this strided diagonal view
+    # took 270 us at 128 characters (22 joints) against 10 us (one thread, 2-core EPYC).
+    best = t.max(dim=-1, keepdim=True).indices
     q = torch.gather(cand, -2, best.unsqueeze(-1).expand(*best.shape[:-1], 1, 4)).squeeze(-2)
     return quat_canonical(quat_normalize(q))
 
