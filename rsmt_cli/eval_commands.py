@@ -41,6 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--clips-only", action="append", default=[], metavar="TAKE",
                    help="a take (by id, e.g. dataset-1_walk-left_angry_001) that gives no case but may serve as a "
                         "style clip, such as a clip a style was fine-tuned on (repeatable)")
+    p.add_argument("--style-set", action="append", default=[], metavar="TAKE,TAKE,...",
+                   help="1 to 5 takes of one style, by id: that style's cases are asked with their clips (the first "
+                        "120 frames of each) encoded together, as POST /v1/styles encodes several motions "
+                        "(repeatable, one per style)")
     p.add_argument("--classifier", type=Path, metavar="DIR",
                    help="style classifier folder (rsmt train classifier) for style accuracy and FMD")
     p.add_argument("--judge", type=Path, metavar="DIR",
@@ -116,7 +120,8 @@ def eval_command(args: argparse.Namespace) -> int:
     settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
                             diversity_samples=args.diversity_samples, render_cases=args.render_cases,
                             styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise,
-                            holdout_styles=tuple(sorted(set(args.holdout_style))), clips_only=tuple(args.clips_only))
+                            holdout_styles=tuple(sorted(set(args.holdout_style))), clips_only=tuple(args.clips_only),
+                            style_sets=tuple(tuple(t for t in s.split(",") if t) for s in args.style_set))
     if not args.no_motion_matching:
         methods.append(MotionMatchingMethod(cache, eval_split(cache, settings).train))
     run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
@@ -186,6 +191,7 @@ def _command(args: argparse.Namespace) -> str:
         parts += ["--styles", *args.styles]
     parts += [part for style in args.holdout_style for part in ("--holdout-style", style)]
     parts += [part for take in args.clips_only for part in ("--clips-only", take)]
+    parts += [part for takes in args.style_set for part in ("--style-set", takes)]
     parts += ["--seed", str(args.seed)]
     parts += [flag for flag, on in (("--noise", args.noise), ("--exact-arrival", args.exact_arrival),
                                     ("--no-motion-matching", args.no_motion_matching),

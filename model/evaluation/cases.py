@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Collection, Sequence
-from dataclasses import dataclass
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import torch
@@ -250,6 +250,9 @@ class CaseSet:
     cross_clips: list[Clip]
     styles: list[str]
     fps: float
+    # Per case, the clips of a style set its style is asked with (1-5 clips encoded together, as a registration of
+    # several clips is); empty: the case's one style clip. Empty for every case unless sets were given.
+    style_sets: list[list[Clip]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.cases)
@@ -259,7 +262,10 @@ class CaseSet:
         return self.skeletons[0]
 
     @classmethod
-    def load(cls, cache: MotionCache, cases: Sequence[EvalCase]) -> CaseSet:
+    def load(cls, cache: MotionCache, cases: Sequence[EvalCase],
+             style_sets: Mapping[str, Sequence[int]] | None = None) -> CaseSet:
+        """The cases' motion; ``style_sets`` maps a style to the takes whose clips (the first
+        :data:`STYLE_CLIP_FRAMES` frames of each) its cases are asked with instead of their one style clip."""
         if not cases:
             raise ValueError("no evaluation cases: the split has no take of at least "
                              f"{SPAN} frames whose style has another take")
@@ -288,6 +294,8 @@ class CaseSet:
             style_clips=[clip(c.style_take, c.style_frames) for c in cases],
             cross_clips=[clip(c.cross_take, c.cross_frames) for c in cases],
             styles=list(cache.styles), fps=cache.fps,
+            style_sets=[[clip(t, min(STYLE_CLIP_FRAMES, cache.num_frames(t))) for t in style_sets.get(c.style, ())]
+                        for c in cases] if style_sets else [],
         )
 
     def subset(self, index: Sequence[int]) -> CaseSet:
@@ -298,7 +306,7 @@ class CaseSet:
             positions=self.positions[idx], global_rotations=self.global_rotations[idx],
             frame=CanonicalFrame(self.frame.yaw[idx], self.frame.origin[idx]),
             style_clips=[self.style_clips[i] for i in index], cross_clips=[self.cross_clips[i] for i in index],
-            styles=self.styles, fps=self.fps,
+            styles=self.styles, fps=self.fps, style_sets=[self.style_sets[i] for i in index] if self.style_sets else [],
         )
 
     # ------------------------------------------------------------------ per-variant pieces

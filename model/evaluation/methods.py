@@ -117,6 +117,8 @@ class BundleMethod(Method):
         return d
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
+        from model.inference.style_sets import encode_style_set
+
         v = request.variant
         limit = self.engine.max_frames
         if v.frames > limit:
@@ -136,7 +138,11 @@ class BundleMethod(Method):
                     case = cases.cases[b]
                     named = case.cross_style if request.cross_style else case.style
                     weights = named if named in self.engine.weight_sets else ""
-                    style, _ = self.engine.encode_style(clips[b], weights=weights)
+                    # A case asked with a style set (several clips of its style) encodes them together, as
+                    # POST /v1/styles does with several motions.
+                    together = cases.style_sets[b] if cases.style_sets and not request.cross_style else []
+                    style, _ = (encode_style_set(self.engine, together, weights=weights) if together
+                                else self.engine.encode_style(clips[b], weights=weights))
                     seed = None if request.seeds is None else int(request.seeds[b])
                     extra = {"exact_arrival": True} if self.exact_arrival else {}
                     target = Clip(cases.skeletons[b], target_rot[b], target_root[b], cases.fps,

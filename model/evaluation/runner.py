@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -85,6 +86,9 @@ class EvalSettings:
     # matching and the reference statistics is then the one a model trained with the same held-out styles saw.
     holdout_styles: tuple[str, ...] = ()
     clips_only: tuple[str, ...] = ()  # take ids that give no case but serve as style clips (fine-tuning clips)
+    # Sets of take ids, each of one style: that style's cases are asked with the set's clips encoded together (a
+    # registration of several clips) instead of one clip; cross-style requests keep their one clip.
+    style_sets: tuple[tuple[str, ...], ...] = ()
 
 
 @dataclass
@@ -130,6 +134,26 @@ def eval_split(cache: MotionCache, settings: EvalSettings) -> Split:
     return cache.make_split(holdout_styles=settings.holdout_styles) if settings.holdout_styles else cache.split
 
 
+def style_set_takes(cache: MotionCache, sets: Sequence[Sequence[str]]) -> dict[str, list[int]]:
+    """Each style set (take ids) as its style and take indices; a ValueError for an unknown take, a set mixing
+    styles, two sets of one style or a set of more than five clips."""
+    index = {t.take_id: i for i, t in enumerate(cache.takes)}
+    out: dict[str, list[int]] = {}
+    for names in sets:
+        unknown = [n for n in names if n not in index]
+        if unknown:
+            raise ValueError(f"no take {', '.join(unknown)} in the data (style sets are named by take id)")
+        styles = sorted({cache.takes[index[n]].style for n in names})
+        if len(styles) != 1:
+            raise ValueError(f"a style set holds clips of one style; {', '.join(names)} are {', '.join(styles)}")
+        if styles[0] in out:
+            raise ValueError(f"two style sets of {styles[0]}")
+        if not 1 <= len(names) <= 5:
+            raise ValueError(f"a style set holds 1 to 5 clips, not {len(names)}")
+        out[styles[0]] = [index[n] for n in names]
+    return out
+
+
 def evaluate(
     cache: MotionCache,
     methods: list[Method],
@@ -158,7 +182,7 @@ def evaluate(
     case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles,
                             clip_fallback=split.train if settings.split != "train" else (),
                             clips_only=settings.clips_only)
-    cases = CaseSet.load(cache, case_list)
+    cases = CaseSet.load(cache, case_list, style_set_takes(cache, settings.style_sets))
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
     styles = [c.style for c in cases.cases]
     render_index = _render_cases(cases, settings.render_cases)

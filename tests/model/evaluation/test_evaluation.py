@@ -13,7 +13,7 @@ from model.data.preprocessed import MotionCache, load_motion_cache
 from model.data.synthetic import synthetic_skeleton, write_synthetic_dataset
 from model.evaluation import VARIANTS, CaseSet, EvalSettings, build_cases, evaluate, resolve_method
 from model.evaluation.cases import CONTEXT, LAST_CONTEXT, SPAN, variant
-from model.evaluation.methods import BundleMethod
+from model.evaluation.methods import BundleMethod, Request
 from model.evaluation.reference import reference_stats
 from model.evaluation.report import markdown
 from model.evaluation.runner import eval_split as runner_split
@@ -449,3 +449,32 @@ def test_eval_command_on_held_out_styles(dataset: tuple[Path, Path], cache: Moti
     assert f"--holdout-style {one} --clips-only {skipped}" in report["command"]
     assert main(["eval", "--model", "interp", "--data", str(data), "--split", "holdout", "--quiet"]) != 0
     assert "needs the held-out styles" in capsys.readouterr().err
+
+
+def test_a_style_set_changes_its_styles_cases_only(cache: MotionCache, bundle_dir: Path) -> None:
+    """Cases of a style given a set run on the set's clips encoded together; every other case as before."""
+    from model.evaluation.runner import style_set_takes
+
+    one = cache.styles[0]
+    train = [cache.takes[i].take_id for i in cache.split.train if cache.takes[i].style == one][:2]
+    sets = style_set_takes(cache, [train])
+    assert list(sets) == [one] and len(sets[one]) == 2
+    case_list = build_cases(cache, cache.split.test, limit=6)
+    plain, with_set = CaseSet.load(cache, case_list), CaseSet.load(cache, case_list, sets)
+    assert plain.style_sets == [] and [len(s) for s in with_set.style_sets] == [2 if c.style == one else 0
+                                                                               for c in case_list]
+    method = resolve_method(str(bundle_dir))
+    request = Request(variant("gap10"))
+    a, b = method.generate(plain, request)[0], method.generate(with_set, request)[0]
+    mine = torch.tensor([c.style == one for c in case_list])
+    assert mine.any() and (~mine).any()
+    # Other cases move by float rounding only (their codes are padded to the set's longer code in the batch).
+    assert (a[~mine] - b[~mine]).abs().max() < 1e-5 < 1e-3 < (a[mine] - b[mine]).abs().max()
+    sub = with_set.subset([int(i) for i in torch.nonzero(mine)[:1, 0]])
+    assert len(sub.style_sets) == 1 and len(sub.style_sets[0]) == 2
+    other = next(s for s in cache.styles if s != one)
+    mixed = [train[0], next(t.take_id for t in cache.takes if t.style == other)]
+    for bad, message in (([mixed], "clips of one style"), ([train[:1], train[1:]], "two style sets"),
+                         ([["nosuch"]], "no take nosuch"), ([train * 3], "1 to 5 clips")):
+        with pytest.raises(ValueError, match=message):
+            style_set_takes(cache, bad)
