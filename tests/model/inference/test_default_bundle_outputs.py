@@ -100,10 +100,15 @@ def test_the_default_bundle_gives_the_pinned_frames(outputs: dict[str, tuple[tor
     if os.environ.get("RSMT_PRINT_HASHES"):
         print(got)
     if os.environ.get("RSMT_RECORD_FRAMES"):
-        save_file({name: torch.cat([t.flatten() for t in tensors]) for name, tensors in outputs.items()}, str(FRAMES))
+        save_file({name: flat(tensors) for name, tensors in outputs.items()}, str(FRAMES))
     reference = load_file(str(FRAMES))
     # Bit for bit as pinned, or (a CPU whose kernels round differently: AVX-512/AMX against AVX2) within
     # float32 rounding of the frames recorded on such a CPU with the same code.
     moved = [name for name in PINNED if got[name] != PINNED[name] and not torch.allclose(
-        torch.cat([t.flatten() for t in outputs[name]]), reference[name], rtol=0.0, atol=TOLERANCE)]
+        flat(outputs[name]), reference[name], rtol=0.0, atol=TOLERANCE)]
     assert not moved, f"the default bundle's frames changed in: {', '.join(moved)}"
+
+
+def flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    """A case's output tensors as one flat tensor (how the recorded frames are stored)."""
+    return torch.cat([t.flatten() for t in tensors])
