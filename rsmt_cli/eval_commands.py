@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="put STYLE aside from the split, as `rsmt train ... --holdout-style` does (repeatable): motion "
                         "matching and the reference statistics then use the training split such a model saw")
     p.add_argument("--clips-only", action="append", default=[], metavar="TAKE",
-                   help="a take (by id, e.g. dataset-1_walk-left_angry_001) that gives no case but may serve as a "
+                   help="a take (by id, e.g. data/dataset-1_walk-left_angry_001) that gives no case but may serve as a "
                         "style clip, such as a clip a style was fine-tuned on (repeatable)")
     p.add_argument("--style-set", action="append", default=[], metavar="TAKE,TAKE,...",
                    help="1 to 5 takes of one style, by id: that style's cases are asked with their clips (the first "
