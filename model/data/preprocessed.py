@@ -360,6 +360,14 @@ class MotionCache:
         return (f"MotionCache({str(self.folder)!r}, {len(self)} takes, {self.total_frames} frames at {self.fps:g} fps, "
                 f"{len(self.styles)} styles, {len(self.contents)} contents, {len(self.problems)} problems)")
 
+    def indices_of(self, take_ids: Sequence[str], what: str = "") -> list[int]:
+        """Positions of takes named by ``take_id``; a ValueError naming every unknown one (``what``: what they
+        were asked for, said in the message)."""
+        unknown = sorted({t for t in take_ids if t not in self._ids})
+        if unknown:
+            raise ValueError(f"no take {', '.join(unknown)} in the data" + (f" ({what} are named by take id)" if what else ""))
+        return [self._ids[t] for t in take_ids]
+
     def index_of(self, take: int | str | Take) -> int:
         """Position of a take given by position, ``take_id`` or :class:`Take`."""
         if isinstance(take, Take):

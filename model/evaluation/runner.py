@@ -128,29 +128,23 @@ def eval_split(cache: MotionCache, settings: EvalSettings) -> Split:
     """The split ``settings`` evaluates on: the cache's default one, or one with ``settings.holdout_styles`` aside."""
     if settings.split == "holdout" and not settings.holdout_styles:
         raise ValueError("the holdout split needs the held-out styles (--holdout-style)")
-    unknown = sorted(set(settings.holdout_styles) - set(cache.styles))
-    if unknown:
-        raise ValueError(f"unknown held-out style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
     return cache.make_split(holdout_styles=settings.holdout_styles) if settings.holdout_styles else cache.split
 
 
 def style_set_takes(cache: MotionCache, sets: Sequence[Sequence[str]]) -> dict[str, list[int]]:
     """Each style set (take ids) as its style and take indices; a ValueError for an unknown take, a set mixing
     styles, two sets of one style or a set of more than five clips."""
-    index = {t.take_id: i for i, t in enumerate(cache.takes)}
     out: dict[str, list[int]] = {}
     for names in sets:
-        unknown = [n for n in names if n not in index]
-        if unknown:
-            raise ValueError(f"no take {', '.join(unknown)} in the data (style sets are named by take id)")
-        styles = sorted({cache.takes[index[n]].style for n in names})
+        indices = cache.indices_of(names, "style sets")
+        styles = sorted({cache.takes[i].style for i in indices})
         if len(styles) != 1:
             raise ValueError(f"a style set holds clips of one style; {', '.join(names)} are {', '.join(styles)}")
         if styles[0] in out:
             raise ValueError(f"two style sets of {styles[0]}")
         if not 1 <= len(names) <= 5:
             raise ValueError(f"a style set holds 1 to 5 clips, not {len(names)}")
-        out[styles[0]] = [index[n] for n in names]
+        out[styles[0]] = indices
     return out
 
 
@@ -171,9 +165,7 @@ def evaluate(
     began = time.perf_counter()
     split = eval_split(cache, settings)
     takes = split[settings.split]
-    unknown_takes = sorted(set(settings.clips_only) - {t.take_id for t in cache.takes})
-    if unknown_takes:
-        raise ValueError(f"no take {', '.join(unknown_takes)} in the data (clips-only takes are named by take id)")
+    cache.indices_of(settings.clips_only, "clips-only takes")  # a ValueError for an unknown one
     if stats is None:
         stats = reference_stats(cache, split.train, progress=progress)
     unknown = sorted(set(settings.styles) - set(cache.styles))

@@ -53,6 +53,9 @@ def test_build_contents(tmp_path: Path) -> None:
     i = cache.index_of(take)
     assert cache.takes[i].style == "elderly" and cache.style_id(i) == 1 and cache.content_id(i) == 1
     assert cache.clip(cache.takes[i]).num_frames == cache.clip(i).num_frames
+    assert cache.indices_of([take, take]) == [i, i] and cache.indices_of([]) == []
+    with pytest.raises(ValueError, match=r"no take nosuch, other in the data \(clips are named by take id\)"):
+        cache.indices_of(["other", take, "nosuch"], "clips")
 
     meta = json.loads((cache.folder / INDEX_FILE).read_text())
     assert meta["fps"] == 30.0 and len(meta["takes"]) == 12
