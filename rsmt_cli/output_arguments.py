@@ -11,8 +11,9 @@ if TYPE_CHECKING:  # imported where used: `rsmt --help` loads no torch
 
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
-    """``--smoothing``, ``--root-smoothing``, ``--foot-lock``, ``--steering``, ``--floor``, ``--stride-warp`` and
-    ``--int8-lstm``; ``owner`` names whose settings they override in the help ("each bundle", "the bundle")."""
+    """``--smoothing``, ``--root-smoothing``, ``--foot-lock``, ``--steering``, ``--floor``, ``--stride-warp``,
+    ``--foot-plant`` and ``--int8-lstm``; ``owner`` names whose settings they override in the help ("each bundle",
+    "the bundle")."""
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help=f"output-filter strength, in [0, 1) (default: {owner}'s own setting; 0 gives the network's "
                         "raw frames)")
@@ -30,12 +31,16 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
     p.add_argument("--stride-warp", type=float, default=None, metavar="R",
                    help="stretch the strides where steering carries the body, up to 1 + R times the network's "
                         f"(0: off; default: {owner}'s own setting)")
+    p.add_argument("--foot-plant", choices=("on", "off"), default=None,
+                   help="bring a still foot that stands higher than its style's capture allows (the bundle's "
+                        f"gait_limits.json, planted_rise_cm) down to the floor, on or off (default: {owner}'s own "
+                        "setting)")
     p.add_argument("--int8-lstm", choices=("on", "off"), default=None,
                    help=f"run the LSTM cell of the per-frame step with int8 weights, on or off (default: {owner}'s "
                         "own setting)")
 
 
-SWITCHES = ("foot_lock", "floor", "int8_lstm")  # the settings given as on / off
+SWITCHES = ("foot_lock", "floor", "foot_plant", "int8_lstm")  # the settings given as on / off
 
 
 def _flag(name: str) -> str:

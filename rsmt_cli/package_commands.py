@@ -60,9 +60,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="measure the capture's gait limits (root speed, hips height) per style on this data's train "
                         "split and save them in the copy (default: the bundle's own gait_limits.json, if any)")
     add_output_arguments(p, "the bundle")
-    p.add_argument("--foot-plant", choices=("on", "off"), default=None,
-                   help="bring a planted foot that stands higher than its style's capture (gait_limits.json) down to "
-                        "the floor, on or off (default: the bundle's own setting)")
     # The parts of steering, each flag named as its setting in the bundle (steering.NAME).
     p.add_argument("--turn-window", type=int, default=None, metavar="FRAMES",
                    help="turn the body toward the target's facing over the last FRAMES frames (0: off; default: the "
@@ -125,8 +122,6 @@ def _run(args: argparse.Namespace) -> int:
     bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
     bundle.output = overrides.output(bundle.output)
     bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
-    if args.foot_plant is not None:
-        bundle.output = dataclasses.replace(bundle.output, foot_plant=args.foot_plant == "on")
     bundle.inference = overrides.inference(bundle.inference)
     if args.name:
         bundle.meta = dataclasses.replace(bundle.meta, name=args.name)

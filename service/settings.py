@@ -71,6 +71,10 @@ class Settings(BaseSettings):
         default=None, ge=0, le=240,
         description="steer each character's root toward its target over the last this many frames (0: off; default: "
         "each bundle's own)")
+    foot_plant: bool | None = Field(
+        default=None, description="bring a still foot that stands higher than its style's capture allows down to the "
+        "floor, for every model (acts only where a bundle's gait limits give the style its planted rise; default: "
+        "each bundle's own)")
     int8_lstm: bool | None = Field(
         default=None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
     eager: bool = Field(
@@ -251,7 +255,7 @@ class Settings(BaseSettings):
 
         return Overrides(smoothing=self.smoothing, root_smoothing=self.root_smoothing, foot_lock=self.foot_lock,
                          steering=self.steering, floor=self.floor, stride_warp=self.stride_warp,
-                         int8_lstm=self.int8_lstm)
+                         foot_plant=self.foot_plant, int8_lstm=self.int8_lstm)
 
     @model_validator(mode="after")
     def _resolve_models(self) -> Settings:

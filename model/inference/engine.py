@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 import time
 
 import torch
@@ -76,6 +77,10 @@ class Engine:
         self.output_fn = CompiledFrameOutput(self.pipeline.frame, traced=compiled)
         self._ids = itertools.count()
         self.gait_limits = bundle.gait_limits  # the capture's speed per style (None: the root is not capped)
+        if self.output.foot_plant and (self.gait_limits is None or not any(
+                math.isfinite(s.planted_rise_cm) for s in self.gait_limits.styles.values())):
+            log.warning("the foot plant is on but %s's gait limits give no style a planted rise: it moves no foot "
+                        "(rsmt bundle gait-limits measures them)", bundle.meta.name)
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:

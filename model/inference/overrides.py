@@ -19,7 +19,8 @@ class Overrides:
     """``smoothing`` / ``root_smoothing``: the output filter's strengths, in [0, 1) (a ``smoothing`` given
     alone applies to the root too); ``foot_lock``, ``floor``: those steps on or off; ``steering``: the
     steering window in frames (0: every part of steering off); ``stride_warp``: the stride warp's reach,
-    in [0, 4] (0: off); ``int8_lstm``: the LSTM cell of the per-frame step with int8 weights."""
+    in [0, 4] (0: off); ``foot_plant``: the foot plant on or off (it acts only where the bundle's gait limits
+    give a style its planted rise); ``int8_lstm``: the LSTM cell of the per-frame step with int8 weights."""
 
     smoothing: float | None = None
     root_smoothing: float | None = None
@@ -27,6 +28,7 @@ class Overrides:
     steering: int | None = None
     floor: bool | None = None
     stride_warp: float | None = None
+    foot_plant: bool | None = None
     int8_lstm: bool | None = None
 
     def __post_init__(self) -> None:
@@ -48,7 +50,7 @@ class Overrides:
         ``root_smoothing`` alone: unset, it takes ``smoothing``'s value."""
         return settings.with_overrides(smoothing=self.smoothing, root_smoothing=self.root_smoothing,
                                        foot_lock=self.foot_lock, steering=self.steering, floor=self.floor,
-                                       stride_warp=self.stride_warp)
+                                       stride_warp=self.stride_warp, foot_plant=self.foot_plant)
 
     def inference(self, settings: InferenceConfig) -> InferenceConfig:
         """A bundle's inference settings with these overrides."""

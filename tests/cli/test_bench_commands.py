@@ -16,4 +16,19 @@ def test_the_label_names_every_output_step_the_engine_runs():
     plain = engine_label(Engine(bundle, threads=1, overrides=Overrides(
         steering=0, smoothing=0.0, foot_lock=False, floor=False, int8_lstm=False)), DEFAULT_BUNDLE)
     assert plain == f"{bundle.meta.name} (default_bundle; smoothing 0/0, foot lock off)"  # no steering: no warp
+    planted = engine_label(Engine(bundle, threads=1, overrides=Overrides(foot_plant=True)), DEFAULT_BUNDLE)
+    assert planted.endswith("stride warp 2, foot plant, int8 LSTM)")
+
+
+def test_the_output_flags_are_the_overrides_and_repeat_as_given():
+    import argparse
+
+    from rsmt_cli.output_arguments import add_output_arguments, output_flags, output_overrides
+
+    p = argparse.ArgumentParser()
+    add_output_arguments(p, "the bundle")
+    args = p.parse_args(["--foot-plant", "on", "--floor", "off", "--stride-warp", "1.5"])
+    assert output_overrides(args) == Overrides(foot_plant=True, floor=False, stride_warp=1.5)
+    assert output_flags(args) == ["--floor", "off", "--stride-warp", "1.5", "--foot-plant", "on"]
+    assert output_overrides(p.parse_args([])) == Overrides()
 

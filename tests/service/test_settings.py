@@ -90,6 +90,10 @@ def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     assert engine.pipeline.step("floor_contact") is not None
     monkeypatch.setenv("RSMT_FLOOR", "false")
     assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).pipeline.step("floor_contact") is None
+    # the foot plant, off in the default bundle, and the setting that turns it on
+    assert engine.pipeline.step("foot_plant") is None
+    monkeypatch.setenv("RSMT_FOOT_PLANT", "true")
+    assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).pipeline.step("foot_plant") is not None
 
 
 def test_eager_reaches_the_engines(monkeypatch):

@@ -50,7 +50,8 @@ class OutputConfig:
 
     def with_overrides(self, *, smoothing: float | None = None, root_smoothing: float | None = None,
                        foot_lock: bool | None = None, steering: int | None = None,
-                       floor: bool | None = None, stride_warp: float | None = None) -> OutputConfig:
+                       floor: bool | None = None, stride_warp: float | None = None,
+                       foot_plant: bool | None = None) -> OutputConfig:
         """These settings with a caller's overrides (None keeps a setting). Once either strength is
         given, the root follows ``root_smoothing`` alone: unset, it takes ``smoothing``'s value.
         ``steering`` is the ground steering window in frames (0: every part of steering off)."""
@@ -62,7 +63,8 @@ class OutputConfig:
         steer = self.steering if steering is None else self.steering.with_window(int(steering))
         return OutputConfig(rot, self.foot_lock if foot_lock is None else bool(foot_lock), root, steer,
                             self.floor if floor is None else bool(floor),
-                            self.stride_warp if stride_warp is None else float(stride_warp), self.foot_plant)
+                            self.stride_warp if stride_warp is None else float(stride_warp),
+                            self.foot_plant if foot_plant is None else bool(foot_plant))
 
     def in_words(self) -> str:
         """These settings as a short phrase, e.g. ``smoothing 0.3/0.3, foot lock on, steering 40 (facing 5),

@@ -112,6 +112,8 @@ def test_the_pipeline_runs_it_last_and_only_when_asked(walk):
     assert list(on.frame.steps)[-1] == "foot_plant"
     assert OutputConfig.from_dict(OutputConfig(foot_plant=True).to_dict()).foot_plant
     assert OutputConfig(foot_plant=True).with_overrides(floor=True).foot_plant
+    assert not OutputConfig(foot_plant=True).with_overrides(foot_plant=False).foot_plant
+    assert OutputConfig().with_overrides(foot_plant=True).foot_plant
 
 
 def test_the_capture_rise_is_that_of_its_still_feet():
@@ -130,3 +132,21 @@ def test_the_capture_rise_is_that_of_its_still_feet():
     pos[:, :2, 0] = 10.0 * torch.arange(10.0).unsqueeze(-1)  # the left foot swings too: only the right one plants
     assert planted_rise(pos, feet, 30.0) == pytest.approx(0.0)
     assert planted_rise(pos[:1], feet, 30.0) == 0.0
+
+
+def test_an_engine_says_when_its_foot_plant_can_move_no_foot(caplog):
+    import logging
+
+    from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+    from model.inference.engine import Engine
+    from model.inference.overrides import Overrides
+
+    bundle = Bundle.load(DEFAULT_BUNDLE)  # its gait limits predate the planted rise
+    with caplog.at_level(logging.WARNING, logger="model.inference.engine"):
+        Engine(bundle, threads=1)
+        assert not caplog.records  # off: nothing to say
+        engine = Engine(bundle, threads=1, overrides=Overrides(foot_plant=True))
+    assert engine.pipeline.step("foot_plant") is not None
+    assert [r.getMessage() for r in caplog.records] == [
+        f"the foot plant is on but {bundle.meta.name}'s gait limits give no style a planted rise: it moves no foot "
+        "(rsmt bundle gait-limits measures them)"]
