@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rsmt_client import AsyncStreamClient, Client, StreamClient
 from rsmt_client.frames import Frame
-from rsmt_client.stream_failover import Failover, http_url
+from rsmt_client.stream_failover import Failover, http_url, style_body
 
 from tests.clients.helpers import API_KEY
 
@@ -169,6 +169,16 @@ def test_unknown_style_during_a_resume_resends_the_resume_not_the_original_start
     assert [as_frame(f.received(frame("hero", s, 3 - s)).item).seq for s in range(4)] == [6, 7, 8, 9]
 
 
+def test_a_style_body_holds_one_clip_as_motion_and_several_as_motions():
+    one = {"bvh": "HIERARCHY one"}
+    assert style_body([one], "walk", None) == {"name": "walk", "motion": one}
+    both = style_body([one, {"bvh": "HIERARCHY two"}], None, "m")
+    assert both == {"name": "style", "motions": [one, {"bvh": "HIERARCHY two"}], "model": "m"}
+    for clips in ([], [one] * 6):
+        with pytest.raises(ValueError, match=f"1 to 5 clips; got {len(clips)}"):
+            style_body(clips, None, None)
+
+
 def test_http_url():
     assert http_url("ws://lb:8000/v1/stream?encoding=binary&token=k") == "http://lb:8000"
     assert http_url("wss://h/prefix/v1/stream?encoding=json") == "https://h/prefix"
@@ -197,6 +207,29 @@ def test_async_stream_registers_a_deleted_style_again(server, motions):
             return (await s.transition(motions["context"], motions["target"], 12, style_id=sid, seed=1)).num_frames
 
     assert asyncio.run(run()) == 12
+
+
+def test_a_style_of_several_clips_is_registered_again_from_all_of_them(server, motions):
+    with StreamClient(server.url, api_key=API_KEY, failover=True) as s:
+        sid = s.register_style_clips([motions["style"], motions["style2"]], name="both")
+        with Client(server.url, api_key=API_KEY) as c:
+            assert c.style(sid)["clips"] == 2
+            c.delete_style(sid)
+        poses = s.transition(motions["context"], motions["target"], 12, style_id=sid, seed=1)
+        assert poses.num_frames == 12 and poses.style_id == sid
+    with Client(server.url, api_key=API_KEY) as c:
+        assert c.style(sid)["clips"] == 2  # both clips again, under the same id
+
+    async def run() -> tuple[str, int]:
+        s = await AsyncStreamClient.connect(server.url, api_key=API_KEY, failover=True)
+        async with s:
+            again = await s.register_style_clips([motions["style2"], motions["style"]])
+            with Client(server.url, api_key=API_KEY) as c:
+                c.delete_style(again)
+            return again, (await s.transition(motions["context"], motions["target"], 12, style_id=again,
+                                              seed=1)).num_frames
+
+    assert asyncio.run(run()) == (sid, 12)
 
 
 def test_a_bvh_context_on_the_models_rig_is_read_for_the_resume():

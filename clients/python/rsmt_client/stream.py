@@ -10,15 +10,15 @@ here only connect, send, receive and wait.
 With ``failover=True`` a lost connection (its replica died, restarted or drained) is opened again through
 the same URL and every live character resumes from the last frames it received
 (:mod:`rsmt_client.stream_failover`): the caller sees a stall, then the frames that were still to come,
-numbered on. Styles registered through :meth:`StreamClient.register_style` are registered again when a
-server answers ``unknown_style``.
+numbered on. Styles registered through :meth:`StreamClient.register_style` (or ``register_style_clips``) are
+registered again when a server answers ``unknown_style``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from typing import Any, Self
 
 from websockets.asyncio.client import ClientConnection as AsyncConnection
@@ -31,9 +31,9 @@ from rsmt_client.errors import RsmtError
 from rsmt_client.frames import Frame, FrameLayout, Message
 from rsmt_client.http import AsyncClient, Client
 from rsmt_client.http_protocol import DEFAULT_URL, default_style_name
-from rsmt_client.motion import Poses, motion_payload
+from rsmt_client.motion import Poses
 from rsmt_client.motion_cuts import Cutter, ModelLimits
-from rsmt_client.stream_failover import NO_RESUME_CLOSE_CODES, Actions, Failover, http_url
+from rsmt_client.stream_failover import NO_RESUME_CLOSE_CODES, Actions, Failover, http_url, style_body
 from rsmt_client.stream_protocol import (
     MAX_MESSAGE_BYTES,
     StreamResult,
@@ -52,13 +52,6 @@ def _wait_after_failed_handshake(retrying: Retrying, url: str, exc: Exception) -
         status, headers, err = refused_handshake(exc)
         return retrying.wait_or_raise(status, headers, err, cause=exc)
     return retrying.wait_or_raise(None, None, RsmtError("connection", f"cannot reach {url}: {exc}"), cause=exc)
-
-
-def _style_body(motion: Any, name: str | None, model: str | None) -> dict[str, Any]:
-    body: dict[str, Any] = {"name": name or default_style_name(motion), "motion": motion_payload(motion)}
-    if model is not None:
-        body["model"] = model
-    return body
 
 
 class _SessionView:
@@ -173,11 +166,21 @@ class StreamClient(_SessionView):
     def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> str:
         """``POST /v1/styles`` on the same server; returns the id. With ``failover`` the clip is kept and
         registered again wherever a stream meets ``unknown_style`` for it."""
-        body = _style_body(motion, name, model)
-        style_id = str(self._http_client().register_style(body["motion"], body["name"], model)["style_id"])
+        return self._register(style_body([motion], name, model))
+
+    def register_style_clips(self, motions: Sequence[Any], name: str | None = None, model: str | None = None) -> str:
+        """``POST /v1/styles`` with 1 to 5 clips of one style encoded together (as
+        :meth:`rsmt_client.Client.register_style_clips`); returns the id. With ``failover`` the clips are kept
+        and registered again, together, wherever a stream meets ``unknown_style`` for it."""
+        return self._register(style_body(motions, name, model))
+
+    def _register(self, body: dict[str, Any]) -> str:
+        http = self._http_client()
+        info = (http.register_style_clips(body["motions"], body["name"], body.get("model")) if "motions" in body
+                else http.register_style(body["motion"], body["name"], body.get("model")))
         if self._failover is not None:
-            self._failover.remember_style(style_id, body)
-        return style_id
+            self._failover.remember_style(str(info["style_id"]), body)
+        return str(info["style_id"])
 
     def _http_client(self) -> Client:
         if self._http is None:
@@ -186,8 +189,7 @@ class StreamClient(_SessionView):
 
     def _act(self, actions: Actions) -> Frame | Message | None:
         if actions.register is not None:
-            _, body = actions.register
-            self._http_client().register_style(body["motion"], body["name"], body.get("model"))
+            self._register(actions.register[1])
         for message in actions.send:  # the message that named the style, once more (not recorded again)
             try:
                 self._ws.send(self._session.encode(message))
@@ -351,8 +353,17 @@ class AsyncStreamClient(_SessionView):
 
     async def register_style(self, motion: Any, name: str | None = None, model: str | None = None) -> str:
         """As :meth:`StreamClient.register_style`."""
-        body = _style_body(motion, name, model)
-        info = await self._http_client().register_style(body["motion"], body["name"], model)
+        return await self._register(style_body([motion], name, model))
+
+    async def register_style_clips(self, motions: Sequence[Any], name: str | None = None,
+                                   model: str | None = None) -> str:
+        """As :meth:`StreamClient.register_style_clips`."""
+        return await self._register(style_body(motions, name, model))
+
+    async def _register(self, body: dict[str, Any]) -> str:
+        http = self._http_client()
+        info = await (http.register_style_clips(body["motions"], body["name"], body.get("model")) if "motions" in body
+                      else http.register_style(body["motion"], body["name"], body.get("model")))
         if self._failover is not None:
             self._failover.remember_style(str(info["style_id"]), body)
         return str(info["style_id"])
@@ -364,8 +375,7 @@ class AsyncStreamClient(_SessionView):
 
     async def _act(self, actions: Actions) -> Frame | Message | None:
         if actions.register is not None:
-            _, body = actions.register
-            await self._http_client().register_style(body["motion"], body["name"], body.get("model"))
+            await self._register(actions.register[1])
         for message in actions.send:
             try:
                 await self._ws.send(self._session.encode(message))

@@ -22,6 +22,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
@@ -29,7 +30,8 @@ from urllib.parse import urlsplit, urlunsplit
 import numpy as np
 
 from rsmt_client.frames import Frame, Message
-from rsmt_client.motion import load_bvh_poses
+from rsmt_client.http_protocol import MAX_STYLE_CLIPS, default_style_name
+from rsmt_client.motion import load_bvh_poses, motion_payload
 
 # Close codes after which resuming would only repeat the failure: the client's own faults.
 NO_RESUME_CLOSE_CODES = frozenset({1003, 1007, 1008, 1009})
@@ -73,6 +75,20 @@ class Actions:
     send: list[Message] = field(default_factory=list)
 
 
+
+def style_body(motions: Sequence[Any], name: str | None, model: str | None) -> dict[str, Any]:
+    """The ``POST /v1/styles`` body a stream client keeps for a style of one clip (``motion``) or several encoded
+    together (``motions``), to register it again as it was; a ValueError for no clip or more than five."""
+    if not 1 <= len(motions) <= MAX_STYLE_CLIPS:
+        raise ValueError(f"a style is registered from 1 to {MAX_STYLE_CLIPS} clips; got {len(motions)}")
+    payloads = [motion_payload(m) for m in motions]
+    body: dict[str, Any] = {"name": name or default_style_name(motions[0])}
+    body.update({"motion": payloads[0]} if len(payloads) == 1 else {"motions": payloads})
+    if model is not None:
+        body["model"] = model
+    return body
+
+
 class Failover:
     """Per-connection-independent resume state of one stream client (see the module doc)."""
 
@@ -108,7 +124,8 @@ class Failover:
             ch.cancelled = True
 
     def remember_style(self, style_id: str, body: dict[str, Any]) -> None:
-        """Hold the ``POST /v1/styles`` body of ``style_id`` to register it again on ``unknown_style``."""
+        """Hold the ``POST /v1/styles`` body of ``style_id`` (:func:`style_body`) to register it again on
+        ``unknown_style``."""
         self.styles[style_id] = body
 
     @property
