@@ -49,7 +49,7 @@ class OnnxStep(CompiledStep):
 
     def __init__(self, engine: Engine, weights: WeightSet, model: bytes, threads: int) -> None:
         super().__init__(weights.sampler, engine.skeleton.roles.root, engine.output.steering, traced=False,
-                         facing=engine._facing)
+                         facing=engine.facing)
         self.session = session(model, threads)
         self._inputs = [i.name for i in self.session.get_inputs()]
 

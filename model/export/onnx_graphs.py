@@ -150,16 +150,14 @@ class Example:
         batch = CharacterBatch(engine)
         for ch in chars:
             batch.add(ch)
-        batch._sync()
-        assert batch._state is not None and batch._style is not None and batch._memory is not None
-        state, ctx_style = batch._state, batch._style
+        state, ctx_style, yaw, origin, memory = batch.stacked()
         late = torch.tensor([False, True])
         new, shift = weights.step_fn(state, ctx_style, late)
         shift = torch.zeros(2, 2) if shift is None else shift
         p = new.pose
-        output = (p.rel, p.vel, p.rot, p.root_xz, batch._yaw, batch._origin, torch.tensor([30, 3]), shift,
-                  *(batch._memory[k] for k in engine.output_fn.fn.keys))
-        return cls(style_poses, begin, state, ctx_style, late, output)  # type: ignore[arg-type]
+        output = (p.rel, p.vel, p.rot, p.root_xz, yaw, origin, torch.tensor([30, 3]), shift,
+                  *(memory[k] for k in engine.output_fn.fn.keys))
+        return cls(style_poses, begin, state, ctx_style, late, output)
 
 
 def style_graph(engine: Engine, weights: WeightSet, example: Example) -> Graph:
@@ -177,7 +175,7 @@ def begin_graph(weights: WeightSet, example: Example) -> Graph:
 
 def step_graph(engine: Engine, weights: WeightSet, example: Example) -> Graph:
     """The sampler's step with the engine's whole steering (the retarget window for rows flagged ``late``)."""
-    module = _Step(weights.sampler, engine.skeleton.roles.root, engine.output.steering, engine._facing)
+    module = _Step(weights.sampler, engine.skeleton.roles.root, engine.output.steering, engine.facing)
     outputs = tuple(f"{n}_out" for n in STEP_OUTPUTS[:-1]) + ("shift",)
     axes = {n: {0: "batch"} for n in (*STATE_FIELDS, "late", *outputs)} | _style_axes()
     args = (*_flat(example.state, example.style), example.late)

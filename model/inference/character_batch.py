@@ -127,6 +127,15 @@ class CharacterBatch:
             restyle_held(ch, style, ws)
         self._style_dirty = True
 
+    def stacked(self) -> tuple[SamplerState, StyleContext, Tensor, Tensor, dict[str, Tensor]]:
+        """The members' stacked sampler state and style context, canonical frames (``yaw [N]``, ``origin [N, 3]``)
+        and output-step memory, as the next :meth:`step` reads them (characters waiting to join joined first)."""
+        self._sync()
+        if self._state is None or self._style is None or self._yaw is None or self._origin is None \
+                or self._memory is None:
+            raise ValueError("no live characters in the batch")
+        return self._state, self._style, self._yaw, self._origin, self._memory
+
     def row_of(self, ch: Character) -> SamplerState:
         self._sync()
         i = self.members.index(ch)

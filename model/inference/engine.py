@@ -69,7 +69,7 @@ class Engine:
         self.pipeline = OutputPipeline(self.skeleton, self.config.fps, self.output)
         # One weight set per style adapter beside the bundle's own; a character runs on its style's.
         self._compiled = compiled
-        self._facing = FacingChains.of(self.skeleton)
+        self.facing = FacingChains.of(self.skeleton)  # the skeleton's facing chains, for steering the facing
         self.weight_sets = {"": self._weight_set("", self.sampler, bundle.version)}
         for name, adapter in sorted(bundle.adapters.items()):
             self.weight_sets[name] = self._weight_set(name, adapter.apply(self.sampler), adapter.version)
@@ -94,7 +94,7 @@ class Engine:
             else:
                 stepper = quantized
         step = CompiledStep(stepper, self.skeleton.roles.root, self.pipeline.steering, traced=self._compiled,
-                            facing=self._facing)
+                            facing=self.facing)
         return WeightSet(name, sampler, step, version)
 
     def weights(self, name: str = "") -> WeightSet:

@@ -134,6 +134,20 @@ def test_retarget_changes_arrival(engine, walk):
     assert not torch.allclose(plain[10:25], moved[10:25])
 
 
+def test_a_batch_shows_its_stacked_rows_as_the_next_step_reads_them(engine, walk):
+    style, _ = engine.encode_style(walk.window(30, 150))
+    batch = CharacterBatch(engine)
+    with pytest.raises(ValueError, match="no live characters"):
+        batch.stacked()
+    for seed in (1, 2):
+        batch.add(engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, style, seed=seed))
+    state, ctx, yaw, origin, memory = batch.stacked()  # the two waiting characters joined
+    assert state.h.shape[0] == 2 and ctx.mask.shape[0] == 2 and yaw.shape == (2,) and origin.shape == (2, 3)
+    assert set(memory) == set(engine.output_fn.fn.keys) and all(v.shape[0] == 2 for v in memory.values())
+    batch.step()
+    assert batch.stacked()[0] is not state  # a step moves the rows on
+
+
 def test_style_switch_mid_motion(engine, walk):
     a, _ = engine.encode_style(walk.window(30, 150))
     b, _ = engine.encode_style(synthetic_walk(frames=60, cadence_hz=1.6, stride_deg=40.0))
