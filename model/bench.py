@@ -124,7 +124,6 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
     return res
 
 
-
 def _throughput(engine: Engine, style: EncodedStyle, request: WalkRequest, n: int, budget_s: float,
                 clock: Callable[[], float]) -> float:
     """Character-frames a second of ``n`` characters stepped together: whole transitions one after another
@@ -141,6 +140,7 @@ def _throughput(engine: Engine, style: EncodedStyle, request: WalkRequest, n: in
         timed += clock() - t0
         frames += n * steps
     return round(frames / timed, 1) if frames and timed > 0 else 0.0
+
 
 @dataclass(frozen=True)
 class WalkRequest:

@@ -75,7 +75,6 @@ class Actions:
     send: list[Message] = field(default_factory=list)
 
 
-
 def style_body(motions: Sequence[Any], name: str | None, model: str | None) -> dict[str, Any]:
     """The ``POST /v1/styles`` body a stream client keeps for a style of one clip (``motion``) or several encoded
     together (``motions``), to register it again as it was; a ValueError for no clip or more than five."""
