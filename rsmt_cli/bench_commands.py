@@ -89,8 +89,9 @@ def _run(args: argparse.Namespace) -> int:
 
 def engine_label(engine: Any, path: Path) -> str:
     """The bench table's name for ``engine`` (loaded from ``path``): its model and the settings it runs with."""
+    strength = engine.inference.style_strength
     return (f"{engine.name} ({path.name}; {engine.output.in_words()}{', int8 LSTM' if engine.inference.int8_lstm else ''}"
-            f"{', onnxruntime' if _on_onnxruntime(engine) else ''})")
+            f"{f', style strength {strength:g}' if strength != 1.0 else ''}{', onnxruntime' if _on_onnxruntime(engine) else ''})")
 
 
 def _on_onnxruntime(engine: Any) -> bool:

@@ -12,8 +12,8 @@ if TYPE_CHECKING:  # imported where used: `rsmt --help` loads no torch
 
 def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
     """``--smoothing``, ``--root-smoothing``, ``--foot-lock``, ``--steering``, ``--floor``, ``--stride-warp``,
-    ``--foot-plant`` and ``--int8-lstm``; ``owner`` names whose settings they override in the help ("each bundle",
-    "the bundle")."""
+    ``--foot-plant``, ``--int8-lstm`` and ``--style-strength``; ``owner`` names whose settings they override in the
+    help ("each bundle", "the bundle")."""
     p.add_argument("--smoothing", type=float, default=None, metavar="A",
                    help=f"output-filter strength, in [0, 1) (default: {owner}'s own setting; 0 gives the network's "
                         "raw frames)")
@@ -38,6 +38,9 @@ def add_output_arguments(p: argparse.ArgumentParser, owner: str) -> None:
     p.add_argument("--int8-lstm", choices=("on", "off"), default=None,
                    help=f"run the LSTM cell of the per-frame step with int8 weights, on or off (default: {owner}'s "
                         "own setting)")
+    p.add_argument("--style-strength", type=float, default=None, metavar="K",
+                   help="move every style away from the bundle's neutral style (the mean of its built-in styles) by "
+                        f"K, in [0, 4] (1: as encoded; default: {owner}'s own setting)")
 
 
 SWITCHES = ("foot_lock", "floor", "foot_plant", "int8_lstm")  # the settings given as on / off

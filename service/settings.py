@@ -77,6 +77,9 @@ class Settings(BaseSettings):
         "each bundle's own)")
     int8_lstm: bool | None = Field(
         default=None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
+    style_strength: float | None = Field(
+        default=None, ge=0, le=4, description="move every style away from each model's neutral style (the mean of "
+        "its built-in styles) by this factor (1: as encoded; default: each bundle's own)")
     eager: bool = Field(
         default=False, description="run each model's per-frame step and output steps in eager PyTorch instead of their "
         "traced graphs (slower; for debugging)")
@@ -255,7 +258,7 @@ class Settings(BaseSettings):
 
         return Overrides(smoothing=self.smoothing, root_smoothing=self.root_smoothing, foot_lock=self.foot_lock,
                          steering=self.steering, floor=self.floor, stride_warp=self.stride_warp,
-                         foot_plant=self.foot_plant, int8_lstm=self.int8_lstm)
+                         foot_plant=self.foot_plant, int8_lstm=self.int8_lstm, style_strength=self.style_strength)
 
     @model_validator(mode="after")
     def _resolve_models(self) -> Settings:

@@ -35,6 +35,8 @@ class BatchEngine(Protocol):
 
     def weights(self, name: str = "") -> WeightSet: ...
 
+    def context_of(self, style: EncodedStyle) -> StyleContext: ...
+
 
 def by_weights(characters: list[Character]) -> list[tuple[str, Tensor]]:
     """The characters' rows grouped by the weight set of their style, in order of first appearance."""
@@ -108,7 +110,7 @@ class CharacterBatch:
             self._pending = []
             self._style_dirty = True
         if self._style_dirty and self.members:
-            self._style = StyleContext.stack([m.style.context for m in self.members])
+            self._style = StyleContext.stack([self.engine.context_of(m.style) for m in self.members])
             groups = by_weights(self.members)
             whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
             self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))

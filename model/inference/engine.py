@@ -28,6 +28,7 @@ from model.inference.output.smoothing import SPEED_CAP
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, ground_distance, reach_of
 from model.inference.style_codes import LRUCache, clip_content_hash
+from model.inference.style_strength import NeutralStyle
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep
 from model.motion.clip import Clip
 from model.motion.features import CanonicalFrame, FacingChains, local_frame_features
@@ -81,6 +82,11 @@ class Engine:
                 math.isfinite(s.planted_rise_cm) for s in self.gait_limits.styles.values())):
             log.warning("the foot plant is on but %s's gait limits give no style a planted rise: it moves no foot "
                         "(rsmt bundle gait-limits measures them)", bundle.meta.name)
+        # Style strength moves every style from the mean of the bundle's own built-in styles.
+        own = [s.context for s in bundle.styles.values() if not s.weights]
+        self.neutral_style = NeutralStyle.of(own) if own else None
+        if self.inference.style_strength != 1.0 and self.neutral_style is None:
+            raise ValueError(f"style strength needs built-in styles to find the neutral style; {bundle.meta.name} has none")
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
@@ -96,6 +102,12 @@ class Engine:
         step = CompiledStep(stepper, self.skeleton.roles.root, self.pipeline.steering, traced=self._compiled,
                             facing=self.facing)
         return WeightSet(name, sampler, step, version)
+
+    def context_of(self, style: EncodedStyle) -> StyleContext:
+        """``style``'s context as this engine runs it: at the inference settings' style strength."""
+        if self.neutral_style is None:
+            return style.context
+        return self.neutral_style.scaled(style.context, self.inference.style_strength)
 
     def weights(self, name: str = "") -> WeightSet:
         """The weight set ``name`` (``""``: the bundle's own); an unknown name is a ValueError naming the sets."""
@@ -282,7 +294,7 @@ class Engine:
         frames = torch.tensor([i.frames for i in starts])
         noise = torch.cat([i.noise for i in starts])
         known = torch.tensor([i.velocity_known for i in starts])
-        style = StyleContext.stack([c.style.context for c in characters])
+        style = StyleContext.stack([self.context_of(c.style) for c in characters])
         for c in characters:
             c.prepared = None
         groups = by_weights(characters)

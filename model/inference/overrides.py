@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 
 from model.inference.output.settings import OutputConfig
 from model.inference.settings import InferenceConfig
+from model.inference.style_strength import check_strength
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -20,7 +21,8 @@ class Overrides:
     alone applies to the root too); ``foot_lock``, ``floor``: those steps on or off; ``steering``: the
     steering window in frames (0: every part of steering off); ``stride_warp``: the stride warp's reach,
     in [0, 4] (0: off); ``foot_plant``: the foot plant on or off (it acts only where the bundle's gait limits
-    give a style its planted rise); ``int8_lstm``: the LSTM cell of the per-frame step with int8 weights."""
+    give a style its planted rise); ``int8_lstm``: the LSTM cell of the per-frame step with int8 weights;
+    ``style_strength``: every style moved away from the bundle's neutral style by this factor, in [0, 4]."""
 
     smoothing: float | None = None
     root_smoothing: float | None = None
@@ -30,6 +32,7 @@ class Overrides:
     stride_warp: float | None = None
     foot_plant: bool | None = None
     int8_lstm: bool | None = None
+    style_strength: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("smoothing", "root_smoothing"):
@@ -38,6 +41,8 @@ class Overrides:
                 raise ValueError(f"{name} must be in [0, 1), got {value}")
         if self.steering is not None and self.steering < 0:
             raise ValueError(f"steering must be 0 (off) or more frames, got {self.steering}")
+        if self.style_strength is not None:
+            check_strength(self.style_strength)
         if self.stride_warp is not None and not 0.0 <= self.stride_warp <= 4.0:
             raise ValueError(f"stride_warp must be in [0, 4], got {self.stride_warp}")
 
@@ -54,4 +59,4 @@ class Overrides:
 
     def inference(self, settings: InferenceConfig) -> InferenceConfig:
         """A bundle's inference settings with these overrides."""
-        return settings.with_overrides(int8_lstm=self.int8_lstm)
+        return settings.with_overrides(int8_lstm=self.int8_lstm, style_strength=self.style_strength)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import Engine
 from model.inference.overrides import Overrides
@@ -18,6 +20,8 @@ def test_the_label_names_every_output_step_the_engine_runs():
     assert plain == f"{bundle.meta.name} (default_bundle; smoothing 0/0, foot lock off)"  # no steering: no warp
     planted = engine_label(Engine(bundle, threads=1, overrides=Overrides(foot_plant=True)), DEFAULT_BUNDLE)
     assert planted.endswith("stride warp 2, foot plant, int8 LSTM)")
+    strong = engine_label(Engine(bundle, threads=1, overrides=Overrides(style_strength=1.25)), DEFAULT_BUNDLE)
+    assert strong.endswith("int8 LSTM, style strength 1.25)")
 
 
 def test_the_output_flags_are_the_overrides_and_repeat_as_given():
@@ -27,8 +31,11 @@ def test_the_output_flags_are_the_overrides_and_repeat_as_given():
 
     p = argparse.ArgumentParser()
     add_output_arguments(p, "the bundle")
-    args = p.parse_args(["--foot-plant", "on", "--floor", "off", "--stride-warp", "1.5"])
-    assert output_overrides(args) == Overrides(foot_plant=True, floor=False, stride_warp=1.5)
-    assert output_flags(args) == ["--floor", "off", "--stride-warp", "1.5", "--foot-plant", "on"]
+    args = p.parse_args(["--foot-plant", "on", "--floor", "off", "--stride-warp", "1.5", "--style-strength", "1.25"])
+    assert output_overrides(args) == Overrides(foot_plant=True, floor=False, stride_warp=1.5, style_strength=1.25)
+    assert output_flags(args) == ["--floor", "off", "--stride-warp", "1.5", "--foot-plant", "on", "--style-strength",
+                                  "1.25"]
+    with pytest.raises(ValueError, match="--style-strength must be in"):
+        output_overrides(p.parse_args(["--style-strength", "9"]))
     assert output_overrides(p.parse_args([])) == Overrides()
 

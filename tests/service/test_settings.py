@@ -94,6 +94,12 @@ def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     assert engine.pipeline.step("foot_plant") is None
     monkeypatch.setenv("RSMT_FOOT_PLANT", "true")
     assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).pipeline.step("foot_plant") is not None
+    assert engine.inference.style_strength == 1.0
+    monkeypatch.setenv("RSMT_STYLE_STRENGTH", "1.25")
+    assert _engine_of(load_registry(Settings(models=DEFAULT_BUNDLE))).inference.style_strength == 1.25
+    monkeypatch.setenv("RSMT_STYLE_STRENGTH", "5")
+    with pytest.raises(ValidationError):
+        Settings()
 
 
 def test_eager_reaches_the_engines(monkeypatch):

@@ -1,0 +1,73 @@
+"""Style strength: a style's context moved away from the bundle's neutral style (strength above 1) or toward it
+(below 1; 0 is the neutral style itself).
+
+The neutral style is the mean of the bundle's built-in styles' contexts (FiLM scales and shifts, and the
+attention keys and values averaged over their real time steps too, so that it fits a code of any length). A
+context at strength ``k`` is ``neutral + k * (context - neutral)`` field by field. It is applied where the
+contexts of a batch are stacked (:mod:`model.inference.character_batch`), so registered, built-in and
+several-clip styles all follow it, and cached styles stay as encoded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import torch
+
+from model.nets.sampler import StyleContext
+
+Tensor = torch.Tensor
+MAX_STRENGTH = 4.0
+_SCALED = ("gamma1", "beta1", "keys1", "values1", "gamma2", "beta2", "keys2", "values2")
+
+
+def check_strength(strength: float) -> float:
+    """``strength`` as a float in [0, :data:`MAX_STRENGTH`], else a ValueError."""
+    value = float(strength)
+    if not 0.0 <= value <= MAX_STRENGTH:
+        raise ValueError(f"style_strength must be in [0, {MAX_STRENGTH:g}], got {strength}")
+    return value
+
+
+@dataclass(frozen=True)
+class NeutralStyle:
+    """The neutral style of a set of contexts: each scaled field's mean, ``[1, width]`` for the FiLM fields,
+    ``[1, width, 1]`` for keys and ``[1, 1, width]`` for values (the mean over real time steps)."""
+
+    gamma1: Tensor
+    beta1: Tensor
+    keys1: Tensor
+    values1: Tensor
+    gamma2: Tensor
+    beta2: Tensor
+    keys2: Tensor
+    values2: Tensor
+
+    @classmethod
+    def of(cls, contexts: list[StyleContext]) -> NeutralStyle:
+        """The neutral style of ``contexts`` (at least one; each a batch of one or more styles)."""
+        if not contexts:
+            raise ValueError("a neutral style needs at least one style context")
+        ctx = StyleContext.stack(contexts)
+        real = ctx.mask.float()  # [B, T']
+        steps = real.sum()
+
+        def mean(name: str) -> Tensor:
+            t = getattr(ctx, name)
+            if name.startswith(("gamma", "beta")):
+                return t.mean(0, keepdim=True)
+            if name.startswith("keys"):  # [B, width, T']
+                return (t * real.unsqueeze(1)).sum((0, 2), keepdim=True) / steps
+            return (t * real.unsqueeze(2)).sum((0, 1), keepdim=True) / steps  # values [B, T', width]
+
+        return cls(**{name: mean(name) for name in _SCALED})
+
+    def scaled(self, ctx: StyleContext, strength: float) -> StyleContext:
+        """``ctx`` at ``strength`` (1: ``ctx`` itself, the same object)."""
+        if strength == 1.0:
+            return ctx
+        out = {f.name: getattr(ctx, f.name) for f in fields(ctx)}
+        for name in _SCALED:
+            neutral = getattr(self, name)
+            out[name] = neutral + strength * (out[name] - neutral)
+        return StyleContext(**out)
