@@ -96,7 +96,12 @@ def engine_graphs(engine: Engine, weights: str = "") -> dict[str, Graph]:
 
 
 def export_onnx(bundle: Bundle, out: Path) -> dict[str, Any]:
-    """Write the bundle's graphs and sidecar into ``out``; returns the sidecar."""
+    """Write the bundle's graphs and sidecar into ``out``; returns the sidecar. A bundle whose styles run at a
+    strength other than 1 is refused: the style graph gives contexts as encoded, and the engine samples would
+    run them so."""
+    if bundle.inference.style_strength != 1.0:
+        raise ValueError(f"the bundle runs its styles at strength {bundle.inference.style_strength:g}; the exported "
+                         "style graph gives them as encoded: package a copy with --style-strength 1 to export")
     engine = Engine(bundle, compiled=False, overrides=Overrides(int8_lstm=False))  # the float32 network the graphs hold
     out.mkdir(parents=True, exist_ok=True)
     graphs = {name: _write(g, out) for name, g in engine_graphs(engine).items()}

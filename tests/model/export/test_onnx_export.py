@@ -101,3 +101,16 @@ def test_the_style_graph_gives_the_engines_style_context(exported: Path) -> None
     for name, got in zip([o.name for o in session.get_outputs()], out):
         assert name in STYLE_FIELDS
         np.testing.assert_allclose(got, getattr(style.context, name).numpy(), atol=1e-4, err_msg=name)
+
+
+def test_a_bundle_with_a_style_strength_is_not_exported(tmp_path: Path) -> None:
+    import dataclasses
+
+    from model.export.onnx_bundle import export_onnx
+    from model.inference.bundle import DEFAULT_BUNDLE, Bundle
+
+    bundle = Bundle.load(DEFAULT_BUNDLE)
+    bundle.inference = dataclasses.replace(bundle.inference, style_strength=1.25)
+    with pytest.raises(ValueError, match="strength 1.25.*--style-strength 1 to export"):
+        export_onnx(bundle, tmp_path / "out")
+    assert not (tmp_path / "out").exists()  # refused before anything is written
