@@ -124,7 +124,7 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     seed = req.seed if req.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, req.frames, style, seed=seed, deterministic=req.deterministic,
-                            exact_arrival=req.exact_arrival)
+                            exact_arrival=req.exact_arrival, style_strength=req.style_strength)
     except EngineError as exc:
         raise from_engine(exc) from exc
     rotations, roots = engine.generate([ch])[0]
@@ -165,7 +165,8 @@ def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, cha
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
-                            character_id=character_id, exact_arrival=msg.exact_arrival, retargeted=msg.retargeted)
+                            character_id=character_id, exact_arrival=msg.exact_arrival, retargeted=msg.retargeted,
+                            style_strength=msg.style_strength)
     except EngineError as exc:
         raise from_engine(exc) from exc
     return ch, style, seed

@@ -25,6 +25,8 @@ Seed = Annotated[StrictInt, Field(ge=0, le=SEED_MAX, description="sampling seed,
 CharacterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
 StyleId = Annotated[str, Field(min_length=1, max_length=128)]
 ModelName = Annotated[str, Field(min_length=1, max_length=128)]
+StyleStrength = Annotated[float, Field(ge=0, le=4, description="the style moved away from the model's neutral style by "
+                                       "this factor (1: as encoded; default: the server's setting)")]
 RequestId = Annotated[str | int | None, Field(None, description="echoed in any error this message causes")]
 
 _EXAMPLE_BVH = """HIERARCHY
@@ -218,6 +220,7 @@ class TransitionRequest(_StyleChoice):
     seed: Seed | None = None
     deterministic: StrictBool = Field(False, description="no sampling noise")
     exact_arrival: StrictBool = Field(False, description="bend the last frames so the arrival frame equals the target pose")
+    style_strength: StyleStrength | None = None
     output: Literal["json", "bvh"] = "json"
     model: ModelName | None = None
 
@@ -293,6 +296,7 @@ class StartMessage(_WsMessage, _StyleChoice):
     deterministic: StrictBool = False
     exact_arrival: StrictBool = False
     retargeted: StrictBool = False  # a resume of a character retargeted mid-motion: its facing takes the retarget window
+    style_strength: StyleStrength | None = None
     pace: Literal["realtime", "asap"] = "realtime"
     model: ModelName | None = None
 

@@ -69,6 +69,7 @@ class Character:
     cancelled: bool = False
     slot: int = 0
     retargeted: bool = False  # given a new target mid-stream (its facing is finished by the retarget window)
+    style_strength: float | None = None  # the strength its style runs at (model.inference.style_strength; None: the engine's)
     row: SamplerState | None = field(default=None, repr=False)  # its sampler state while out of a batch
     frame: CanonicalFrame | None = field(default=None, repr=False)  # its transition's frame, fixed when it starts
     # Exact arrival (see model.inference.output.arrival): the target pose in world space and its state.

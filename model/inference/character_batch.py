@@ -35,7 +35,7 @@ class BatchEngine(Protocol):
 
     def weights(self, name: str = "") -> WeightSet: ...
 
-    def context_of(self, style: EncodedStyle) -> StyleContext: ...
+    def context_of(self, style: EncodedStyle, strength: float | None = None) -> StyleContext: ...
 
 
 def by_weights(characters: list[Character]) -> list[tuple[str, Tensor]]:
@@ -110,7 +110,7 @@ class CharacterBatch:
             self._pending = []
             self._style_dirty = True
         if self._style_dirty and self.members:
-            self._style = StyleContext.stack([self.engine.context_of(m.style) for m in self.members])
+            self._style = StyleContext.stack([self.engine.context_of(m.style, m.style_strength) for m in self.members])
             groups = by_weights(self.members)
             whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
             self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))

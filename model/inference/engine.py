@@ -19,7 +19,14 @@ import torch
 from model.inference.bundle import Bundle
 from model.inference.character import Character, EncodedStyle, PreparedStart, StepOutput, WeightSet
 from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restyle_held
-from model.inference.errors import FramesOutOfRange, SkeletonMismatch, TooFewFrames, TooManyFrames
+from model.inference.errors import (
+    EngineError,
+    FramesOutOfRange,
+    NoNeutralStyle,
+    SkeletonMismatch,
+    TooFewFrames,
+    TooManyFrames,
+)
 from model.inference.int8_step import int8_lstm_sampler
 from model.inference.output.floor_contact import LIFT_CAP
 from model.inference.output.foot_plant import PLANT_CAP
@@ -28,7 +35,7 @@ from model.inference.output.smoothing import SPEED_CAP
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, ground_distance, reach_of
 from model.inference.style_codes import LRUCache, clip_content_hash
-from model.inference.style_strength import NeutralStyle
+from model.inference.style_strength import NeutralStyle, check_strength
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep
 from model.motion.clip import Clip
 from model.motion.features import CanonicalFrame, FacingChains, local_frame_features
@@ -86,7 +93,8 @@ class Engine:
         own = [s.context for s in bundle.styles.values() if not s.weights]
         self.neutral_style = NeutralStyle.of(own) if own else None
         if self.inference.style_strength != 1.0 and self.neutral_style is None:
-            raise ValueError(f"style strength needs built-in styles to find the neutral style; {bundle.meta.name} has none")
+            raise NoNeutralStyle(f"style strength needs built-in styles to find the neutral style; {bundle.meta.name} "
+                                 "has none")
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
@@ -103,11 +111,13 @@ class Engine:
                             facing=self.facing)
         return WeightSet(name, sampler, step, version)
 
-    def context_of(self, style: EncodedStyle) -> StyleContext:
-        """``style``'s context as this engine runs it: at the inference settings' style strength."""
-        if self.neutral_style is None:
+    def context_of(self, style: EncodedStyle, strength: float | None = None) -> StyleContext:
+        """``style``'s context as this engine runs it: at ``strength``, or the inference settings' style strength
+        where None."""
+        k = self.inference.style_strength if strength is None else strength
+        if self.neutral_style is None or k == 1.0:
             return style.context
-        return self.neutral_style.scaled(style.context, self.inference.style_strength)
+        return self.neutral_style.scaled(style.context, k)
 
     def weights(self, name: str = "") -> WeightSet:
         """The weight set ``name`` (``""``: the bundle's own); an unknown name is a ValueError naming the sets."""
@@ -247,15 +257,25 @@ class Engine:
     # ------------------------------------------------------------------ transitions
     def prepare(self, context: Clip, target: Clip, frames: int, style: EncodedStyle, seed: int | None = None,
                 deterministic: bool = False, character_id: str | None = None, exact_arrival: bool = False,
-                retargeted: bool = False) -> Character:
+                retargeted: bool = False, style_strength: float | None = None) -> Character:
         """Validate a transition request and build its (unbatched) initial state.
 
         With ``exact_arrival`` the last frames are bent so the arrival frame equals the target pose
         exactly (:mod:`model.inference.output.arrival`); otherwise the network's own arrival is returned.
         ``retargeted`` starts the character as one retargeted mid-stream (its facing is finished by the
         retarget window): a stream resumed on another server after a retarget, from the frames received.
+        ``style_strength``: the strength its style runs at (:mod:`model.inference.style_strength`; None: the
+        engine's setting).
         """
         c = self.config
+        if style_strength is not None:
+            try:
+                style_strength = check_strength(style_strength)
+            except ValueError as exc:
+                raise EngineError(str(exc)) from None
+            if style_strength != 1.0 and self.neutral_style is None:
+                raise NoNeutralStyle(f"style_strength needs built-in styles to find the neutral style; model "
+                                     f"{self.name!r} has none (send 1 or leave it out)")
         if not 1 <= frames <= self.max_frames:
             error = TooManyFrames if frames > self.max_frames else FramesOutOfRange
             raise error(f"frames must be between 1 and {self.max_frames}; got {frames}")
@@ -276,7 +296,8 @@ class Engine:
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
         ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
-                       retargeted=retargeted, frame=frame, arrival=arrival, goal=(tstate, known),
+                       retargeted=retargeted, style_strength=style_strength, frame=frame, arrival=arrival,
+                       goal=(tstate, known),
                        memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions))
         aim = self._limit(ch, cstate.root_xz[:, -1], tstate, frames)
         ch.prepared = PreparedStart(cstate, aim, frames, noise, known)
@@ -294,7 +315,7 @@ class Engine:
         frames = torch.tensor([i.frames for i in starts])
         noise = torch.cat([i.noise for i in starts])
         known = torch.tensor([i.velocity_known for i in starts])
-        style = StyleContext.stack([self.context_of(c.style) for c in characters])
+        style = StyleContext.stack([self.context_of(c.style, c.style_strength) for c in characters])
         for c in characters:
             c.prepared = None
         groups = by_weights(characters)

@@ -20,5 +20,9 @@ class TooManyFrames(EngineError):
     """A clip or a transition is longer than the model accepts."""
 
 
+class NoNeutralStyle(EngineError):
+    """A style strength other than 1 asked of a model without built-in styles to find its neutral style."""
+
+
 class FramesOutOfRange(EngineError):
     """A transition length outside 1 to the model's longest, where neither of the above applies."""

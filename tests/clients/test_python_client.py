@@ -190,6 +190,22 @@ def test_stream_json_and_binary_match_http(server, client, motions, style_id):
     np.testing.assert_array_equal(got["json"].rotations, got["binary"].rotations)  # the same float32 numbers
 
 
+def test_a_request_sets_its_own_style_strength_over_http_and_the_stream(server, client, motions, style_id):
+    args = (motions["context"], motions["target"], FRAMES)
+    plain = client.transition(*args, style_id=style_id, seed=SEED, deterministic=True)
+    one = client.transition(*args, style_id=style_id, seed=SEED, deterministic=True, style_strength=1.0)
+    np.testing.assert_array_equal(one.rotations, plain.rotations)  # 1 is the server's setting here
+    strong = client.transition(*args, style_id=style_id, seed=SEED, deterministic=True, style_strength=1.25)
+    assert np.abs(strong.rotations - plain.rotations).max() > 1e-3
+    with StreamClient(server.url, api_key=API_KEY) as s:
+        streamed = s.transition(*args, style_id=style_id, seed=SEED, deterministic=True, style_strength=1.25)
+    np.testing.assert_allclose(streamed.rotations, strong.rotations, atol=1e-4)
+    for bad in (-0.5, 4.5):
+        with pytest.raises(RsmtError) as err:
+            client.transition(*args, style_id=style_id, seed=SEED, style_strength=bad)
+        assert err.value.code == "validation_error" and "style_strength" in str(err.value)
+
+
 def test_stream_retarget_cancel_ping_and_many_characters(server, motions, style_id):
     with StreamClient(server.url, api_key=API_KEY, encoding="binary") as s:
         a = s.start(motions["context"], motions["target"], 60, style_id=style_id, pace="realtime")

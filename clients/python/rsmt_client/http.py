@@ -163,17 +163,18 @@ class Client(_Settings):
 
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, model: str | None = None,
-                   exact_arrival: bool = False) -> Poses:
-        """``POST /v1/transition``: the ``frames`` generated poses as float32 arrays."""
+                   exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
+        """``POST /v1/transition``: the ``frames`` generated poses as float32 arrays (``style_strength``: the style
+        moved from the model's neutral style by this factor; None: the server's setting)."""
         return self._run(ops.transition(self._state, context, target, frames, style_id, style, seed, deterministic, model,
-                                        exact_arrival))
+                                        exact_arrival, style_strength))
 
     def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                        seed: int | None = None, deterministic: bool = False, model: str | None = None,
-                       exact_arrival: bool = False) -> str:
+                       exact_arrival: bool = False, style_strength: float | None = None) -> str:
         """``POST /v1/transition`` with ``output: bvh``: the server's BVH text of exactly ``frames`` frames."""
         return self._run(ops.transition_bvh(self._state, context, target, frames, style_id, style, seed, deterministic,
-                                            model, exact_arrival))
+                                            model, exact_arrival, style_strength))
 
 
 class AsyncClient(_Settings):
@@ -265,12 +266,13 @@ class AsyncClient(_Settings):
 
     async def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                          seed: int | None = None, deterministic: bool = False, model: str | None = None,
-                         exact_arrival: bool = False) -> Poses:
+                         exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
         return await self._run(ops.transition(self._state, context, target, frames, style_id, style, seed, deterministic,
-                                              model, exact_arrival))
+                                              model, exact_arrival, style_strength))
 
     async def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None,
                              style: Any = None, seed: int | None = None, deterministic: bool = False,
-                             model: str | None = None, exact_arrival: bool = False) -> str:
+                             model: str | None = None, exact_arrival: bool = False,
+                             style_strength: float | None = None) -> str:
         return await self._run(ops.transition_bvh(self._state, context, target, frames, style_id, style, seed,
-                                                  deterministic, model, exact_arrival))
+                                                  deterministic, model, exact_arrival, style_strength))

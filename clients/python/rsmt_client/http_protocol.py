@@ -239,10 +239,11 @@ def with_style(state: ClientState, request: Request, style_id: str | None,
 
 
 def transition(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any,
-               seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool) -> Operation[Poses]:
+               seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool,
+               style_strength: float | None = None) -> Operation[Poses]:
     cuts = yield from cutter(state, model_name)
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "json", model_name,
-                           exact_arrival, cuts)
+                           exact_arrival, cuts, style_strength)
     data = (yield from with_style(state, Request("POST", "/v1/transition", json=body), style_id, model_name)).json()
     if state.model_info is None and model_name is None:
         yield from model(state)
@@ -257,17 +258,17 @@ def transition(state: ClientState, context: Any, target: Any, frames: int, style
 
 def transition_bvh(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None,
                    style_motion: Any, seed: int | None, deterministic: bool, model_name: str | None,
-                   exact_arrival: bool) -> Operation[str]:
+                   exact_arrival: bool, style_strength: float | None = None) -> Operation[str]:
     cuts = yield from cutter(state, model_name)
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "bvh", model_name,
-                           exact_arrival, cuts)
+                           exact_arrival, cuts, style_strength)
     request = Request("POST", "/v1/transition", json=body)
     return (yield from with_style(state, request, style_id, model_name)).json()["bvh"]
 
 
 def transition_body(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
                     deterministic: bool, output: str, model_name: str | None, exact_arrival: bool = False,
-                    cuts: Cutter | None = None) -> dict[str, Any]:
+                    cuts: Cutter | None = None, style_strength: float | None = None) -> dict[str, Any]:
     """The request; with ``cuts``, each motion cut to what the model reads (:mod:`rsmt_client.motion_cuts`)."""
     if (style_id is None) == (style_motion is None):
         raise ValueError("give exactly one of style_id or style")
@@ -286,6 +287,8 @@ def transition_body(context: Any, target: Any, frames: int, style_id: str | None
         body["model"] = model_name
     if exact_arrival:  # sent only when asked, so older servers keep accepting the request
         body["exact_arrival"] = True
+    if style_strength is not None:
+        body["style_strength"] = float(style_strength)
     return body
 
 

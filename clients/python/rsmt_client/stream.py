@@ -222,11 +222,12 @@ class StreamClient(_SessionView):
     def start(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
               seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
               character: str | None = None, model: str | None = None, request_id: Any = None,
-              exact_arrival: bool = False) -> str:
+              exact_arrival: bool = False, style_strength: float | None = None) -> str:
         """Send ``start``; returns the character id (``character`` or a new one). Frames follow ``started``."""
         character = character or StreamSession.new_id()
         message = self._fit(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic,
-                                                        pace, character, model, request_id, exact_arrival))
+                                                        pace, character, model, request_id, exact_arrival,
+                                                        style_strength))
         self.send(self._inline_or_registered(message, style))
         return character
 
@@ -291,9 +292,10 @@ class StreamClient(_SessionView):
 
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, pace: str = "asap",
-                   timeout: float = 60.0, exact_arrival: bool = False) -> Poses:
+                   timeout: float = 60.0, exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
         """A whole transition over the stream (start, then collect): the same frames ``POST /v1/transition`` gives."""
-        c = self.start(context, target, frames, style_id, style, seed, deterministic, pace, exact_arrival=exact_arrival)
+        c = self.start(context, target, frames, style_id, style, seed, deterministic, pace, exact_arrival=exact_arrival,
+                       style_strength=style_strength)
         return self._session.transition_poses(self.collect(c, timeout))
 
 
@@ -407,10 +409,11 @@ class AsyncStreamClient(_SessionView):
     async def start(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                     seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
                     character: str | None = None, model: str | None = None, request_id: Any = None,
-                    exact_arrival: bool = False) -> str:
+                    exact_arrival: bool = False, style_strength: float | None = None) -> str:
         character = character or StreamSession.new_id()
         message = self._fit(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic,
-                                                        pace, character, model, request_id, exact_arrival))
+                                                        pace, character, model, request_id, exact_arrival,
+                                                        style_strength))
         await self.send(await self._inline_or_registered(message, style))
         return character
 
@@ -469,7 +472,8 @@ class AsyncStreamClient(_SessionView):
 
     async def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None,
                          style: Any = None, seed: int | None = None, deterministic: bool = False, pace: str = "asap",
-                         timeout: float = 60.0, exact_arrival: bool = False) -> Poses:
+                         timeout: float = 60.0, exact_arrival: bool = False,
+                         style_strength: float | None = None) -> Poses:
         c = await self.start(context, target, frames, style_id, style, seed, deterministic, pace,
-                             exact_arrival=exact_arrival)
+                             exact_arrival=exact_arrival, style_strength=style_strength)
         return self._session.transition_poses(await self.collect(c, timeout))

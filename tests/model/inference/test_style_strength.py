@@ -91,3 +91,27 @@ def test_the_engine_runs_styles_at_its_strength():
     with pytest.raises(ValueError, match="needs built-in styles"):
         Engine(bare, threads=1, overrides=Overrides(style_strength=2.0))
     Engine(bare, threads=1)  # strength 1 needs no neutral style
+
+
+def test_a_character_runs_at_its_own_strength():
+    from model.inference.errors import EngineError, NoNeutralStyle
+
+    bundle = Bundle.load(DEFAULT_BUNDLE)
+    engine = Engine(bundle, threads=1)
+    walk = synthetic_walk(frames=160)
+    style, _ = engine.encode_style(walk.window(20, 140))
+
+    def run(strength: float | None) -> torch.Tensor:
+        ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, style, deterministic=True,
+                            style_strength=strength)
+        return engine.generate([ch])[0][0]
+
+    assert torch.equal(run(None), run(1.0))
+    strong = run(2.0)
+    assert torch.equal(strong, _frames(Engine(bundle, threads=1, overrides=Overrides(style_strength=2.0))))
+    with pytest.raises(EngineError, match="style_strength must be in"):
+        run(5.0)
+    bare = Engine(Bundle.load(DEFAULT_BUNDLE, styles=False), threads=1)
+    bare_style, _ = bare.encode_style(walk.window(20, 140))
+    with pytest.raises(NoNeutralStyle, match="send 1 or leave it out"):
+        bare.prepare(walk.window(0, 10), walk.window(40, 42), 20, bare_style, style_strength=1.5)
