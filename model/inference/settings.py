@@ -31,7 +31,12 @@ class InferenceConfig:
                                self.style_strength if style_strength is None else float(style_strength))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The settings as a bundle saves them; a style strength of 1 is left out, so a bundle that does not use
+        it still loads in releases from before it."""
+        data = asdict(self)
+        if self.style_strength == 1.0:
+            del data["style_strength"]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> InferenceConfig:

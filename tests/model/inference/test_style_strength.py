@@ -67,6 +67,8 @@ def test_strength_bounds():
         with pytest.raises(ValueError):
             Overrides(style_strength=bad)
     assert InferenceConfig.from_dict({"style_strength": 2.0}).style_strength == 2.0
+    assert InferenceConfig(style_strength=2.0).to_dict() == {"int8_lstm": False, "style_strength": 2.0}
+    assert InferenceConfig().to_dict() == {"int8_lstm": False}  # 1 is left out: older releases load the bundle
     assert InferenceConfig().with_overrides(style_strength=1.5).style_strength == 1.5
 
 
