@@ -92,9 +92,7 @@ class Engine:
         # Style strength moves every style from the mean of the bundle's own built-in styles.
         own = [s.context for s in bundle.styles.values() if not s.weights]
         self.neutral_style = NeutralStyle.of(own) if own else None
-        if self.inference.style_strength != 1.0 and self.neutral_style is None:
-            raise NoNeutralStyle(f"style strength needs built-in styles to find the neutral style; {bundle.meta.name} "
-                                 "has none")
+        self._usable_strength(self.inference.style_strength)
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
 
     def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
@@ -111,13 +109,18 @@ class Engine:
                             facing=self.facing)
         return WeightSet(name, sampler, step, version)
 
+    def _usable_strength(self, strength: float) -> None:
+        """A :class:`NoNeutralStyle` where ``strength`` is not 1 and the bundle has no built-in styles."""
+        if strength != 1.0 and self.neutral_style is None:
+            raise NoNeutralStyle(f"style_strength needs built-in styles to find the neutral style; model "
+                                 f"{self.bundle.meta.name!r} has none (send 1 or leave it out)")
+
     def context_of(self, style: EncodedStyle, strength: float | None = None) -> StyleContext:
         """``style``'s context as this engine runs it: at ``strength``, or the inference settings' style strength
         where None."""
-        k = self.inference.style_strength if strength is None else strength
-        if self.neutral_style is None or k == 1.0:
+        if self.neutral_style is None:  # only strength 1 is accepted then
             return style.context
-        return self.neutral_style.scaled(style.context, k)
+        return self.neutral_style.scaled(style.context, self.inference.style_strength if strength is None else strength)
 
     def weights(self, name: str = "") -> WeightSet:
         """The weight set ``name`` (``""``: the bundle's own); an unknown name is a ValueError naming the sets."""
@@ -273,9 +276,7 @@ class Engine:
                 style_strength = check_strength(style_strength)
             except ValueError as exc:
                 raise EngineError(str(exc)) from None
-            if style_strength != 1.0 and self.neutral_style is None:
-                raise NoNeutralStyle(f"style_strength needs built-in styles to find the neutral style; model "
-                                     f"{self.name!r} has none (send 1 or leave it out)")
+            self._usable_strength(style_strength)
         if not 1 <= frames <= self.max_frames:
             error = TooManyFrames if frames > self.max_frames else FramesOutOfRange
             raise error(f"frames must be between 1 and {self.max_frames}; got {frames}")

@@ -18,7 +18,7 @@ from model.nets.sampler import StyleContext
 
 Tensor = torch.Tensor
 MAX_STRENGTH = 4.0
-_SCALED = ("gamma1", "beta1", "keys1", "values1", "gamma2", "beta2", "keys2", "values2")
+_SCALED = tuple(f.name for f in fields(StyleContext) if f.name != "mask")  # every field a style moves
 
 
 def check_strength(strength: float) -> float:
@@ -31,17 +31,11 @@ def check_strength(strength: float) -> float:
 
 @dataclass(frozen=True)
 class NeutralStyle:
-    """The neutral style of a set of contexts: each scaled field's mean, ``[1, width]`` for the FiLM fields,
-    ``[1, width, 1]`` for keys and ``[1, 1, width]`` for values (the mean over real time steps)."""
+    """The neutral style of a set of contexts, as a context whose fields broadcast over any batch and code length:
+    each field's mean, ``[1, width]`` for the FiLM fields, ``[1, width, 1]`` for keys and ``[1, 1, width]`` for
+    values (the mean over real time steps); its mask is one real step."""
 
-    gamma1: Tensor
-    beta1: Tensor
-    keys1: Tensor
-    values1: Tensor
-    gamma2: Tensor
-    beta2: Tensor
-    keys2: Tensor
-    values2: Tensor
+    context: StyleContext
 
     @classmethod
     def of(cls, contexts: list[StyleContext]) -> NeutralStyle:
@@ -60,14 +54,14 @@ class NeutralStyle:
                 return (t * real.unsqueeze(1)).sum((0, 2), keepdim=True) / steps
             return (t * real.unsqueeze(2)).sum((0, 1), keepdim=True) / steps  # values [B, T', width]
 
-        return cls(**{name: mean(name) for name in _SCALED})
+        return cls(StyleContext(**{name: mean(name) for name in _SCALED}, mask=torch.ones(1, 1, dtype=torch.bool)))
 
     def scaled(self, ctx: StyleContext, strength: float) -> StyleContext:
-        """``ctx`` at ``strength`` (1: ``ctx`` itself, the same object)."""
+        """``ctx`` at ``strength`` (1: ``ctx`` itself, the same object); its mask is kept."""
         if strength == 1.0:
             return ctx
         out = {f.name: getattr(ctx, f.name) for f in fields(ctx)}
         for name in _SCALED:
-            neutral = getattr(self, name)
+            neutral = getattr(self.context, name)
             out[name] = neutral + strength * (out[name] - neutral)
         return StyleContext(**out)

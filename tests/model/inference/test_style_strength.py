@@ -32,7 +32,7 @@ def context(steps: int, seed: int) -> StyleContext:
 
 def test_the_neutral_style_averages_real_steps_only():
     short, long = context(2, 0), context(5, 1)
-    neutral = NeutralStyle.of([short, long])
+    neutral = NeutralStyle.of([short, long]).context
     assert torch.allclose(neutral.gamma1, (short.gamma1 + long.gamma1) / 2)
     keys = torch.cat([short.keys1, long.keys1], 2)  # the 7 real steps, padding left out
     assert torch.allclose(neutral.keys1, keys.mean(2, keepdim=True))
@@ -54,7 +54,7 @@ def test_strength_moves_each_field_linearly_from_the_neutral_style(k, steps, see
         if f.name == "mask":
             assert a is b
         else:
-            n = getattr(neutral, f.name)
+            n = getattr(neutral.context, f.name)
             assert a.shape == b.shape and torch.allclose(a - n, k * (b - n), atol=1e-5)
     assert neutral.scaled(ctx, 1.0) is ctx
 
