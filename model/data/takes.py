@@ -30,6 +30,7 @@ from typing import TypeVar
 
 from model.data.location import style_labels_setting
 from model.data.style_labels import DATASET1_TO_DATASET2, check_mode
+from model.motion.bvh_parser import frame_time_problem, is_number, whole_number
 
 FRAME_CUTS = "Frame_Cuts.csv"
 STYLE100_CONTENTS = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
@@ -427,6 +428,9 @@ def read_bvh_header(path: str | Path) -> BvhHeader:
                 frame_time = _header_number(path, lineno, words[1:], float)
                 if frame_time <= 0 or frames < 0:
                     raise ValueError(f"{path}:{lineno}: frame time and frame count must be positive")
+                problem = frame_time_problem(frame_time)
+                if problem is not None:
+                    raise ValueError(f"{path}:{lineno}: {problem}")
                 return BvhHeader(joints=tuple(joints), frames=frames, frame_time=frame_time)
     raise ValueError(f"{path}: no 'Frames:' and 'Frame Time:' lines (truncated file?)")
 
@@ -435,10 +439,13 @@ _N = TypeVar("_N", int, float)
 
 
 def _header_number(path: Path, lineno: int, words: list[str], kind: type[_N]) -> _N:
-    try:
-        return kind(words[1]) if kind is int else kind(words[-1])
-    except (IndexError, ValueError):
-        raise ValueError(f"{path}:{lineno}: expected a number after {words[0]!r}") from None
+    """The count or frame time on a header line: plain ASCII digits, as the full reader takes them (int() and
+    float() also read "1_000" and non-ASCII digits)."""
+    text = words[1] if kind is int and len(words) > 1 else words[-1] if len(words) > 1 else ""
+    value = whole_number(text) if kind is int else float(text) if is_number(text) else None
+    if value is None:
+        raise ValueError(f"{path}:{lineno}: expected a number after {words[0]!r}")
+    return kind(value)
 
 
 def describe_layout(index: TakeIndex) -> str:

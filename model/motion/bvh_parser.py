@@ -32,8 +32,9 @@ CHANNEL_NAMES = POSITION_CHANNELS + ROTATION_CHANNELS
 CANONICAL_CHANNEL = {c.lower(): c for c in CHANNEL_NAMES}
 AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 
-# Python's float() also accepts "1_000" and non-ASCII digits; BVH numbers are plain ASCII decimals.
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+# Python's float() also accepts "1_000" and non-ASCII digits ("٩٣"), and so does ``\d`` in a str pattern:
+# BVH numbers are plain ASCII decimals.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _FRAMES = re.compile(r"frames\s*:\s*(.*)", re.IGNORECASE)
 _FRAME_TIME = re.compile(r"frame\s+time\s*:\s*(.*)", re.IGNORECASE)
 
@@ -43,6 +44,10 @@ MAX_FRAMES = 10_000_000
 # Decimal digits of the largest count worth reading: int() refuses past 4,300 digits, and no count here
 # needs more than a few.
 _COUNT_DIGITS = 18
+
+# The frame rates a file may declare: Frame Time 0.001 to 1 s. Past them 1 / frame time overflows (1e-310 gives
+# infinity) or a resampled clip grows without bound.
+MIN_FPS, MAX_FPS = 1.0, 1000.0
 
 # A position channel of a non-root joint that moves more than this (file units) cannot be kept by
 # a Clip, which has one fixed offset per bone.
@@ -117,13 +122,35 @@ class BvhJoint:
         return "".join(c[0] for c in self.channels if c in ROTATION_CHANNELS)
 
 
+def is_number(text: str) -> bool:
+    """Whether ``text`` is a BVH number: a plain ASCII decimal (no ``nan``, ``inf``, ``1_000`` or ``٩٣``)."""
+    return _NUMBER.fullmatch(text) is not None
+
+
+def frame_time_problem(frame_time: float) -> str | None:
+    """What is wrong with a Frame Time of ``frame_time`` seconds, or None when its rate is within
+    ``MIN_FPS`` to ``MAX_FPS``."""
+    if math.isfinite(frame_time) and 1.0 / MAX_FPS <= frame_time <= 1.0 / MIN_FPS:
+        return None
+    with np.errstate(divide="ignore", over="ignore"):
+        rate = float(np.divide(1.0, np.float64(frame_time)))
+    return (f"Frame Time {frame_time:g} s gives {rate:g} fps; accepted: {MIN_FPS:g} to {MAX_FPS:g} fps (Frame Time "
+            f"{1 / MAX_FPS:g} to {1 / MIN_FPS:g} s)")
+
+
 def fps_from_frame_time(frame_time: float) -> float:
     """``1 / frame_time``, snapped to the nearest integer when within 1e-4 relative.
 
     Files store ``1/30`` as ``0.0333333``; taking 30.000003 fps literally would make
     ``Clip.resample(30)`` interpolate every frame and drop the last one.
+
+    Raises:
+        ValueError: the rate is not a finite number (a frame time of 1e-310 s), named as the reader names it.
     """
-    fps = 1.0 / frame_time
+    with np.errstate(divide="ignore", over="ignore"):
+        fps = float(np.divide(1.0, np.float64(frame_time)))
+    if not math.isfinite(fps):
+        raise ValueError(frame_time_problem(frame_time))
     whole = round(fps)
     if whole >= 1 and abs(fps - whole) <= 1e-4 * fps:
         return float(whole)
@@ -365,6 +392,9 @@ class _Parser:
         ft = self.number(m.group(1), i + 1, "Frame Time")
         if not (math.isfinite(ft) and ft > 0):
             raise self.error(f"Frame Time must be a positive number of seconds, found {m.group(1)}", i + 1)
+        problem = frame_time_problem(ft)
+        if problem is not None:
+            raise self.error(problem, i + 1)
         return frames, ft, i + 1
 
     def _next_nonblank(self, i: int, expected: str) -> int:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -158,4 +160,33 @@ def test_bad_clips_and_bundles_are_told_before_any_run_folder_is_made(setup, cap
     assert main(_args(tmp_path, [bouncy[0], bouncy[1], short])) == 2
     err = capsys.readouterr().err
     assert "short is too short: 12 frames at 30 fps; each clip needs at least 16" in err and "Traceback" not in err
+    assert not (tmp_path / "tuned").exists() and not (tmp_path / ".finetune-bouncy").exists()
+
+
+def _with_frame_time(text: str, frame_time: str) -> str:
+    lines = text.splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("Frame Time:"))
+    return "\n".join([*lines[:at], f"Frame Time: {frame_time}", *lines[at + 1:]]) + "\n"
+
+
+def test_clips_the_service_refuses_are_refused_in_its_words_without_a_traceback(setup, capsys):
+    """Issue 64: a Frame Time of 1e-310 gave an OverflowError traceback; non-ASCII digits were read as numbers."""
+    tmp_path, _, bouncy = setup
+    tiny = tmp_path / "tiny.bvh"
+    tiny.write_text(_with_frame_time(bouncy[0].read_text(), "1e-310"))
+    # As a user runs it: a process of its own, whose stderr must hold the message and no traceback.
+    done = subprocess.run([sys.executable, "-m", "rsmt_cli", *_args(tmp_path, [tiny])], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert f"rsmt: error: {tiny}:" in done.stderr and "Traceback" not in done.stderr
+    assert "Frame Time 1e-310 s gives inf fps; accepted: 1 to 1000 fps (Frame Time 0.001 to 1 s)" in done.stderr
+    arabic = tmp_path / "arabic.bvh"  # "93" in Arabic-Indic digits, which float() reads as 93.0
+    lines = bouncy[0].read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("Frame Time:")) + 1
+    values = lines[first].split()
+    lines[first] = " ".join(["\u0669\u0663", *values[1:]])
+    arabic.write_text("\n".join(lines) + "\n")
+    assert main(_args(tmp_path, [bouncy[1], arabic])) == 2
+    err = capsys.readouterr().err
+    assert f"{arabic}:{first + 1}: '\u0669\u0663' is not a number" in err and "Traceback" not in err
     assert not (tmp_path / "tuned").exists() and not (tmp_path / ".finetune-bouncy").exists()

@@ -189,6 +189,16 @@ MALFORMED = {
     "huge value": (_with_line(len(LINES) - 1, LINES[-2].replace(LINES[-2].split()[0], "1e999", 1)), len(LINES) - 1,
                    "too large"),
     "bad frame time": (GOOD.replace("Frame Time: ", "Frame Time: -", 1), _line_of("Frame Time"), "positive"),
+    # float() reads non-ASCII digits ("\u0669\u0663" is 93); BVH numbers are ASCII, as for the server (issue 64).
+    "non-ASCII offset": (_with_line(_line_of("OFFSET"), "OFFSET 1 \u0669\u0663 3"), _line_of("OFFSET"),
+                         "expected a number, found '\u0669\u0663'"),
+    "non-ASCII frame time": (_with_line(_line_of("Frame Time"), "Frame Time: 0.\u0660\u0663"), _line_of("Frame Time"),
+                             "positive"),
+    "non-ASCII value": (_with_line(len(LINES) - 1, LINES[-2].replace(LINES[-2].split()[0], "\u0669\u0663", 1)),
+                        len(LINES) - 1, "'\u0669\u0663' is not a number"),
+    # 1 / 1e-310 overflows: refused with the server's words instead of an OverflowError on the way to fps.
+    "tiny frame time": (_with_line(_line_of("Frame Time"), "Frame Time: 1e-310"), _line_of("Frame Time"),
+                        "Frame Time 1e-310 s gives inf fps; accepted: 1 to 1000 fps"),
     "two roots": (GOOD.replace("MOTION", "ROOT extra\n{\nOFFSET 0 0 0\n}\nMOTION", 1), _line_of("MOTION"),
                   "unexpected 'ROOT'"),
     "unclosed joint": (GOOD.replace("}\nMOTION", "MOTION", 1), _line_of("MOTION") - 1, "closing joint"),

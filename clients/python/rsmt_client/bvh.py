@@ -20,7 +20,7 @@ POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 _CHANNELS = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}  # exporters vary the case
 # A plain decimal number: no "nan", "inf", "1_000" or non-ASCII digits, which float() would take.
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")  # not \d: it matches "٩"
 _NOT_IN_NUMBERS = re.compile(r"[^0-9eE+\-.\s]")
 _FRAMES = re.compile(r"frames\s*:\s*(\S*)\s*", re.IGNORECASE)
 _FRAME_TIME = re.compile(r"frame\s+time\s*:\s*(\S*)\s*", re.IGNORECASE)
@@ -28,6 +28,9 @@ _FRAME_TIME = re.compile(r"frame\s+time\s*:\s*(\S*)\s*", re.IGNORECASE)
 # empty lines, so nothing in the text bounds their count.
 MAX_FRAMES = 10_000_000
 _COUNT_DIGITS = 18  # int() refuses numbers past 4,300 digits; no count needs more than a few
+# The frame rates a file may declare (Frame Time 0.001 to 1 s), as the server's reader: past them 1 / frame time
+# overflows (a Frame Time of 1e-310) or a resampled clip grows without bound.
+MIN_FPS, MAX_FPS = 1.0, 1000.0
 
 
 class BvhError(ValueError):
@@ -354,6 +357,11 @@ def _parse_motion(lines: Sequence[str], at: int, width: int, source: str) -> tup
     value, at = _header(lines, at, _FRAME_TIME, "Frame Time", source)
     if not _NUMBER.fullmatch(value) or not (math.isfinite(float(value)) and float(value) > 0):
         raise BvhError(f"Frame Time: expected a positive number of seconds, found {value!r}", at, source)
+    if not 1.0 / MAX_FPS <= float(value) <= 1.0 / MIN_FPS:
+        with np.errstate(divide="ignore", over="ignore"):
+            rate = float(np.divide(1.0, np.float64(value)))
+        raise BvhError(f"Frame Time {float(value):g} s gives {rate:g} fps; accepted: {MIN_FPS:g} to {MAX_FPS:g} fps "
+                       f"(Frame Time {1 / MAX_FPS:g} to {1 / MIN_FPS:g} s)", at, source)
     rows = [(n, line) for n, line in enumerate(lines[at:], at + 1) if line.strip()]
     if width == 0 and not rows:  # frames without channels are empty lines, as blank as the end of a file
         return float(value), np.zeros((frames, 0))

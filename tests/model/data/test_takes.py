@@ -7,6 +7,7 @@ dataset tests.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -259,6 +260,18 @@ def test_read_bvh_header_errors(tmp_path: Path) -> None:
     truncated.write_text(bvh_text(5).split("MOTION")[0])
     with pytest.raises(ValueError, match="cut.bvh"):
         read_bvh_header(truncated)
+    # The full reader's rules (issue 64): a rate that overflows (1 / 1e-310) gave an OverflowError on .fps, and
+    # non-ASCII digits ("\u0669\u0663", 93 to float()) were read as numbers.
+    text = bvh_text(5)
+    for name, line, wanted in (("tiny", "Frame Time: 1e-310", "Frame Time 1e-310 s gives inf fps; accepted: 1 to 1000"),
+                               ("arabic-time", "Frame Time: 0.\u0660\u0663", "expected a number after 'Time:'"),
+                               ("arabic-count", "Frames: \u0665", "expected a number after 'Frames:'")):
+        key = line.split(":")[0] + ":"
+        lines = [line if row.startswith(key) else row for row in text.split("\n")]
+        path = tmp_path / f"{name}.bvh"
+        path.write_text("\n".join(lines), encoding="utf-8")
+        with pytest.raises(ValueError, match=f"{name}.bvh:[0-9]+: {re.escape(wanted)}"):
+            read_bvh_header(path)
 
 
 def test_take_is_hashable_and_frozen(tmp_path: Path) -> None:

@@ -193,6 +193,15 @@ MALFORMED = {
     "word in offset": (_set_line(BASE, 8, "\t\tOFFSET 0 ten 0"), 8, "'ten' is not a number"),
     "nan in offset": (_set_line(BASE, 8, "\t\tOFFSET 0 nan 0"), 8, "is not a number"),
     "short offset": (_set_line(BASE, 8, "\t\tOFFSET 0 10"), 8, "expected 3 numbers, found 2"),
+    # float() reads non-ASCII digits ("\u0669\u0663" is 93 in Arabic-Indic digits); BVH numbers are ASCII (issue 64).
+    "non-ASCII digits in motion": (_replace_token(BASE, 19, 1, "\u0669\u0663"), 19,
+                                   "'\u0669\u0663' is not a number (joint Hips, channel Yposition)"),
+    "non-ASCII digits in offset": (_set_line(BASE, 8, "\t\tOFFSET 0 \u0661\u0660 0"), 8, "is not a number"),
+    "non-ASCII digits in frame time": (_set_line(BASE, 18, "Frame Time: 0.\u0660\u0663"), 18, "is not a number"),
+    # A rate that overflows (1 / 1e-310 is infinite) or leaves 1 to 1000 fps, in the service's words.
+    "tiny frame time": (_set_line(BASE, 18, "Frame Time: 1e-310"), 18,
+                        "Frame Time 1e-310 s gives inf fps; accepted: 1 to 1000 fps (Frame Time 0.001 to 1 s)"),
+    "long frame time": (_set_line(BASE, 18, "Frame Time: 2"), 18, "gives 0.5 fps; accepted: 1 to 1000 fps"),
     "missing opening brace": (_set_line(BASE, 7, ""), 8, "expected '{' after JOINT Head, found 'OFFSET'"),
     "missing closing brace": (_set_line(BASE, 14, ""), 16, "ROOT Hips (line 2) is not closed before MOTION"),
     "never closed": ("\n".join(BASE.split("\n")[:9]) + "\n", 9, "JOINT Head (line 6) is never closed"),
