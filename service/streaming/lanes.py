@@ -65,6 +65,29 @@ class Lanes:
             self._of.pop(id(ch), None)
         self._tidy()
 
+    def withdraw(self, ch: Character) -> bool:
+        """Take out a character that is waiting to join its lane (added, never stepped): no restack, nothing
+        kept. False (and nothing done) when it is a member already, or in no lane."""
+        lane = self._of.get(id(ch))
+        if lane is None or ch in lane.members:
+            return False
+        lane.remove(ch)
+        self.forget([ch])
+        return True
+
+    def sweep(self) -> list[Character]:
+        """Drop the members of every lane whose members have all ended (arrived or cancelled): nothing is left
+        to step there, and dropping them all costs no restack. Returns the characters dropped. Without this, the
+        lanes of a key that stopped stepping would hold its last characters' state until it came back."""
+        dropped: list[Character] = []
+        for lanes in self._lanes.values():
+            for lane in lanes:
+                if lane.members and all(m.done for m in lane.members):
+                    dropped += lane.drop_finished()  # leaves no member: no restack
+        if dropped:
+            self.forget(dropped)
+        return dropped
+
     def owners(self, pace: str) -> list[str]:
         """The keys with characters in a lane of ``pace``."""
         return sorted({owner for (p, owner), lanes in self._lanes.items() if p == pace and any(map(len, lanes))})

@@ -282,6 +282,8 @@ class Scheduler:
         changed: set[int] = set()  # id() of lanes whose membership changed: they restack anyway
         for command in commands:
             self._apply(command, result, changed)
+        for ch in self._lanes.sweep():  # lanes left with ended characters only, which no plan may step again
+            self._streams_of.pop(id(ch), None)
         for i, owner in enumerate(plan.realtime):
             for lane in self._lanes.in_turn("realtime", owner):
                 # The least served key's lanes always step; the others' only while they end in time (a key
@@ -345,6 +347,8 @@ class Scheduler:
             ch.cancelled = True
             if key in self._parked:
                 self._parked.discard(key)
+                self._streams_of.pop(key, None)
+            elif self._lanes.withdraw(ch):  # cancelled before its first step: nothing of it is kept
                 self._streams_of.pop(key, None)
         elif isinstance(command, Park):
             if not ch.done and key not in self._parked:

@@ -18,6 +18,7 @@ from model.inference.bundle import Bundle
 from model.inference.engine import CharacterBatch, Engine
 from service.errors import ServiceError
 from service.streaming.scheduler import Scheduler
+from service.streaming.step_shares import StepShares
 from service.streaming.stream import Stream
 from tests.service.conftest import bvh, context_clip, target_clip, walk
 from tests.service.wsclient import start_message
@@ -176,6 +177,29 @@ def test_generator_never_runs_ahead_of_the_queue(engine):
             await _drain(sched, stream)
             assert box.frames == list(range(30)) and box.ends == ["arrived"]
             await sched.stop()
+
+    asyncio.run(main())
+
+
+def test_a_character_cancelled_before_its_first_step_leaves_nothing_behind(engine):
+    """``start`` then ``cancel`` at once: both reach the step thread in one tick; the character (prepared state,
+    stream, connection) must not stay in its key's lane, which no plan steps while the key has no live character."""
+    style, _ = engine.encode_style(walk(60))
+
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            sched = Scheduler(engine, pool, name="t", shares=StepShares(enabled=True))
+            sched.start()
+            for i in range(5):
+                ch = engine.prepare(context_clip(), target_clip(), 30, style, seed=i)
+                stream = Stream(character=ch, outbox=_Outbox(capacity=4), slot=i, pace="realtime", fps=30.0,
+                                encoding="json", owner="key")
+                sched.add(stream)
+                sched.drop(stream)
+            ticks = sched.ticks
+            await _until(lambda: sched.ticks > ticks and not sched._commands)
+            await sched.stop()
+            assert len(sched._lanes) == 2 and not sched._streams_of  # the first (empty) lane of each pace
 
     asyncio.run(main())
 

@@ -92,3 +92,24 @@ def test_lanes_hold_each_keys_characters_apart_in_batches_of_at_most_rows(engine
     failed = lanes.of("asap", "b")[0]
     failed.step()
     assert lanes.replace(failed) == chars["b"] and lanes.owners("asap") == ["a"]
+
+
+def test_lanes_let_go_of_characters_that_will_never_step_again(engine):
+    style, _ = engine.encode_style(walk(30))
+    lanes = Lanes(engine, rows=4)
+    a, b, c = (engine.prepare(context_clip(), target_clip(), 10, style, seed=i) for i in range(3))
+    # Cancelled before its first step: taken out of its lane at once, the empty lane dropped.
+    lanes.add(a, "asap", "k")
+    assert lanes.withdraw(a) and lanes.lane_of(a) is None and lanes.owners("asap") == [] and len(lanes) == 2
+    assert not lanes.withdraw(a)  # in no lane
+    # A member is left for the scheduler's prune (a restack) while others in its lane live ...
+    lanes.add(b, "asap", "k")
+    lanes.add(c, "asap", "k")
+    lanes.of("asap", "k")[0].step()
+    assert not lanes.withdraw(b) and lanes.lane_of(b) is not None
+    b.cancelled = True
+    assert lanes.sweep() == [] and lanes.lane_of(b) is not None
+    # ... and once none lives, the lane is emptied without any step.
+    c.cancelled = True
+    assert sorted(map(id, lanes.sweep())) == sorted(map(id, (b, c)))
+    assert lanes.owners("asap") == [] and len(lanes) == 2 and lanes.lane_of(c) is None
