@@ -107,7 +107,7 @@ static class RsmtHarness
         Func<string, int, RsmtStartOptions> opts = (cid, n) => new RsmtStartOptions
         {
             Character = cid, ContextJson = RsmtMessages.PoseMotion(ctx), TargetJson = "{\"bvh\":\"T\"}", Frames = n, StyleId = "sty_a",
-            Model = "m2", ExactArrival = true,
+            Model = "m2", ExactArrival = true, StyleStrength = 1.25,
         };
         var f = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };
         f.SentStart(opts("hero", 10), "start-text");
@@ -120,6 +120,7 @@ static class RsmtHarness
         var r = Json.Parse(resume[0]);
         Check(r.GetInt("frames", 0) == 4 && r.Get("target").GetString("bvh", "") == "T" && r.GetString("style_id", "") == "sty_a"
               && r.GetString("model", "") == "m2" && r.GetBool("exact_arrival", false) && r.GetString("character", "") == "hero", "failover: same start, frames to go");
+        Check(Near(r.GetNumber("style_strength", 0), 1.25), "failover: the resume keeps the style strength");
         Check(!r.GetBool("retargeted", false), "failover: a character never retargeted is not resumed as one");
         Check(ContextXs(resume[0]).SequenceEqual(new double[] { 102, 103, 104, 105 }), "failover: context is the last poses received");
         st = Msg(RsmtMessageKind.Started, "hero");
@@ -276,6 +277,13 @@ static class RsmtHarness
             Frames = 40, StyleId = "sty", Seed = 12345678901234L, Deterministic = true, Pace = "asap", ExactArrival = true,
         }));
         Check(start.GetBool("exact_arrival", false), "start exact_arrival");
+        Check(start.Get("style_strength") == null, "start without a style strength leaves it to the server");
+        var strong = Json.Parse(RsmtMessages.Start(new RsmtStartOptions
+        {
+            Character = "hero", ContextJson = RsmtMessages.BvhMotion("C"), TargetJson = RsmtMessages.BvhMotion("T"), Frames = 40,
+            StyleId = "sty", StyleStrength = 1.25,
+        }));
+        Check(Near(strong.GetNumber("style_strength", 0), 1.25), "start style_strength");
         Check(start.GetString("type", "") == "start" && start.Get("context").GetString("bvh", "") == "HIERARCHY\n\"x\"\t", "start context");
         Check(Near(start.GetNumber("seed", 0), 12345678901234.0) && start.GetBool("deterministic", false) && start.GetString("pace", "") == "asap", "start options");
         Check(Near(start.Get("target").Get("rotations").Array[0].Array[1].Array[3].Number, 1), "pose motion");

@@ -285,7 +285,8 @@ namespace Rsmt.Link
             {
                 Character = o.Character, ContextJson = o.ContextJson, TargetJson = o.TargetJson, Frames = o.Frames,
                 StyleId = o.StyleId, StyleJson = o.StyleJson, Seed = o.Seed, Deterministic = o.Deterministic,
-                ExactArrival = o.ExactArrival, Retargeted = o.Retargeted, Pace = o.Pace, RequestId = o.RequestId, Model = o.Model,
+                ExactArrival = o.ExactArrival, Retargeted = o.Retargeted, StyleStrength = o.StyleStrength, Pace = o.Pace,
+                RequestId = o.RequestId, Model = o.Model,
             };
         }
     }

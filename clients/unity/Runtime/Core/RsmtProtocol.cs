@@ -388,6 +388,7 @@ namespace Rsmt.Link
         public bool Deterministic;
         public bool ExactArrival;         // bend the last frames so the arrival frame equals the target pose
         public bool Retargeted;           // a resume of a character retargeted mid-motion (failover sets it)
+        public double? StyleStrength;     // 0 to 4: the style moved from the model's neutral style by this factor; null: the server's (not sent)
         public string Pace = "realtime";  // or "asap"
         public string Model;              // a model of GET /v1/models; null: the default
         public string RequestId;
@@ -442,6 +443,7 @@ namespace Rsmt.Link
             sb.Append(",\"deterministic\":").Append(o.Deterministic ? "true" : "false");
             if (o.ExactArrival) sb.Append(",\"exact_arrival\":true");
             if (o.Retargeted) sb.Append(",\"retargeted\":true");
+            if (o.StyleStrength.HasValue) sb.Append(",\"style_strength\":").Append(Json.Number(o.StyleStrength.Value));
             sb.Append(",\"pace\":").Append(Json.Quote(o.Pace));
             if (!string.IsNullOrEmpty(o.Model)) sb.Append(",\"model\":").Append(Json.Quote(o.Model));
             if (!string.IsNullOrEmpty(o.RequestId)) sb.Append(",\"request_id\":").Append(Json.Quote(o.RequestId));

@@ -32,6 +32,8 @@ namespace Rsmt.Link.Unity
         [Tooltip("A BVH style clip registered at start (its id goes to styleId)")]
         public TextAsset styleClip;
         public string styleId;
+        [Tooltip("How far a start moves the style from the model's neutral style (0 to 4; 1: as encoded); below 0: not sent, the server's setting")]
+        public float styleStrength = -1f;
 
         RsmtStreamClient client;
         Transform[] bones;
@@ -135,6 +137,7 @@ namespace Rsmt.Link.Unity
             {
                 Character = characterId, ContextJson = contextMotionJson(), TargetJson = targetMotionJson(),
                 Frames = frames, StyleId = styleId, Seed = seed, Deterministic = deterministic,
+                StyleStrength = styleStrength >= 0 ? (double?)styleStrength : null,
             });
             if (Ready && !string.IsNullOrEmpty(styleId)) client.Send(message());
             else pending.Enqueue(message);

@@ -194,6 +194,11 @@ static void TestProtocol() {
     CHECK(ParseJson(BuildStart(o), v, &err));
     CHECK(v.StringOr("type", "") == "start" && v.Find("context")->StringOr("bvh", "") == "HIERARCHY\nROOT \"x\"\n");
     CHECK(Near(v.NumberOr("seed", 0), 12345678901234.0) && v.Find("deterministic")->boolean && v.Find("exact_arrival")->boolean);
+    CHECK(v.Find("style_strength") == nullptr);  // not set: the server's
+    o.hasStyleStrength = true;
+    o.styleStrength = 1.25;
+    CHECK(ParseJson(BuildStart(o), v, &err) && Near(v.NumberOr("style_strength", 0), 1.25));
+    o.hasStyleStrength = false;
     CHECK(Near(v.Find("target")->Find("rotations")->array[0].array[0].array[3].number, 1.0));
     CHECK(ParseJson(BuildRetarget("hero", "", 20), v, &err) && v.Find("target") == nullptr && Near(v.NumberOr("frames", 0), 20));
     CHECK(ParseJson(BuildCancel("hero"), v, &err) && v.StringOr("type", "") == "cancel");
@@ -342,6 +347,8 @@ static void TestFailover() {
         o.styleId = "sty_a";
         o.model = "m2";
         o.exactArrival = true;
+        o.hasStyleStrength = true;
+        o.styleStrength = 1.25;
         return o;
     };
     Failover f = MakeFailover();
@@ -359,6 +366,7 @@ static void TestFailover() {
     CHECK(ParseJson(resume[0], r));
     CHECK(r.NumberOr("frames", 0) == 4 && r.Find("target")->StringOr("bvh", "") == "T" && r.StringOr("style_id", "") == "sty_a");
     CHECK(r.StringOr("model", "") == "m2" && r.StringOr("character", "") == "hero" && r.Find("exact_arrival") != nullptr);
+    CHECK(Near(r.NumberOr("style_strength", 0), 1.25));  // the resume keeps the style strength
     CHECK(r.Find("retargeted") == nullptr);  // never retargeted: a plain start
     CHECK((ContextXs(resume[0]) == std::vector<double>{102, 103, 104, 105}));
     st = Msg(MessageKind::Started, "hero");

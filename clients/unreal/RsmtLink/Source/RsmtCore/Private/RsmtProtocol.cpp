@@ -313,6 +313,7 @@ std::string BuildStart(const StartOptions& o) {
     s += std::string(",\"deterministic\":") + (o.deterministic ? "true" : "false");
     if (o.exactArrival) s += ",\"exact_arrival\":true";
     if (o.retargeted) s += ",\"retargeted\":true";
+    if (o.hasStyleStrength) s += ",\"style_strength\":" + JsonNumber(o.styleStrength);
     s += ",\"pace\":" + JsonQuote(o.pace);
     if (!o.model.empty()) s += ",\"model\":" + JsonQuote(o.model);
     if (!o.requestId.empty()) s += ",\"request_id\":" + JsonQuote(o.requestId);

@@ -143,6 +143,8 @@ struct StartOptions {
     bool deterministic = false;
     bool exactArrival = false;      // bend the last frames so the arrival frame equals the target pose
     bool retargeted = false;        // a resume of a character retargeted mid-motion (Failover sets it)
+    bool hasStyleStrength = false;  // false: the server's style strength (not sent)
+    double styleStrength = 1.0;     // 0 to 4: the style moved from the model's neutral style by this factor
     std::string pace = "realtime";  // or "asap"
     std::string model;              // optional: a model of GET /v1/models
     std::string requestId;          // optional

@@ -395,6 +395,8 @@ void URsmtLinkComponent::StartTransitionMotion(const FString& ContextMotionJson,
 	Options.hasSeed = Seed >= 0;
 	Options.seed = static_cast<uint64>(FMath::Max(Seed, 0));
 	Options.deterministic = bDeterministic;
+	Options.hasStyleStrength = StyleStrength >= 0.0f;
+	Options.styleStrength = StyleStrength;
 	const std::string Text = rsmt::BuildStart(Options);
 	if (bFailover)
 	{

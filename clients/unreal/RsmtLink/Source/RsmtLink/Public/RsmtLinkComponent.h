@@ -76,6 +76,13 @@ public:
 	UPROPERTY(EditAnywhere, BlueprintReadWrite, Category = "RSMT")
 	FString StyleId;
 
+	/**
+	 * How far StartTransition moves the style from the model's neutral style (0 to 4; 1: as encoded). Below 0: not
+	 * sent, the server's setting (1 unless RSMT_STYLE_STRENGTH).
+	 */
+	UPROPERTY(EditAnywhere, BlueprintReadWrite, Category = "RSMT", meta = (ClampMin = "-1.0", ClampMax = "4.0"))
+	float StyleStrength = -1.0f;
+
 	UPROPERTY(BlueprintAssignable, Category = "RSMT")
 	FRsmtConnectedEvent OnConnected;
 	UPROPERTY(BlueprintAssignable, Category = "RSMT")
