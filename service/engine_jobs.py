@@ -69,7 +69,13 @@ def resolve_style(model: LoadedModel, caller: Caller, style_id: str | None,
     if style_id is not None:
         return lookup_style(model, caller, style_id)
     assert motion is not None
-    return encode_style(model, motion, "inline")[0]
+    # An inline clip costs the same work whether or not the engine's shared memo already has its code: a clip
+    # another key registered or sent would otherwise make this request faster, a timing tell across keys.
+    clip = motion_to_clip(motion, model.engine, model.limits, "style")
+    style, cached = encode_clip(model, clip, "inline")
+    if cached:
+        spend_encoding(model, clip)
+    return style
 
 
 def style_info(model: LoadedModel, style: StyleEntry, cached: bool) -> dict[str, Any]:
