@@ -101,6 +101,12 @@ def test_bvh_errors(engine):
     assert error(engine, {"bvh": "/etc/passwd"}).code == "bad_motion"  # text, never a path
     big = bvh(walk(3))["bvh"].replace("OFFSET 0.0 10.0 0.0", "OFFSET 0.0 1e12 0.0", 1)
     assert "OFFSET" in error(engine, {"bvh": big}).message
+    # Non-ASCII digits ("\u0669\u0663": 93 to float()) were accepted (issue 64): a 422 naming the line and the token.
+    lines = bvh(walk(3))["bvh"].split("\n")
+    first = next(i for i, line in enumerate(lines) if line.startswith("Frame Time")) + 1
+    lines[first] = " ".join(["\u0669\u0663", *lines[first].split()[1:]])
+    err = error(engine, {"bvh": "\n".join(lines)})
+    assert err.code == "bad_motion" and f"clip, line {first + 1}: '\u0669\u0663' is not a number" in err.message, err
 
 
 def test_output_round_trip(engine):
