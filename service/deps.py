@@ -8,7 +8,6 @@ from fastapi import Depends, Request
 
 from service.errors import ServiceError
 from service.registry import Registry
-from service.settings import Settings
 from service.state import ServiceState
 
 
@@ -23,10 +22,5 @@ def get_registry(request: Request) -> Registry:
     return state.registry
 
 
-def get_app_settings(request: Request) -> Settings:
-    return request.app.state.service.settings
-
-
 StateDep = Annotated[ServiceState, Depends(get_state)]
 RegistryDep = Annotated[Registry, Depends(get_registry)]
-SettingsDep = Annotated[Settings, Depends(get_app_settings)]

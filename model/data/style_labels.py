@@ -18,7 +18,6 @@ The split never depends on this setting: it hashes and groups by the data's own 
 from __future__ import annotations
 
 MODES = ("own", "merged")
-DEFAULT_MODE = "own"
 DATASET1_TO_DATASET2 = {"old": "elderly", "tired": "exhausted", "childish": "youthful", "masculinity": "masculine"}
 """Dataset-1 style -> the dataset-2 style of about the same meaning (same-named ones are the same label anyway)."""
 

@@ -84,23 +84,3 @@ def largest_joint_error_cm(first: Engine, second: Engine, cases: list[Case] | No
     """The largest distance (cm) between the two engines' joints over every frame of every case."""
     cases = parity_cases() if cases is None else cases
     return float((run_cases(first, cases) - run_cases(second, cases)).norm(dim=-1).max())
-
-
-def float16_layers(module: torch.nn.Module) -> torch.nn.Module:
-    """``module`` with every linear, convolution and LSTM cell holding float16 weights and computing in
-    float16 (inputs cast down, outputs cast back up): how far a runtime that runs the network's layers in
-    half precision (a GPU engine backend, say) moves the frames. Changes ``module`` in place."""
-
-    def down(_: torch.nn.Module, args: tuple) -> tuple:
-        return tuple(a.half() if isinstance(a, Tensor) else tuple(x.half() for x in a) if isinstance(a, tuple) else a
-                     for a in args)
-
-    def up(_: torch.nn.Module, args: tuple, out: Tensor | tuple[Tensor, ...]) -> Tensor | tuple[Tensor, ...]:
-        return out.float() if isinstance(out, Tensor) else tuple(o.float() for o in out)
-
-    for layer in module.modules():
-        if isinstance(layer, (torch.nn.Linear, torch.nn.LSTMCell, torch.nn.Conv1d)):
-            layer.half()
-            layer.register_forward_pre_hook(down)
-            layer.register_forward_hook(up)
-    return module

@@ -48,10 +48,6 @@ class Clip:
     def num_frames(self) -> int:
         return int(self.rotations.shape[0])
 
-    @property
-    def duration_s(self) -> float:
-        return self.num_frames / self.fps
-
     def to(self, dtype: torch.dtype) -> Clip:
         return replace(self, rotations=self.rotations.to(dtype), root_positions=self.root_positions.to(dtype))
 

@@ -155,7 +155,7 @@ class MotionTensors:
     def num_takes(self) -> int:
         return len(self.take_len)
 
-    def window_starts(self, length: int, step: int, min_length: int | None = None) -> tuple[Tensor, Tensor]:
+    def window_starts(self, length: int, step: int) -> tuple[Tensor, Tensor]:
         """Global start rows and take indices of every window of ``length`` frames fitting in a take."""
         starts, owners = [], []
         for i in range(self.num_takes):

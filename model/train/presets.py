@@ -106,11 +106,6 @@ def load_preset(name: str, folder: Path = RECIPE_DIR, changes: dict[str, Any] | 
         raise ValueError(f"preset {name!r}: not a valid training config: {exc}") from exc
 
 
-def preset_about(name: str, folder: Path = RECIPE_DIR) -> str:
-    """What a preset is for (its own ``about``, else the one it inherits)."""
-    return str(preset_dict(name, folder).get("about", ""))
-
-
 def training_differences(stored: TrainConfig, wanted: TrainConfig) -> list[str]:
     """The settings, dotted, in which a run's saved config ``stored`` trains differently from ``wanted``.
 
