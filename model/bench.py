@@ -85,7 +85,7 @@ _ONCE = ("style_encoder.", "phase_estimator.", "target_encoder.", "film1.", "fil
 
 def per_frame_parameters(bundle: Bundle) -> int:
     """Weights read for every generated frame (the style encoder and target encoder run once)."""
-    return sum(p.numel() for n, p in bundle.sampler.named_parameters() if not n.startswith(_ONCE))
+    return sum(p.numel() for n, p in bundle.net.named_parameters() if not n.startswith(_ONCE))
 
 
 def weight_bytes_per_frame(engine: Engine) -> int:
@@ -93,7 +93,7 @@ def weight_bytes_per_frame(engine: Engine) -> int:
     (float32; the LSTM cell's weight matrices at one byte where the engine runs them in int8)."""
     int8 = engine.inference.int8_lstm
     return sum(p.numel() * (1 if int8 and n.startswith("lstm.weight") else p.element_size())
-               for n, p in engine.bundle.sampler.named_parameters() if not n.startswith(_ONCE))
+               for n, p in engine.bundle.net.named_parameters() if not n.startswith(_ONCE))
 
 
 def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8, 32, 128, 512),

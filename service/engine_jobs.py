@@ -105,7 +105,7 @@ def spend_encoding(model: LoadedModel, clip: Clip) -> None:
     engine = model.engine
     conformed = engine.conform(clip, "style clip")
     with torch.inference_mode():
-        engine.weights("").sampler.style_context(engine.style_code(conformed))
+        engine.weights("").net.style_context(engine.style_code(conformed))
 
 
 def new_seed() -> int:

@@ -21,7 +21,7 @@ from model.inference.character import WeightSet
 from model.inference.engine import Engine
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep, _flat
 from model.nets.pose_state import PoseState
-from model.nets.sampler import SamplerState, StyleContext
+from model.nets.transition_net import NetState
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
@@ -48,24 +48,20 @@ class OnnxStep(CompiledStep):
     """A weight set's per-frame step (:class:`CompiledStep`'s call) run by one onnxruntime session."""
 
     def __init__(self, engine: Engine, weights: WeightSet, model: bytes, threads: int) -> None:
-        super().__init__(weights.sampler, engine.skeleton.roles.root, engine.output.steering, traced=False,
+        super().__init__(weights.net, engine.skeleton.roles.root, engine.output.steering, traced=False,
                          facing=engine.facing)
         self.session = session(model, threads)
         self._inputs = [i.name for i in self.session.get_inputs()]
+        self._names = (*weights.net.state_type.flat_names(), *weights.net.style_type.flat_names())
 
-    def __call__(self, state: SamplerState, style: StyleContext,
-                 late: Tensor | None = None) -> tuple[SamplerState, Tensor | None]:
-        from model.export.onnx_graphs import STATE_FIELDS, STYLE_FIELDS
-
+    def __call__(self, state: NetState, style: Any,
+                 late: Tensor | None = None) -> tuple[NetState, Tensor | None]:
         if late is None:
             late = torch.zeros(state.tta.shape, dtype=torch.bool)
-        values = dict(zip((*STATE_FIELDS, *STYLE_FIELDS), _flat(state, style)))
+        values = dict(zip(self._names, _flat(state, style)))
         values["late"] = late
-        out = self.session.run(None, {n: _numpy(values[n]) for n in self._inputs})
-        h, c, rel, vel, rot, root_xz, phase, tta, shift = (torch.from_numpy(a) for a in out)
-        new = SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
-                           state.target_rot, state.target_emb, tta, state.noise)
-        return new, (shift if self.steering.on else None)
+        *carried, shift = (torch.from_numpy(a) for a in self.session.run(None, {n: _numpy(values[n]) for n in self._inputs}))
+        return state.with_carried(carried), (shift if self.steering.on else None)
 
 
 class OnnxFrameOutput(CompiledFrameOutput):

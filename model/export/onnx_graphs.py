@@ -7,9 +7,12 @@ style code's length, left dynamic:
 * ``prepare``: one character's context and target poses to ``begin``'s inputs, the canonical frame and the
   output steps' first memory (:mod:`model.export.onnx_prepare`; a batch of one);
 * ``style``: a style clip's poses (local rotations ``[B, T, J, 4]``, roots ``[B, T, 3]``, on the model's rig at
-  its fps) to the style context (FiLM and attention tensors);
-* ``begin``: the context and target states to the sampler state before the first frame;
-* ``step``: one frame of the sampler and its steering (the recurrent state in and out);
+  its fps) to the style context (for RSMT: FiLM and attention tensors);
+* ``begin``: the context and target states to the network's state before the first frame;
+* ``step``: one frame of the network and its steering (the recurrent state in and out);
+
+The graphs' tensor names come from the network's records (:class:`Layout`), so any network behind the seam
+(:mod:`model.nets.transition_net`) exports; for the RSMT sampler they are the names ``docs/onnx.md`` lists.
 * ``output``: the output steps (world space, smoothing, floor contact, stride warp, foot lock), their
   per-character memory in and out.
 
@@ -22,6 +25,7 @@ from __future__ import annotations
 import io
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -36,24 +40,47 @@ from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_normalize
 from model.motion.skeleton import Skeleton
 from model.nets.pose_state import PoseState
-from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
+from model.nets.transition_net import NetState, TransitionNet
 
 Tensor = torch.Tensor
 
-STYLE_FIELDS = ("gamma1", "beta1", "keys1", "values1", "gamma2", "beta2", "keys2", "values2", "mask")
-STATE_FIELDS = ("h", "c", "rel", "vel", "rot", "root_xz", "phase", "target_vec", "target_pos", "target_rot",
-                "target_emb", "tta", "noise")
-STEP_INPUTS = (*STATE_FIELDS, *STYLE_FIELDS, "late")
-STEP_OUTPUTS = ("h", "c", "rel", "vel", "rot", "root_xz", "phase", "tta", "shift")
-BEGIN_INPUTS = ("context_rel", "context_vel", "context_rot", "context_root_xz", "target_rel", "target_vel",
-                "target_rot", "target_root_xz", "frames", "noise", "velocity_known", *STYLE_FIELDS)
-OUTPUT_INPUTS = ("rel", "vel", "rot", "root_xz", "yaw", "origin", "remaining", "shift")
+POSE_INPUTS = ("rel", "vel", "rot", "root_xz")
+OUTPUT_INPUTS = (*POSE_INPUTS, "yaw", "origin", "remaining", "shift")
 
 
-def _style_axes(prefix: str = "") -> dict[str, dict[int, str]]:
-    """Dynamic axes of the style tensors: the batch, and the code's time steps where they have one."""
-    steps = {"keys1": 2, "keys2": 2, "values1": 1, "values2": 1, "mask": 1}
-    return {prefix + n: {0: "batch", **({steps[n]: "style_steps"} if n in steps else {})} for n in STYLE_FIELDS}
+@dataclass(frozen=True)
+class Layout:
+    """The names of a network's graphs' tensors, from its records (:mod:`model.nets.tensor_record`): its style
+    context's fields, its state's, the state's carried fields (a step's outputs before ``shift``) and the time axis
+    of each style field that has one."""
+
+    style: tuple[str, ...]
+    state: tuple[str, ...]
+    carried: tuple[str, ...]
+    style_steps: dict[str, int]
+
+    @classmethod
+    def of(cls, net: TransitionNet) -> Layout:
+        return cls(net.style_type.flat_names(), net.state_type.flat_names(), net.state_type.carried_names(),
+                   dict(net.style_type.TIME_AXES))
+
+    @property
+    def begin_inputs(self) -> tuple[str, ...]:
+        return (*(f"context_{n}" for n in POSE_INPUTS), *(f"target_{n}" for n in POSE_INPUTS), "frames", "noise",
+                "velocity_known", *self.style)
+
+    @property
+    def step_inputs(self) -> tuple[str, ...]:
+        return (*self.state, *self.style, "late")
+
+    @property
+    def step_outputs(self) -> tuple[str, ...]:
+        return (*(f"{n}_out" for n in self.carried), "shift")
+
+    def style_axes(self) -> dict[str, dict[int, str]]:
+        """Dynamic axes of the style tensors: the batch, and the code's time steps where they have one."""
+        steps = self.style_steps
+        return {n: {0: "batch", **({steps[n]: "style_steps"} if n in steps else {})} for n in self.style}
 
 
 @dataclass(frozen=True)
@@ -83,37 +110,37 @@ def _export(name: str, module: torch.nn.Module, args: tuple[Tensor, ...], inputs
 class _Step(_FlatStep):
     """The step with the ground shift always returned (zeros where steering is off), so every bundle's graph has one layout."""
 
-    def forward(self, *args: Tensor) -> tuple[Tensor, ...]:  # type: ignore[override]
+    def forward(self, *args: Tensor) -> tuple[Tensor, ...]:
         out = super().forward(*args)
-        return out if len(out) == len(STEP_OUTPUTS) else (*out, torch.zeros_like(out[5]))
+        carried = self.net.state_type.carried_names()
+        return out if len(out) > len(carried) else (*out, torch.zeros_like(out[carried.index("root_xz")]))
 
 
 class _Style(torch.nn.Module):
     offsets: Tensor
 
-    def __init__(self, sampler: TransitionSampler, skeleton: Skeleton) -> None:
+    def __init__(self, net: TransitionNet, skeleton: Skeleton) -> None:
         super().__init__()
-        self.sampler, self.skeleton = sampler, skeleton
+        self.net, self.skeleton = net, skeleton
         self.register_buffer("offsets", skeleton.offsets_tensor())
 
     def forward(self, rotations: Tensor, roots: Tensor) -> tuple[Tensor, ...]:
         pos, rot = forward_kinematics(quat_normalize(rotations), roots, self.offsets, self.skeleton.parents)
         features = local_frame_features(pos, rot, self.skeleton)
-        ctx = self.sampler.style_context(self.sampler.encode_style(features))
-        return tuple(getattr(ctx, n) for n in STYLE_FIELDS)
+        return tuple(self.net.style_context(self.net.encode_style(features)).flat())
 
 
 class _Begin(torch.nn.Module):
-    def __init__(self, sampler: TransitionSampler) -> None:
+    def __init__(self, net: TransitionNet) -> None:
         super().__init__()
-        self.sampler = sampler
+        self.net = net
 
     def forward(self, crel: Tensor, cvel: Tensor, crot: Tensor, croot: Tensor, trel: Tensor, tvel: Tensor,
                 trot: Tensor, troot: Tensor, frames: Tensor, noise: Tensor, known: Tensor,
                 *style: Tensor) -> tuple[Tensor, ...]:
-        state = self.sampler.begin(PoseState(crel, cvel, crot, croot), PoseState(trel, tvel, trot, troot), frames,
-                                   noise, StyleContext(*style), velocity_known=known)
-        return _flat(state, StyleContext(*style))[: len(STATE_FIELDS)]
+        state = self.net.begin(PoseState(crel, cvel, crot, croot), PoseState(trel, tvel, trot, troot), frames,
+                               noise, self.net.style_type.from_flat(style), velocity_known=known)
+        return tuple(state.flat())
 
 
 @dataclass
@@ -123,8 +150,8 @@ class Example:
 
     style_poses: tuple[Tensor, Tensor]
     begin: tuple[Tensor, ...]
-    state: SamplerState
-    style: StyleContext
+    state: NetState
+    style: Any
     late: Tensor
     output: tuple[Tensor, ...]
 
@@ -161,25 +188,27 @@ class Example:
 
 
 def style_graph(engine: Engine, weights: WeightSet, example: Example) -> Graph:
-    axes = {"rotations": {0: "batch", 1: "frames"}, "roots": {0: "batch", 1: "frames"}, **_style_axes()}
-    return _export("style", _Style(weights.sampler, engine.skeleton), example.style_poses, ("rotations", "roots"),
-                   STYLE_FIELDS, axes)
+    layout = Layout.of(weights.net)
+    axes = {"rotations": {0: "batch", 1: "frames"}, "roots": {0: "batch", 1: "frames"}, **layout.style_axes()}
+    return _export("style", _Style(weights.net, engine.skeleton), example.style_poses, ("rotations", "roots"),
+                   layout.style, axes)
 
 
 def begin_graph(weights: WeightSet, example: Example) -> Graph:
-    axes = {n: {0: "batch"} for n in (*BEGIN_INPUTS, *STATE_FIELDS) if n not in STYLE_FIELDS} | _style_axes()
-    args = (*example.begin, *_flat(example.state, example.style)[len(STATE_FIELDS):])
-    return _export("begin", _Begin(weights.sampler), args, BEGIN_INPUTS, tuple(f"{n}_out" for n in STATE_FIELDS),
-                   {**axes, **{f"{n}_out": {0: "batch"} for n in STATE_FIELDS}})
+    layout = Layout.of(weights.net)
+    outputs = tuple(f"{n}_out" for n in layout.state)
+    axes = {n: {0: "batch"} for n in (*layout.begin_inputs, *outputs) if n not in layout.style}
+    args = (*example.begin, *example.style.flat())
+    return _export("begin", _Begin(weights.net), args, layout.begin_inputs, outputs, axes | layout.style_axes())
 
 
 def step_graph(engine: Engine, weights: WeightSet, example: Example) -> Graph:
-    """The sampler's step with the engine's whole steering (the retarget window for rows flagged ``late``)."""
-    module = _Step(weights.sampler, engine.skeleton.roles.root, engine.output.steering, engine.facing)
-    outputs = tuple(f"{n}_out" for n in STEP_OUTPUTS[:-1]) + ("shift",)
-    axes = {n: {0: "batch"} for n in (*STATE_FIELDS, "late", *outputs)} | _style_axes()
+    """The network's step with the engine's whole steering (the retarget window for rows flagged ``late``)."""
+    layout = Layout.of(weights.net)
+    module = _Step(weights.net, engine.skeleton.roles.root, engine.output.steering, engine.facing)
+    axes = {n: {0: "batch"} for n in (*layout.state, "late", *layout.step_outputs)} | layout.style_axes()
     args = (*_flat(example.state, example.style), example.late)
-    return _export("step", module, args, STEP_INPUTS, outputs, axes)
+    return _export("step", module, args, layout.step_inputs, layout.step_outputs, axes)
 
 
 def output_graph(engine: Engine, example: Example) -> Graph:

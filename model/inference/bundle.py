@@ -36,6 +36,7 @@ from model.motion.skeleton import Skeleton
 from model.nets.manifold import ManifoldConfig, ManifoldDecoder
 from model.nets.phase import PeriodicAutoencoder, PhaseConfig
 from model.nets.sampler import SamplerConfig, TransitionSampler
+from model.nets.transition_net import DEFAULT_NETWORK, TransitionNet, build_network
 
 FORMAT = "rsmt-bundle/1"
 log = logging.getLogger(__name__)
@@ -61,10 +62,14 @@ class BundleMeta:
 
 @dataclass
 class Bundle:
-    """A loaded model: skeleton, sampler (with its manifold decoder), optional phase model."""
+    """A loaded model: skeleton, transition network (with its manifold decoder), optional phase model.
+
+    ``net`` is any network of :data:`model.nets.transition_net.NETWORKS` (``network`` names which; the RSMT
+    sampler by default); :attr:`sampler` is the same network where code needs the RSMT sampler's own parts
+    (training, fine-tuning)."""
 
     skeleton: Skeleton
-    sampler: TransitionSampler
+    net: TransitionNet
     manifold_config: ManifoldConfig
     phase_config: PhaseConfig
     phase_model: PeriodicAutoencoder | None = None
@@ -76,10 +81,22 @@ class Bundle:
     styles: dict[str, BuiltinStyle] = field(default_factory=dict)
     adapters: dict[str, StyleAdapter] = field(default_factory=dict)  # weights of their own per style (adapters/)
     gait_limits: GaitLimits | None = None  # the capture's limits per style (gait_limits.json; None: none measured)
+    network: str = DEFAULT_NETWORK  # the name of ``net`` in model.nets.transition_net.NETWORKS
 
     @property
     def config(self) -> SamplerConfig:
-        return self.sampler.config
+        return self.net.config
+
+    @property
+    def sampler(self) -> TransitionSampler:
+        """The network as the RSMT sampler; a BundleError for a bundle holding another network."""
+        if not isinstance(self.net, TransitionSampler):
+            raise BundleError(f"this bundle holds network {self.network!r}, not the RSMT sampler this needs")
+        return self.net
+
+    @sampler.setter
+    def sampler(self, net: TransitionSampler) -> None:
+        self.net = net
 
     @classmethod
     def create(
@@ -90,8 +107,10 @@ class Bundle:
         phase: PhaseConfig | None = None,
         meta: BundleMeta | None = None,
         seed: int = 0,
+        network: str = DEFAULT_NETWORK,
     ) -> Bundle:
-        """A bundle with freshly initialised (random) weights sized for ``skeleton``."""
+        """A bundle with freshly initialised (random) weights sized for ``skeleton``; ``network``: which of
+        :data:`model.nets.transition_net.NETWORKS` (a BundleError for an unknown one)."""
         j = skeleton.num_joints
         torch.manual_seed(seed)
         sampler = sampler or SamplerConfig(joints=j)
@@ -99,12 +118,15 @@ class Bundle:
         phase = phase or PhaseConfig(channels=j * 3, phases=sampler.phases, fps=sampler.fps)
         if not (sampler.joints == manifold.joints == j and sampler.phases == manifold.phases == phase.phases):
             raise BundleError("sampler, manifold and phase configs disagree on joints or phase channels")
-        net = TransitionSampler(sampler, ManifoldDecoder(manifold))
-        return cls(skeleton, net, manifold, phase, PeriodicAutoencoder(phase), meta or BundleMeta())
+        try:
+            net = build_network(network, sampler, ManifoldDecoder(manifold))
+        except ValueError as exc:
+            raise BundleError(str(exc)) from None
+        return cls(skeleton, net, manifold, phase, PeriodicAutoencoder(phase), meta or BundleMeta(), network=network)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         # Always CPU tensors: the file and the weights hash must not depend on where the model sits.
-        out = {f"sampler.{k}": v.detach().cpu().contiguous() for k, v in self.sampler.state_dict().items()}
+        out = {f"sampler.{k}": v.detach().cpu().contiguous() for k, v in self.net.state_dict().items()}
         if self.phase_model is not None:
             out.update({f"phase.{k}": v.detach().cpu().contiguous() for k, v in self.phase_model.state_dict().items()})
         return out
@@ -138,6 +160,8 @@ class Bundle:
             "inference": self.inference.to_dict(),
             "meta": self.meta.__dict__,
         }
+        if self.network != DEFAULT_NETWORK:  # written only where it is not the default: older releases load the rest
+            config["network"] = self.network
         (path / "config.json").write_text(json.dumps(config, indent=1))
         self.skeleton.save(path / "skeleton.json")
         if self.gait_limits is not None:
@@ -203,6 +227,7 @@ class Bundle:
             ManifoldConfig(**config["manifold"]),
             PhaseConfig(**config["phase"]),
             BundleMeta(**config.get("meta", {})),
+            network=config.get("network", DEFAULT_NETWORK),
         )
         try:
             bundle.output = OutputConfig.from_dict(config.get("output", {}))
@@ -218,7 +243,7 @@ class Bundle:
         sampler_sd = {k[len("sampler."):]: v for k, v in tensors.items() if k.startswith("sampler.")}
         phase_sd = {k[len("phase."):]: v for k, v in tensors.items() if k.startswith("phase.")}
         try:
-            bundle.sampler.load_state_dict(sampler_sd, strict=True)
+            bundle.net.load_state_dict(sampler_sd, strict=True)
             if bundle.phase_model is not None:
                 bundle.phase_model.load_state_dict(phase_sd, strict=True)
         except RuntimeError as exc:
@@ -229,7 +254,7 @@ class Bundle:
         except ValueError as exc:
             raise BundleError(str(exc)) from exc
         bundle._load_styles(path, styles)
-        bundle.sampler.eval()
+        bundle.net.eval()
         if bundle.phase_model is not None:
             bundle.phase_model.eval()
         return bundle

@@ -25,6 +25,7 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import torch
 from safetensors.torch import load_file, save_file
@@ -33,6 +34,9 @@ from model.inference.bundle_styles import BuiltinStyle, StyleFolderError, check_
 from model.inference.weights_hash import weights_hash
 from model.motion.skeleton import Skeleton
 from model.nets.sampler import TransitionSampler
+from model.nets.transition_net import TransitionNet
+
+N = TypeVar("N", bound=TransitionNet)
 
 ADAPTERS_DIR = "adapters"
 ADAPTER_FORMAT = "rsmt-adapter/1"
@@ -61,8 +65,8 @@ class StyleAdapter:
     def nbytes(self) -> int:
         return sum(t.numel() * t.element_size() for t in self.tensors.values())
 
-    def apply(self, sampler: TransitionSampler) -> TransitionSampler:
-        """A copy of ``sampler`` (the bundle's) with this adapter's tensors in place, in eval mode, frozen."""
+    def apply(self, sampler: N) -> N:
+        """A copy of ``sampler`` (the bundle's network) with this adapter's tensors in place, in eval mode, frozen."""
         own = sampler.state_dict()
         unknown = sorted(k for k in self.tensors if k not in own)
         if unknown:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import torch
 
@@ -13,7 +14,7 @@ from model.inference.reach import Reach
 from model.inference.traced_step import CompiledStep
 from model.motion.features import CanonicalFrame
 from model.nets.pose_state import PoseState
-from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
+from model.nets.transition_net import NetState, TransitionNet
 
 Tensor = torch.Tensor
 
@@ -25,7 +26,7 @@ class EncodedStyle:
     style_id: str
     name: str
     frames: int
-    context: StyleContext
+    context: Any  # the network's style context (model.nets.transition_net.StyleRecord)
     nbytes: int = 0
     weights: str = ""  # the weight set it was encoded by and runs on: the bundle's own, or an adapter's name
     clips: int = 1  # the clips it was encoded from (:mod:`model.inference.style_sets`); ``frames`` is their total
@@ -34,11 +35,11 @@ class EncodedStyle:
 
 @dataclass(eq=False)
 class WeightSet:
-    """One set of the sampler's weights the engine serves: the bundle's own (name ``""``) or a style
+    """One set of the network's weights the engine serves: the bundle's own (name ``""``) or a style
     adapter's (:mod:`model.inference.bundle_adapters`), with its per-frame step and version."""
 
     name: str
-    sampler: TransitionSampler
+    net: TransitionNet
     step_fn: CompiledStep
     version: str
 
@@ -70,7 +71,7 @@ class Character:
     slot: int = 0
     retargeted: bool = False  # given a new target mid-stream (its facing is finished by the retarget window)
     style_strength: float | None = None  # the strength its style runs at (model.inference.style_strength; None: the engine's)
-    row: SamplerState | None = field(default=None, repr=False)  # its sampler state while out of a batch
+    row: NetState | None = field(default=None, repr=False)  # its network state while out of a batch
     frame: CanonicalFrame | None = field(default=None, repr=False)  # its transition's frame, fixed when it starts
     # Exact arrival (see model.inference.output.arrival): the target pose in world space and its state.
     arrival: ArrivalMemory | None = None

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import torch
 
@@ -11,7 +11,7 @@ from model.inference.output.pipeline import OutputPipeline
 from model.inference.output.speed_cap import speed_capped
 from model.inference.traced_step import CompiledFrameOutput
 from model.motion.features import CanonicalFrame
-from model.nets.sampler import SamplerState, StyleContext
+from model.nets.transition_net import NetState
 
 Tensor = torch.Tensor
 
@@ -21,7 +21,8 @@ def restyle_held(ch: Character, style: EncodedStyle, ws: WeightSet) -> None:
     """Switch the style of a character outside a batch; ``ws``: the new style's weights. A row it holds is
     re-encoded by them when they change (one not begun yet is encoded by :meth:`Engine.begin`)."""
     if style.weights != ch.style.weights and ch.row is not None:
-        ch.row.target_emb = ws.sampler.target_encoder(ch.row.target_vec)
+        for name, value in ws.net.reencoded(ch.row).items():
+            setattr(ch.row, name, value)
     ch.style = style
 
 
@@ -31,11 +32,11 @@ class BatchEngine(Protocol):
     output_fn: CompiledFrameOutput
     pipeline: OutputPipeline
 
-    def begin(self, characters: list[Character]) -> SamplerState: ...
+    def begin(self, characters: list[Character]) -> NetState: ...
 
     def weights(self, name: str = "") -> WeightSet: ...
 
-    def context_of(self, style: EncodedStyle, strength: float | None = None) -> StyleContext: ...
+    def context_of(self, style: EncodedStyle, strength: float | None = None) -> Any: ...
 
 
 def by_weights(characters: list[Character]) -> list[tuple[str, Tensor]]:
@@ -63,8 +64,8 @@ class CharacterBatch:
     def __init__(self, engine: BatchEngine) -> None:
         self.engine = engine
         self.members: list[Character] = []
-        self._state: SamplerState | None = None
-        self._style: StyleContext | None = None
+        self._state: NetState | None = None
+        self._style: Any = None  # the members' stacked style contexts
         self._yaw: Tensor | None = None
         self._origin: Tensor | None = None
         # The output pipeline's memory, a row per member (model.inference.output.pipeline.FrameSteps.keys).
@@ -73,7 +74,7 @@ class CharacterBatch:
         self._style_dirty = False
         # The members by weight set: (weights, their rows, their style context); with several sets, the
         # index that puts the rows stepped set after set back in member order.
-        self._groups: list[tuple[WeightSet, Tensor, StyleContext]] = []
+        self._groups: list[tuple[WeightSet, Tensor, Any]] = []
         self._inverse: Tensor | None = None
 
     def __len__(self) -> int:
@@ -95,7 +96,7 @@ class CharacterBatch:
             joined = fresh + [c for c, _ in resumed]
             held = [CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None and self._origin is not None else []
             frames = held + [c.canonical_frame() for c in joined]
-            self._state = SamplerState.stack(rows)
+            self._state = type(rows[0]).stack(rows)
             self._yaw = torch.cat([f.yaw for f in frames])
             self._origin = torch.cat([f.origin for f in frames])
             memories = ([self._memory] if self._memory is not None else []) + [c.memory for c in joined]
@@ -110,7 +111,8 @@ class CharacterBatch:
             self._pending = []
             self._style_dirty = True
         if self._style_dirty and self.members:
-            self._style = StyleContext.stack([self.engine.context_of(m.style, m.style_strength) for m in self.members])
+            contexts = [self.engine.context_of(m.style, m.style_strength) for m in self.members]
+            self._style = type(contexts[0]).stack(contexts)
             groups = by_weights(self.members)
             whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
             self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))
@@ -123,13 +125,13 @@ class CharacterBatch:
         """Switch a member's style from the next frame; a style on other weights re-encodes its target by them."""
         ws = self.engine.weights(style.weights)
         if ch in self.members and style.weights != ch.style.weights:
-            self.update_row(ch, {"target_emb": ws.sampler.target_encoder(self.row_of(ch).target_vec)})
+            self.update_row(ch, ws.net.reencoded(self.row_of(ch)))
             ch.style = style
         else:  # waiting to join or resume
             restyle_held(ch, style, ws)
         self._style_dirty = True
 
-    def stacked(self) -> tuple[SamplerState, StyleContext, Tensor, Tensor, dict[str, Tensor]]:
+    def stacked(self) -> tuple[NetState, Any, Tensor, Tensor, dict[str, Tensor]]:
         """The members' stacked sampler state and style context, canonical frames (``yaw [N]``, ``origin [N, 3]``)
         and output-step memory, as the next :meth:`step` reads them (characters waiting to join joined first)."""
         self._sync()
@@ -138,7 +140,7 @@ class CharacterBatch:
             raise ValueError("no live characters in the batch")
         return self._state, self._style, self._yaw, self._origin, self._memory
 
-    def row_of(self, ch: Character) -> SamplerState:
+    def row_of(self, ch: Character) -> NetState:
         self._sync()
         i = self.members.index(ch)
         assert self._state is not None
@@ -229,7 +231,7 @@ class CharacterBatch:
         else:
             parts = [ws.step_fn(self._state.index(idx), style, None if late is None else late[idx])
                      for ws, idx, style in self._groups]
-            self._state = SamplerState.stack([p[0] for p in parts]).index(self._inverse)
+            self._state = type(parts[0][0]).stack([p[0] for p in parts]).index(self._inverse)
             shifts = [p[1] for p in parts]
             shift = None if shifts[0] is None else torch.cat([s for s in shifts if s is not None])[self._inverse]
         if before is not None:  # each row's root within its style's capture speed (model.inference.output.speed_cap)

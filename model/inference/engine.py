@@ -13,6 +13,7 @@ import itertools
 import logging
 import math
 import time
+from typing import Any
 
 import torch
 
@@ -43,7 +44,7 @@ from model.motion.kinematics import forward_kinematics, global_to_local_rotation
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
 from model.nets.pose_state import PoseState, state_from_positions
-from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
+from model.nets.transition_net import NetState, TransitionNet
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
@@ -65,8 +66,8 @@ class Engine:
         if threads:
             torch.set_num_threads(threads)
         self.bundle = bundle
-        self.sampler = bundle.sampler.eval()
-        for p in self.sampler.parameters():
+        self.net: TransitionNet = bundle.net.eval()  # the network behind the seam (model.nets.transition_net)
+        for p in self.net.parameters():
             p.requires_grad_(False)
         self.skeleton: Skeleton = bundle.skeleton
         self.config = bundle.config
@@ -78,9 +79,9 @@ class Engine:
         # One weight set per style adapter beside the bundle's own; a character runs on its style's.
         self._compiled = compiled
         self.facing = FacingChains.of(self.skeleton)  # the skeleton's facing chains, for steering the facing
-        self.weight_sets = {"": self._weight_set("", self.sampler, bundle.version)}
+        self.weight_sets = {"": self._weight_set("", self.net, bundle.version)}
         for name, adapter in sorted(bundle.adapters.items()):
-            self.weight_sets[name] = self._weight_set(name, adapter.apply(self.sampler), adapter.version)
+            self.weight_sets[name] = self._weight_set(name, adapter.apply(self.net), adapter.version)
         self.step_fn = self.weight_sets[""].step_fn
         self.output_fn = CompiledFrameOutput(self.pipeline.frame, traced=compiled)
         self._ids = itertools.count()
@@ -95,19 +96,19 @@ class Engine:
         self._usable_strength(self.inference.style_strength)
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
 
-    def _weight_set(self, name: str, sampler: TransitionSampler, version: str) -> WeightSet:
-        """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with an int8
-        LSTM cell where the bundle asks for one (the float32 sampler still warms up on the context)."""
-        stepper = sampler
+    def _weight_set(self, name: str, net: TransitionNet, version: str) -> WeightSet:
+        """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with int8
+        recurrent cells where the bundle asks for them (the float32 network still warms up on the context)."""
+        stepper = net
         if self.inference.int8_lstm:
-            quantized = int8_lstm_sampler(sampler)
+            quantized = int8_lstm_sampler(net)
             if quantized is None:  # this torch cannot: say so in self.inference
                 self.inference = self.inference.with_overrides(int8_lstm=False)
             else:
                 stepper = quantized
         step = CompiledStep(stepper, self.skeleton.roles.root, self.pipeline.steering, traced=self._compiled,
                             facing=self.facing)
-        return WeightSet(name, sampler, step, version)
+        return WeightSet(name, net, step, version)
 
     def _usable_strength(self, strength: float) -> None:
         """A :class:`NoNeutralStyle` where ``strength`` is not 1 and the bundle has no built-in styles."""
@@ -115,7 +116,7 @@ class Engine:
             raise NoNeutralStyle(f"style_strength needs built-in styles to find the neutral style; model "
                                  f"{self.bundle.meta.name!r} has none (send 1 or leave it out)")
 
-    def context_of(self, style: EncodedStyle, strength: float | None = None) -> StyleContext:
+    def context_of(self, style: EncodedStyle, strength: float | None = None) -> Any:
         """``style``'s context as this engine runs it: at ``strength``, or the inference settings' style strength
         where None."""
         if self.neutral_style is None:  # only strength 1 is accepted then
@@ -228,7 +229,7 @@ class Engine:
         by the weight set ``weights`` (the bundle's own by default)."""
         pos, rot = self._global(clip)
         with torch.inference_mode():
-            return self.weights(weights).sampler.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
+            return self.weights(weights).net.encode_style(local_frame_features(pos, rot, self.skeleton).unsqueeze(0))
 
     def style_clip(self, clip: Clip) -> Clip:
         """A style clip on this model's rig (:meth:`conform`), refused when its length is outside what the model reads."""
@@ -252,7 +253,7 @@ class Engine:
             return cached, True
         code = self.style_code(clip, weights)
         with torch.inference_mode():
-            ctx = ws.sampler.style_context(code)
+            ctx = ws.net.style_context(code)
         style = EncodedStyle(sid, name or sid, clip.num_frames, ctx, ctx.nbytes, weights)
         self.styles.put(sid, style)
         return style, False
@@ -290,10 +291,9 @@ class Engine:
         cstate = state_from_positions(frame.positions_to(cpos.unsqueeze(0)),
                                       quat_to_sixd(frame.rotations_to(crot.unsqueeze(0))), self.skeleton.roles.root)
         tstate, known = self._target_state(target, frame)
-        noise = torch.zeros(1, 2 * c.width)
-        if not deterministic:
-            gen = torch.Generator().manual_seed(int(seed) if seed is not None else int(time.time_ns() % (2**62)))
-            noise = torch.randn(1, 2 * c.width, generator=gen) * c.noise_std
+        gen = None if deterministic else torch.Generator().manual_seed(
+            int(seed) if seed is not None else int(time.time_ns() % (2**62)))
+        noise = self.net.noise(gen)
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
         ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
@@ -305,7 +305,7 @@ class Engine:
         return ch
 
     @torch.inference_mode()
-    def begin(self, characters: list[Character]) -> SamplerState:
+    def begin(self, characters: list[Character]) -> NetState:
         """Warm the recurrent core of prepared characters on their contexts, all in one batch."""
         inits = [c.prepared for c in characters]
         if any(i is None for i in inits):
@@ -316,15 +316,15 @@ class Engine:
         frames = torch.tensor([i.frames for i in starts])
         noise = torch.cat([i.noise for i in starts])
         known = torch.tensor([i.velocity_known for i in starts])
-        style = StyleContext.stack([self.context_of(c.style, c.style_strength) for c in characters])
+        style = self.net.style_type.stack([self.context_of(c.style, c.style_strength) for c in characters])
         for c in characters:
             c.prepared = None
         groups = by_weights(characters)
         if len(groups) == 1:
-            return self.weights(groups[0][0]).sampler.begin(ctx, tgt, frames, noise, style, velocity_known=known)
-        parts = [self.weights(w).sampler.begin(ctx.index(idx), tgt.index(idx), frames[idx], noise[idx], style.index(idx),
+            return self.weights(groups[0][0]).net.begin(ctx, tgt, frames, noise, style, velocity_known=known)
+        parts = [self.weights(w).net.begin(ctx.index(idx), tgt.index(idx), frames[idx], noise[idx], style.index(idx),
                                                velocity_known=known[idx]) for w, idx in groups]
-        return SamplerState.stack(parts).index(inverse_of(groups))
+        return type(parts[0]).stack(parts).index(inverse_of(groups))
 
     def _target_state(self, target: Clip, frame: CanonicalFrame) -> tuple[PoseState, bool]:
         """The target's state in the transition's frame, and whether its velocity is known (a frame before it
@@ -362,11 +362,8 @@ class Engine:
         goal, known = ch.goal
         aim = self._limit(ch, row.pose.root_xz, goal, ch.remaining)
         if target is not None or aim is not goal:  # a new target, or one now out of reach: the network's aim changes
-            sampler = self.weights(ch.style.weights).sampler
             with torch.inference_mode():
-                vec = sampler.target_input(aim, torch.tensor([known]))
-                emb = sampler.target_encoder(vec)
-            updates.update({"target_vec": vec, "target_pos": aim.positions(), "target_rot": aim.rot, "target_emb": emb})
+                updates.update(self.weights(ch.style.weights).net.target_fields(aim, torch.tensor([known])))
         if batch is not None:
             batch.update_row(ch, updates)
         else:

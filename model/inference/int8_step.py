@@ -1,4 +1,5 @@
-"""A copy of the sampler whose LSTM cell has int8 weights, for the engine's per-frame step.
+"""A copy of a transition network whose recurrent cells (LSTM or GRU) have int8 weights, for the engine's
+per-frame step.
 
 At batch 1 a frame reads every per-frame weight once (7.8 MB in float32 for the default model),
 and on a shared 2-core machine those reads, not the arithmetic, set the latency. The LSTM cell
@@ -19,20 +20,20 @@ import warnings
 
 import torch
 
-from model.nets.sampler import TransitionSampler
+from model.nets.transition_net import TransitionNet
 
 log = logging.getLogger(__name__)
 
 
-def int8_lstm_sampler(sampler: TransitionSampler) -> TransitionSampler | None:
-    """A copy of ``sampler`` with its LSTM cell quantised to int8, or None where this PyTorch cannot
-    (the float32 sampler then serves, with a warning)."""
+def int8_lstm_sampler(sampler: TransitionNet) -> TransitionNet | None:
+    """A copy of ``sampler`` with its recurrent cells (``LSTMCell``, ``GRUCell``) quantised to int8, or None where
+    this PyTorch cannot (the float32 network then serves, with a warning)."""
     try:
         with warnings.catch_warnings():
             # torch 2.13 marks its quantised tensor types deprecated (to move to torchao); the
             # kernels still run, and the failure path below covers a release without them.
             warnings.simplefilter("ignore")
-            quantized = torch.ao.quantization.quantize_dynamic(copy.deepcopy(sampler), {torch.nn.LSTMCell},
+            quantized = torch.ao.quantization.quantize_dynamic(copy.deepcopy(sampler), {torch.nn.LSTMCell, torch.nn.GRUCell},
                                                                dtype=torch.qint8)
     except Exception as exc:  # noqa: BLE001 - any failure keeps the float32 network
         log.warning("int8 LSTM unavailable (%s); the step runs in float32", exc)

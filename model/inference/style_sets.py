@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 
@@ -24,7 +25,6 @@ from model.inference.engine import Engine
 from model.inference.errors import EngineError
 from model.inference.style_codes import clip_content_hash
 from model.motion.clip import Clip
-from model.nets.sampler import StyleContext
 
 MAX_STYLE_CLIPS = 5
 
@@ -59,7 +59,7 @@ def style_set_clips(engine: Engine, clips: Sequence[Clip]) -> list[Clip]:
     return out
 
 
-def style_set_context(engine: Engine, clips: Sequence[Clip], weights: str = "") -> tuple[str, StyleContext]:
+def style_set_context(engine: Engine, clips: Sequence[Clip], weights: str = "") -> tuple[str, Any]:
     """The id and style context of clips already checked by :func:`style_set_clips`, by the weight set
     ``weights``: each clip's code, the codes joined along time in the order of the clips' ids."""
     ws = engine.weights(weights)
@@ -67,7 +67,7 @@ def style_set_context(engine: Engine, clips: Sequence[Clip], weights: str = "") 
     order = sorted(range(len(clips)), key=lambda i: ids[i])
     codes = [engine.style_code(clips[i], weights) for i in order]
     with torch.inference_mode():
-        ctx = ws.sampler.style_context(codes[0] if len(codes) == 1 else torch.cat(codes, dim=1))
+        ctx = ws.net.style_context(codes[0] if len(codes) == 1 else torch.cat(codes, dim=1))
     return style_set_id(ids, ws.version), ctx
 
 

@@ -11,14 +11,12 @@ several-clip styles all follow it, and cached styles stay as encoded.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Any
 
 import torch
 
-from model.nets.sampler import StyleContext
-
 Tensor = torch.Tensor
 MAX_STRENGTH = 4.0
-_SCALED = tuple(f.name for f in fields(StyleContext) if f.name != "mask")  # every field a style moves
 
 
 def check_strength(strength: float) -> float:
@@ -32,36 +30,39 @@ def check_strength(strength: float) -> float:
 @dataclass(frozen=True)
 class NeutralStyle:
     """The neutral style of a set of contexts, as a context whose fields broadcast over any batch and code length:
-    each field's mean, ``[1, width]`` for the FiLM fields, ``[1, width, 1]`` for keys and ``[1, 1, width]`` for
-    values (the mean over real time steps); its mask is one real step."""
+    each field's mean over the batch, and over the real time steps (its ``mask``) where the field has a time axis
+    (the network's ``TIME_AXES``: for RSMT's, ``[1, width]`` for the FiLM fields, ``[1, width, 1]`` for keys and
+    ``[1, 1, width]`` for values); its mask is one real step."""
 
-    context: StyleContext
+    context: Any
 
     @classmethod
-    def of(cls, contexts: list[StyleContext]) -> NeutralStyle:
+    def of(cls, contexts: list[Any]) -> NeutralStyle:
         """The neutral style of ``contexts`` (at least one; each a batch of one or more styles)."""
         if not contexts:
             raise ValueError("a neutral style needs at least one style context")
-        ctx = StyleContext.stack(contexts)
+        kind = type(contexts[0])
+        ctx = kind.stack(contexts)
         real = ctx.mask.float()  # [B, T']
         steps = real.sum()
 
         def mean(name: str) -> Tensor:
             t = getattr(ctx, name)
-            if name.startswith(("gamma", "beta")):
+            axis = kind.TIME_AXES.get(name)
+            if axis is None:
                 return t.mean(0, keepdim=True)
-            if name.startswith("keys"):  # [B, width, T']
-                return (t * real.unsqueeze(1)).sum((0, 2), keepdim=True) / steps
-            return (t * real.unsqueeze(2)).sum((0, 1), keepdim=True) / steps  # values [B, T', width]
+            return (t * real.unsqueeze(3 - axis)).sum((0, axis), keepdim=True) / steps  # [B, T', w] or [B, w, T']
 
-        return cls(StyleContext(**{name: mean(name) for name in _SCALED}, mask=torch.ones(1, 1, dtype=torch.bool)))
+        scaled = {f.name: mean(f.name) for f in fields(ctx) if f.name != "mask"}
+        return cls(kind(**scaled, mask=torch.ones(1, 1, dtype=torch.bool)))
 
-    def scaled(self, ctx: StyleContext, strength: float) -> StyleContext:
+    def scaled(self, ctx: Any, strength: float) -> Any:
         """``ctx`` at ``strength`` (1: ``ctx`` itself, the same object); its mask is kept."""
         if strength == 1.0:
             return ctx
         out = {f.name: getattr(ctx, f.name) for f in fields(ctx)}
-        for name in _SCALED:
-            neutral = getattr(self.context, name)
-            out[name] = neutral + strength * (out[name] - neutral)
-        return StyleContext(**out)
+        for name in out:
+            if name != "mask":
+                neutral = getattr(self.context, name)
+                out[name] = neutral + strength * (out[name] - neutral)
+        return type(ctx)(**out)

@@ -16,6 +16,7 @@ import dataclasses
 import logging
 import warnings
 from collections.abc import Callable
+from typing import Any
 
 import torch
 
@@ -24,47 +25,48 @@ from model.inference.output.pipeline import FrameSteps
 from model.inference.output.steering import SteeringConfig, steer
 from model.motion.features import FacingChains
 from model.nets.pose_state import PoseState
-from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
+from model.nets.transition_net import NetState, TransitionNet
 
 log = logging.getLogger(__name__)
 Tensor = torch.Tensor
 
 
-def step_and_steer(sampler: TransitionSampler, state: SamplerState, style: StyleContext, root: int,
+def step_and_steer(net: TransitionNet, state: NetState, style: Any, root: int,
                    steering: SteeringConfig, facing: FacingChains | None = None,
-                   late: Tensor | None = None) -> tuple[SamplerState, Tensor | None]:
-    """One frame of the sampler, then root steering where it is on (:mod:`model.inference.output.steering`;
+                   late: Tensor | None = None) -> tuple[NetState, Tensor | None]:
+    """One frame of the network, then root steering where it is on (:mod:`model.inference.output.steering`;
     ``facing``: the skeleton's, for steering the facing; ``late [N]``: the rows retargeted mid-stream):
     the new state and the ground shift steering gave each row (None when off)."""
-    new, _ = sampler.step(state, style)
+    new, _ = net.step(state, style)
     if not steering.on:
         return new, None
     return steer(new, root, steering, facing, late)
 
 
 class _FlatStep(torch.nn.Module):
-    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig,
+    """:func:`step_and_steer` on flat tensors: the state's and the style's (:meth:`TensorRecord.flat`), then
+    ``late`` where given; it returns the state's carried tensors (:meth:`TensorRecord.carried`), then the shift
+    where steering is on."""
+
+    def __init__(self, net: TransitionNet, root: int, steering: SteeringConfig,
                  facing: FacingChains | None) -> None:
         super().__init__()
-        self.sampler, self.root, self.steering, self.facing = sampler, root, steering, facing
+        self.net, self.root, self.steering, self.facing = net, root, steering, facing
+        self._state_size = len(net.state_type.flat_names())
+        self._style_size = len(net.style_type.flat_names())
 
-    def forward(self, h: Tensor, c: Tensor, rel: Tensor, vel: Tensor, rot: Tensor, root_xz: Tensor, phase: Tensor,
-                target_vec: Tensor, target_pos: Tensor, target_rot: Tensor, target_emb: Tensor, tta: Tensor,
-                noise: Tensor, g1: Tensor, b1: Tensor, k1: Tensor, v1: Tensor, g2: Tensor, b2: Tensor, k2: Tensor,
-                v2: Tensor, mask: Tensor, late: Tensor | None = None) -> tuple[Tensor, ...]:
-        state = SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, target_vec, target_pos, target_rot,
-                             target_emb, tta, noise)
-        style = StyleContext(g1, b1, k1, v1, g2, b2, k2, v2, mask)
-        new, shift = step_and_steer(self.sampler, state, style, self.root, self.steering, self.facing, late)
-        out = (new.h, new.c, new.pose.rel, new.pose.vel, new.pose.rot, new.pose.root_xz, new.phase, new.tta)
+    def forward(self, *args: Tensor) -> tuple[Tensor, ...]:
+        n, m = self._state_size, self._style_size
+        state = self.net.state_type.from_flat(args[:n])
+        style = self.net.style_type.from_flat(args[n : n + m])
+        late = args[n + m] if len(args) > n + m else None
+        new, shift = step_and_steer(self.net, state, style, self.root, self.steering, self.facing, late)
+        out = new.carried()
         return out if shift is None else (*out, shift)
 
 
-def _flat(state: SamplerState, style: StyleContext) -> tuple[Tensor, ...]:
-    p = state.pose
-    return (state.h, state.c, p.rel, p.vel, p.rot, p.root_xz, state.phase, state.target_vec, state.target_pos,
-            state.target_rot, state.target_emb, state.tta, state.noise, style.gamma1, style.beta1, style.keys1,
-            style.values1, style.gamma2, style.beta2, style.keys2, style.values2, style.mask)
+def _flat(state: NetState, style: Any) -> tuple[Tensor, ...]:
+    return (*state.flat(), *style.flat())
 
 
 class _TracedOnFirstUse:
@@ -106,12 +108,12 @@ class CompiledStep(_TracedOnFirstUse):
     ``late [N]`` (bool) flags the rows retargeted mid-stream, which matters only where the steering
     has a retarget window (another graph: batches without such rows keep the usual one)."""
 
-    def __init__(self, sampler: TransitionSampler, root: int, steering: SteeringConfig, traced: bool = True,
+    def __init__(self, net: TransitionNet, root: int, steering: SteeringConfig, traced: bool = True,
                  facing: FacingChains | None = None) -> None:
         super().__init__(traced)
         if steering.turns and facing is None:
             raise ValueError("steering the facing needs the skeleton's facing chains")
-        self.sampler, self.root, self.steering, self.facing = sampler, root, steering, facing
+        self.net, self.root, self.steering, self.facing = net, root, steering, facing
         # Before the facing and height windows open, their parts move nothing: a second graph leaves them out.
         # A batch with no retargeted row steers as if the retarget window were off (its own graph).
         self._usual = dataclasses.replace(steering, retarget_turn_window=0)
@@ -120,8 +122,8 @@ class CompiledStep(_TracedOnFirstUse):
         self._cruise = (dataclasses.replace(steering, turn_window=0, height_window=0, retarget_turn_window=0)
                         if self._late_from else None)
 
-    def __call__(self, state: SamplerState, style: StyleContext,
-                 late: Tensor | None = None) -> tuple[SamplerState, Tensor | None]:
+    def __call__(self, state: NetState, style: Any,
+                 late: Tensor | None = None) -> tuple[NetState, Tensor | None]:
         has_late = late is not None and self.steering.retarget_turn_window > 0 and bool(late.any())
         steering, key = (self.steering, "late") if has_late else (self._usual, "")
         finish_from = self._late_from if has_late else self._finish_from
@@ -132,12 +134,12 @@ class CompiledStep(_TracedOnFirstUse):
             args = (*args, late)  # type: ignore[arg-type]
         else:
             late = None
-        graph = self._graph_for(lambda: _FlatStep(self.sampler, self.root, steering, self.facing), args, key)
+        graph = self._graph_for(lambda: _FlatStep(self.net, self.root, steering, self.facing), args, key)
         if graph is None:
-            return step_and_steer(self.sampler, state, style, self.root, steering, self.facing, late)
-        h, c, rel, vel, rot, root_xz, phase, tta, *shift = graph(*args)
-        return (SamplerState(h, c, PoseState(rel, vel, rot, root_xz), phase, state.target_vec, state.target_pos,
-                             state.target_rot, state.target_emb, tta, state.noise), shift[0] if shift else None)
+            return step_and_steer(self.net, state, style, self.root, steering, self.facing, late)
+        out = graph(*args)
+        carried = len(state.carried_names())
+        return state.with_carried(out[:carried]), (out[carried] if len(out) > carried else None)
 
 
 class _FlatFrameOutput(torch.nn.Module):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
-from typing import Any
+from typing import ClassVar
 
 import torch
 from torch import nn
@@ -20,7 +20,8 @@ from torch import nn
 from model.motion.rotations import sixd_normalize
 from model.nets.manifold import ManifoldDecoder
 from model.nets.phase import PhaseEstimator, advance_phase, blend_phase
-from model.nets.pose_state import PoseState, TensorIndex, state_dim
+from model.nets.pose_state import PoseState, state_dim
+from model.nets.tensor_record import TensorRecord
 
 Tensor = torch.Tensor
 
@@ -148,13 +149,15 @@ class StyleAttention(nn.Module):
 
 
 @dataclass
-class StyleContext:
+class StyleContext(TensorRecord):
     """Everything a style contributes to every frame, computed once per style clip.
 
     All tensors have a leading batch dimension. Codes of different lengths share a batch by
     padding: ``mask [B, T']`` marks the real time steps, and attention ignores the rest. Keys are
     ``[B, width, T']`` (see :meth:`StyleAttention.context`), values ``[B, T', width]``.
     """
+
+    TIME_AXES: ClassVar[dict[str, int]] = {"keys1": 2, "values1": 1, "keys2": 2, "values2": 1, "mask": 1}
 
     gamma1: Tensor
     beta1: Tensor
@@ -166,37 +169,13 @@ class StyleContext:
     values2: Tensor
     mask: Tensor
 
-    def index(self, idx: TensorIndex) -> StyleContext:
-        return StyleContext(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
-
-    @property
-    def nbytes(self) -> int:
-        """Memory of its tensors (what a style cache holds per style)."""
-        return sum(t.numel() * t.element_size() for t in (getattr(self, f.name) for f in fields(self)))
-
-    @staticmethod
-    def stack(items: list[StyleContext]) -> StyleContext:
-        """Concatenate along the batch, padding shorter codes (masked out) to the longest."""
-        longest = max(i.mask.shape[1] for i in items)
-
-        def pad(name: str, t: Tensor) -> Tensor:
-            if name.startswith(("gamma", "beta")):
-                return t
-            axis = 2 if name.startswith("keys") else 1  # keys are [B, width, T']
-            if t.shape[axis] == longest:
-                return t
-            shape = list(t.shape)
-            shape[axis] = longest - t.shape[axis]
-            return torch.cat([t, t.new_zeros(shape)], dim=axis)
-
-        return StyleContext(
-            **{f.name: torch.cat([pad(f.name, getattr(i, f.name)) for i in items]) for f in fields(StyleContext)}
-        )
-
 
 @dataclass
-class SamplerState:
+class SamplerState(TensorRecord):
     """Per-character state of a transition in progress (leading dim = characters)."""
+
+    POSES: ClassVar[tuple[str, ...]] = ("pose",)
+    FIXED: ClassVar[tuple[str, ...]] = ("target_vec", "target_pos", "target_rot", "target_emb", "noise")
 
     h: Tensor  # [B, rnn]
     c: Tensor  # [B, rnn]
@@ -208,24 +187,6 @@ class SamplerState:
     target_emb: Tensor  # [B, width] encoded target, computed once
     tta: Tensor  # [B] frames left, including the next one
     noise: Tensor  # [B, 2*width]
-
-    def index(self, idx: Any) -> SamplerState:
-        vals: dict[str, Any] = {}
-        for f in fields(self):
-            v = getattr(self, f.name)
-            vals[f.name] = v.index(idx) if isinstance(v, PoseState) else v[idx]
-        return SamplerState(**vals)
-
-    @staticmethod
-    def stack(items: list[SamplerState]) -> SamplerState:
-        vals: dict[str, Any] = {}
-        for f in fields(SamplerState):
-            parts = [getattr(i, f.name) for i in items]
-            if isinstance(parts[0], PoseState):
-                vals[f.name] = PoseState.cat(parts)
-            else:
-                vals[f.name] = torch.cat(parts)
-        return SamplerState(**vals)
 
 
 def sinusoidal_table(rows: int, width: int) -> Tensor:
@@ -245,6 +206,8 @@ def _mlp(inputs: int, hidden: int, outputs: int) -> nn.Sequential:
 class TransitionSampler(nn.Module):
     """The per-frame generator; the manifold decoder is attached frozen (``decoder``)."""
 
+    state_type = SamplerState
+    style_type = StyleContext
     # Buffers (registered in __init__).
     pe: Tensor
     style_mean: Tensor
@@ -299,6 +262,23 @@ class TransitionSampler(nn.Module):
         return self.pe.index_select(0, tta.clamp(0, self.pe.shape[0] - 1))
 
     # ------------------------------------------------------------------ transition
+    def noise(self, generator: torch.Generator | None) -> Tensor:
+        """One transition's target noise ``[1, 2*width]`` (zeros without a generator: deterministic output)."""
+        c = self.config
+        if generator is None:
+            return torch.zeros(1, 2 * c.width)
+        return torch.randn(1, 2 * c.width, generator=generator) * c.noise_std
+
+    def target_fields(self, target: PoseState, velocity_known: Tensor) -> dict[str, Tensor]:
+        """The state's fields that hold a target ``[B, J, *]``, encoded by these weights."""
+        vec = self.target_input(target, velocity_known)
+        return {"target_vec": vec, "target_pos": target.positions(), "target_rot": target.rot,
+                "target_emb": self.target_encoder(vec)}
+
+    def reencoded(self, state: SamplerState) -> dict[str, Tensor]:
+        """The encoded target, by these weights (a style switch onto them)."""
+        return {"target_emb": self.target_encoder(state.target_vec)}
+
     def target_input(self, target: PoseState, velocity_known: Tensor | None = None) -> Tensor:
         """The target encoder's input ``[B, D(+1)]`` for targets ``[B, J, *]``.
 

@@ -24,11 +24,11 @@ import pytest
 import torch
 
 from model.data.synthetic import synthetic_walk
-from model.export.onnx_graphs import STYLE_FIELDS
 from model.inference.bundle import DEFAULT_BUNDLE, Bundle
 from model.inference.engine import CharacterBatch, Engine
 from model.inference.overrides import Overrides
 from model.motion.kinematics import forward_kinematics
+from model.nets.sampler import StyleContext
 from tests.clients.helpers import REPO, UNITY, UNREAL, gxx, mono_tools, run
 
 pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]  # builds the engine samples with mcs and g++
@@ -136,7 +136,7 @@ class _Case:
             "retarget_roots": self.retarget.root_positions.numpy(),
             "frames": np.array([FRAMES], dtype=np.int64), "retarget_at": np.array([RETARGET_AT], dtype=np.int64),
             "noise": np.zeros((1, 2 * self.sidecar["sampler"]["width"]), dtype=np.float32),
-            **{f"style.{n}": v for n, v in zip(STYLE_FIELDS, style_out)}}
+            **{f"style.{n}": v for n, v in zip(StyleContext.flat_names(), style_out)}}
 
     def run(self, command: list[str], int32: bool) -> tuple[torch.Tensor, int]:
         """Joint positions ``[FRAMES, J, 3]`` of the program's frames, and how many graph calls it made. ``int32``:

@@ -12,16 +12,19 @@ as it is (a bundle without gait limits).
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import torch
 
 from model.inference.output.steering import shifted
-from model.nets.sampler import SamplerState
+from model.nets.transition_net import NetState
 
 Tensor = torch.Tensor
+S = TypeVar("S", bound=NetState)
 
 
-def speed_capped(before_xz: Tensor, state: SamplerState, shift: Tensor | None,
-                 cap: Tensor) -> tuple[SamplerState, Tensor | None]:
+def speed_capped(before_xz: Tensor, state: S, shift: Tensor | None,
+                 cap: Tensor) -> tuple[S, Tensor | None]:
     """``state`` (just stepped from a root at ``before_xz [N, 2]``) with each row's ground step held within
     ``cap [N]`` (cm/frame), and steering's ``shift [N, 2]`` with the pull-back added (None stays None where no
     row was pulled back)."""

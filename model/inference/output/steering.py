@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
+from typing import TypeVar
 
 import torch
 
@@ -45,9 +46,10 @@ from model.inference.output.arrival import arrival_weight
 from model.motion.features import FacingChains
 from model.motion.rotations import quat_rotate, yaw_quat
 from model.nets.pose_state import GROUND_TO_3D, PoseState
-from model.nets.sampler import SamplerState
+from model.nets.transition_net import NetState
 
 Tensor = torch.Tensor
+S = TypeVar("S", bound=NetState)
 
 
 @dataclass(frozen=True)
@@ -110,7 +112,7 @@ class SteeringConfig:
 _UP = torch.tensor([0.0, 1.0, 0.0])
 
 
-def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Tensor:
+def steering_shift(state: NetState, root: int, config: SteeringConfig) -> Tensor:
     """The ground shift ``[N, 2]`` (x, z in the canonical frame) steering gives each row of ``state``,
     a state just stepped (its ``tta`` counts the frames after the one it holds)."""
     pose = state.pose
@@ -123,11 +125,11 @@ def steering_shift(state: SamplerState, root: int, config: SteeringConfig) -> Te
     return shift * (config.max_step_cm / norm.clamp_min(config.max_step_cm))
 
 
-def shifted(state: SamplerState, shift: Tensor) -> SamplerState:
+def shifted(state: S, shift: Tensor) -> S:
     """``state`` with every row's body moved on the ground by ``shift [N, 2]`` (positions and velocities)."""
     pose = state.pose
     ground = shift @ GROUND_TO_3D  # (x, 0, z)
-    return replace(state, pose=PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift))
+    return replace(state, pose=PoseState(pose.rel, pose.vel + ground.unsqueeze(1), pose.rot, pose.root_xz + shift))  # type: ignore[type-var]
 
 
 def _spread(miss: Tensor, tta: Tensor, window: int | Tensor, cap: float | Tensor) -> Tensor:
@@ -144,7 +146,7 @@ def _spread(miss: Tensor, tta: Tensor, window: int | Tensor, cap: float | Tensor
     return spread.clamp(-cap, cap)
 
 
-def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingChains,
+def finishing_turn(state: NetState, config: SteeringConfig, facing: FacingChains,
                    late: Tensor | None = None) -> Tensor:
     """The turn ``[N]`` (radians about +Y) steering gives each row's facing this frame; rows where ``late
     [N]`` (bool) is set were retargeted mid-stream and take the retarget window and cap where those are on."""
@@ -160,13 +162,13 @@ def finishing_turn(state: SamplerState, config: SteeringConfig, facing: FacingCh
     return _spread(miss, state.tta, window, caps)
 
 
-def finishing_rise(state: SamplerState, root: int, config: SteeringConfig) -> Tensor:
+def finishing_rise(state: NetState, root: int, config: SteeringConfig) -> Tensor:
     """The vertical shift ``[N]`` (cm) steering gives each row's body this frame."""
     miss = state.target_pos[:, root, 1] - state.pose.rel[:, root, 1]
     return _spread(miss, state.tta, config.height_window, config.max_rise_cm)
 
 
-def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | None) -> SamplerState:
+def turned_and_raised(state: S, turn: Tensor | None, rise: Tensor | None) -> S:
     """``state`` with every row's body turned about its root's vertical by ``turn [N]`` (positions,
     velocities and rotations turn together, as if it had always faced that way) and moved up by
     ``rise [N]`` (a displacement: the velocities take it)."""
@@ -179,11 +181,11 @@ def turned_and_raised(state: SamplerState, turn: Tensor | None, rise: Tensor | N
     if rise is not None:
         up = (rise.unsqueeze(-1) * _UP).unsqueeze(1)  # (0, rise, 0)
         rel, vel = rel + up, vel + up
-    return replace(state, pose=PoseState(rel, vel, rot, pose.root_xz))
+    return replace(state, pose=PoseState(rel, vel, rot, pose.root_xz))  # type: ignore[type-var]
 
 
-def steer(state: SamplerState, root: int, config: SteeringConfig, facing: FacingChains | None = None,
-          late: Tensor | None = None) -> tuple[SamplerState, Tensor]:
+def steer(state: S, root: int, config: SteeringConfig, facing: FacingChains | None = None,
+          late: Tensor | None = None) -> tuple[S, Tensor]:
     """``state`` with every row's body moved by :func:`steering_shift` (positions and velocities), then
     turned and raised where those parts are on, and the ground shift ``[N, 2]`` (zero where the ground
     part is off). Turning needs ``facing``; ``late [N]`` (bool) flags the rows retargeted mid-stream."""

@@ -89,9 +89,9 @@ def test_the_sidecar_lists_every_graph_input_and_the_state_layout(exported: Path
 
 def test_the_style_graph_gives_the_engines_style_context(exported: Path) -> None:
     from model.data.synthetic import synthetic_walk
-    from model.export.onnx_graphs import STYLE_FIELDS
     from model.inference.bundle import DEFAULT_BUNDLE, Bundle
     from model.inference.engine import Engine
+    from model.nets.sampler import StyleContext
 
     engine = Engine(Bundle.load(DEFAULT_BUNDLE), compiled=False)
     clip = engine.conform(synthetic_walk(frames=100, turn_deg_s=25.0))
@@ -99,7 +99,7 @@ def test_the_style_graph_gives_the_engines_style_context(exported: Path) -> None
     session = ort.InferenceSession(str(exported / "style.onnx"), providers=["CPUExecutionProvider"])
     out = session.run(None, {"rotations": clip.rotations[None].numpy(), "roots": clip.root_positions[None].numpy()})
     for name, got in zip([o.name for o in session.get_outputs()], out):
-        assert name in STYLE_FIELDS
+        assert name in StyleContext.flat_names()
         np.testing.assert_allclose(got, getattr(style.context, name).numpy(), atol=1e-4, err_msg=name)
 
 

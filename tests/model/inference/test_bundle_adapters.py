@@ -16,7 +16,7 @@ from model.inference.bundle_adapters import AdapterError, adapter_from
 from model.inference.bundle_styles import StyleClip, StyleFolderError
 from model.inference.engine import CharacterBatch, Engine
 from model.inference.style_packing import write_adapter, write_builtin_styles
-from model.nets.sampler import TransitionSampler
+from model.nets.sampler import SamplerState, TransitionSampler
 from tests.model.tiny_bundles import tiny_bundle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -114,15 +114,17 @@ def test_a_style_switch_to_other_weights_reencodes_the_target(adapted, walk):
     batch.step()
     row = batch.row_of(ch)
     engine.set_style(ch, limp, batch)
-    want = engine.weights("limp").sampler.target_encoder(row.target_vec)
-    assert torch.allclose(batch.row_of(ch).target_emb, want) and ch.style is limp
+    limp_net, now = engine.weights("limp").net, batch.row_of(ch)
+    assert isinstance(row, SamplerState) and isinstance(now, SamplerState) and isinstance(limp_net, TransitionSampler)
+    assert torch.allclose(now.target_emb, limp_net.target_encoder(row.target_vec)) and ch.style is limp
     while not ch.done:
         batch.step()
     # Out of a batch (a parked stream), the row it holds is re-encoded the same way.
     ch2 = _chars(engine, walk, [limp])[0]
     ch2.row = engine.begin([ch2])
     engine.set_style(ch2, slow)
-    assert torch.allclose(ch2.row.target_emb, engine.sampler.target_encoder(ch2.row.target_vec))
+    assert isinstance(ch2.row, SamplerState)
+    assert torch.allclose(ch2.row.target_emb, engine.bundle.sampler.target_encoder(ch2.row.target_vec))
     with pytest.raises(ValueError, match="no weights 'gone'"):
         engine.weights("gone")
 

@@ -15,7 +15,7 @@ from model.inference.overrides import Overrides
 from model.motion.clip import Clip
 from model.motion.skeleton import Skeleton
 from model.nets.manifold import ManifoldConfig
-from model.nets.sampler import SamplerConfig
+from model.nets.sampler import SamplerConfig, SamplerState
 
 J = 21
 
@@ -142,6 +142,7 @@ def test_a_batch_shows_its_stacked_rows_as_the_next_step_reads_them(engine, walk
     for seed in (1, 2):
         batch.add(engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, style, seed=seed))
     state, ctx, yaw, origin, memory = batch.stacked()  # the two waiting characters joined
+    assert isinstance(state, SamplerState)
     assert state.h.shape[0] == 2 and ctx.mask.shape[0] == 2 and yaw.shape == (2,) and origin.shape == (2, 3)
     assert set(memory) == set(engine.output_fn.fn.keys) and all(v.shape[0] == 2 for v in memory.values())
     batch.step()

@@ -16,7 +16,7 @@ from model.inference.overrides import Overrides
 from model.inference.settings import InferenceConfig
 from model.motion.clip import Clip
 from model.nets.manifold import ManifoldConfig
-from model.nets.sampler import SamplerConfig
+from model.nets.sampler import SamplerConfig, TransitionSampler
 
 J = 21
 
@@ -38,7 +38,7 @@ def _generate(engine: Engine, walk: Clip) -> tuple[torch.Tensor, torch.Tensor]:
 
 def test_only_the_lstm_cell_is_quantised_and_the_original_is_untouched(bundle):
     q = int8_lstm_sampler(bundle.sampler)
-    assert q is not None
+    assert isinstance(q, TransitionSampler)
     assert type(q.lstm).__name__ == "LSTMCell" and type(q.lstm).__module__.startswith("torch.ao.nn.quantized")
     assert isinstance(bundle.sampler.lstm, torch.nn.LSTMCell) and type(bundle.sampler.lstm).__module__ == "torch.nn.modules.rnn"
     assert isinstance(q.head_in[0], torch.nn.Linear) and q.decoder.l1.weight.dtype == torch.float32

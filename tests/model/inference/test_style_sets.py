@@ -64,7 +64,7 @@ def test_several_clips_give_one_context_over_all_their_steps(engine):
     code = torch.cat([engine.style_code(engine.style_clip(clips[i])) for i in
                       sorted(range(3), key=lambda i: singles[i].style_id)], dim=1)
     with torch.inference_mode():
-        expect = engine.sampler.style_context(code)
+        expect = engine.net.style_context(code)
     assert _same(style.context, expect)
     joined = torch.cat([s.context.values1 for s in sorted(singles, key=lambda s: s.style_id)], dim=1)
     assert torch.equal(style.context.values1, joined)

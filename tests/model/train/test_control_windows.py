@@ -16,7 +16,7 @@ from model.data.synthetic import write_synthetic_dataset
 from model.inference.bundle import Bundle
 from model.motion.rotations import quat_angle, quat_mul, quat_to_sixd, sixd_to_quat, yaw_quat
 from model.nets.pose_state import PoseState
-from model.nets.sampler import SamplerConfig, TransitionSampler
+from model.nets.sampler import SamplerConfig, SamplerState, TransitionSampler
 from model.train.from_bundle import sampler_from_bundle
 from model.train.pipeline import TrainConfig, fit_to_skeleton
 from model.train.presets import preset_dict
@@ -145,11 +145,12 @@ def test_the_engine_tells_a_flagged_model_whether_the_target_came_with_its_veloc
     assert one.prepared is not None and two.prepared is not None
     assert one.prepared.velocity_known is False and two.prepared.velocity_known is True
     row = engine.begin([one, two])
+    assert isinstance(row, SamplerState)
     assert row.target_vec[:, -1].tolist() == [0.0, 1.0]
     assert torch.equal(row.target_vec[0, 3 * J:6 * J], torch.zeros(3 * J))
     ch = engine.prepare(walk.window(0, 10), walk.window(38, 40), 12, style, deterministic=True)
     engine.retarget(ch, target=walk.window(50, 51))
-    assert ch.row is not None and ch.row.target_vec[0, -1].item() == 0.0
+    assert isinstance(ch.row, SamplerState) and ch.row.target_vec[0, -1].item() == 0.0
     rot, _ = engine.generate([engine.prepare(walk.window(0, 10), walk.window(39, 40), 12, style, deterministic=True)])[0]
     assert rot.shape[0] == 12
 
