@@ -4,7 +4,7 @@ the contract code of each error the engine raises."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import orjson
@@ -97,13 +97,17 @@ def _count(request: Request, code: str) -> None:
         metrics.errors.labels(code=code).inc()
 
 
-def describe_validation(errors: Sequence[Mapping[str, Any]], limit: int = 5) -> str:
-    """One readable line per pydantic error: ``body.frames: Input should be greater than or equal to 1``."""
-    parts = []
-    for err in errors[:limit]:
+def describe_validation(errors: Sequence[Mapping[str, Any]], limit: int = 5, builtin_names: Iterable[str] = ()) -> str:
+    """One readable line per pydantic error: ``frames: Input should be greater than or equal to 1``; an error on
+    a Motion names what to send instead (``builtin_names``: the built-in styles a name in ``style`` may mean)."""
+    from service.shape_hints import motion_errors  # here: shape_hints imports service.builtin_styles, which imports this
+
+    parts, rest = motion_errors(errors, builtin_names)
+    for err in rest:
         loc = ".".join(str(p) for p in err.get("loc", ()) if p not in ("body",)) or "body"
         parts.append(f"{loc}: {err.get('msg', 'invalid')}")
-    more = len(errors) - limit
+    more = len(parts) - limit
+    parts = parts[:limit]
     if more > 0:
         parts.append(f"... and {more} more")
     return "; ".join(parts)
@@ -117,6 +121,20 @@ def _json_media_type(content_type: str | None) -> bool:
 def _whole_body(error: Mapping[str, Any]) -> bool:
     """An error about the body as a whole (its type), not about a field in it."""
     return tuple(error.get("loc", ())) == ("body",)
+
+
+def _raw_bvh_hint(body: Any) -> str:
+    """The wrapper a BVH file sent as the whole body needed (``""`` for another body)."""
+    from service.shape_hints import raw_bvh_body_hint  # see describe_validation
+
+    start = body[:64] if isinstance(body, bytes | bytearray) else str(body)[:64].encode() if isinstance(body, str) else b""
+    return raw_bvh_body_hint(bytes(start))
+
+
+def _builtin_names(request: Request) -> list[str]:
+    """The built-in styles of the loaded models (none while they load)."""
+    registry = getattr(getattr(request.app.state, "service", None), "registry", None)
+    return [name for model in registry for name in model.engine.bundle.styles] if registry is not None else []
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -138,16 +156,17 @@ def install_error_handlers(app: FastAPI) -> None:
         invalid = [e for e in errors if e.get("type") == "json_invalid"]
         if invalid:
             detail = (invalid[0].get("ctx") or {}).get("error") or invalid[0].get("msg", "")
-            code, message = "invalid_json", f"the request body is not valid JSON: {detail}"
+            code, message = "invalid_json", f"the request body is not valid JSON: {detail}" + _raw_bvh_hint(exc.body)
         elif not _json_media_type(request.headers.get("content-type")) and any(_whole_body(e) for e in errors):
             # FastAPI reads a body as JSON only when it says it is: anything else arrives as text, "not a dict".
             sent = request.headers.get("content-type")
             code = "unsupported_media_type"
             message = (f"the request body must be JSON sent with Content-Type: application/json; this request has "
                        f"{'Content-Type: ' + sent[:100] if sent else 'no Content-Type'} (curl: -H 'content-type: "
-                       "application/json')")
+                       "application/json'); BVH text goes inside that JSON as a Motion, {\"bvh\": \"<the BVH file's "
+                       "text>\"}" + _raw_bvh_hint(exc.body))
         else:
-            code, message = "validation_error", describe_validation(errors)
+            code, message = "validation_error", describe_validation(errors, builtin_names=_builtin_names(request))
         _count(request, code)
         return error_response(code, message)
 

@@ -78,3 +78,47 @@ def test_a_too_long_style_clip_names_the_option_that_cuts_it(server) -> None:
     assert f"--start S --frames {most}" in err["message"] and "middle" in err["message"], err
     inline = httpx.post(server.url + "/v1/transition", json=transition_body(10, style=bvh(walk(most + 1))), timeout=60)
     assert inline.status_code == 422 and "--start S --frames" in inline.json()["error"]["message"]
+
+
+@pytest.mark.parametrize(("style", "wanted"), [
+    ("brisk", '"style_id": "builtin:brisk" instead of "style"'),
+    ("Brisk", '"style_id": "builtin:brisk" instead of "style"'),
+    ("walk-1", '"style_id": "<id>" instead of "style": an id from POST /v1/styles or builtin:NAME (the models have '
+               'builtin:brisk; GET /v1/styles lists them)'),
+])
+def test_a_name_in_style_says_to_send_style_id(server, style: str, wanted: str) -> None:
+    """Issue 64: {"style": "elderly"} answered pydantic's "style.BvhMotion: Input should be a valid dictionary..."."""
+    r = httpx.post(server.url + "/v1/transition", json=transition_body(10, style=style), timeout=30)
+    err = r.json()["error"]
+    assert r.status_code == 422 and err["code"] == "validation_error", err
+    assert err["message"].startswith("style: takes a style clip (a Motion, an object: BVH text as {\"bvh\": ") and \
+        wanted in err["message"], err
+    assert "BvhMotion" not in err["message"] and "PoseMotion" not in err["message"], err
+    with Ws(server.ws) as ws:  # the stream's start says the same (without the model's names at hand: the generic fix)
+        ws.send({**start_message("c", 10), "style": style})
+        got = ws.recv()
+    assert got["type"] == "error" and got["code"] == "validation_error" and "instead of \"style\"" in got["message"], got
+
+
+def test_motion_fields_of_the_wrong_shape_name_the_object_to_send(server) -> None:
+    text = bvh(walk(20))["bvh"]
+    r = httpx.post(server.url + "/v1/transition", json={**transition_body(10), "context": text}, timeout=30)
+    err = r.json()["error"]
+    assert r.status_code == 422 and err["message"].startswith("context: BVH text goes inside an object, "
+                                                               "{\"bvh\": \"<the BVH file's text>\"}"), err
+    r = httpx.post(server.url + "/v1/styles", json={"name": "x", "motion": {"bvh": 3}}, timeout=30)
+    assert r.status_code == 422 and r.json()["error"]["message"] == "motion.bvh: Input should be a valid string", r.text
+    r = httpx.post(server.url + "/v1/styles", json={"name": "x", "motions": [bvh(walk(20)), [1, 2]]}, timeout=30)
+    assert r.status_code == 422 and r.json()["error"]["message"].startswith("motions.1: expects a Motion, an object"), \
+        r.text
+
+
+@pytest.mark.parametrize("content_type", [None, "text/plain", "application/json"])
+def test_a_bvh_file_sent_as_the_body_is_shown_the_wrapper(server, content_type: str | None) -> None:
+    """Issue 64: a raw BVH body got a 415 without a word about the {"bvh": "<text>"} object it belongs in."""
+    headers = {"content-type": content_type} if content_type else {}
+    r = httpx.post(server.url + "/v1/transition", content=bvh(walk(20))["bvh"].encode(), headers=headers, timeout=30)
+    err = r.json()["error"]
+    assert r.status_code == (400 if content_type == "application/json" else 415), err
+    assert "This body is a BVH file: send it inside JSON, as the text of a Motion, {\"bvh\": \"<the BVH file's " \
+           "text>\"}" in err["message"] and "jq -Rs '{bvh: .}' walk.bvh" in err["message"], err
