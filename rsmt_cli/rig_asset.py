@@ -13,7 +13,6 @@ from __future__ import annotations
 import base64
 import json
 import math
-import struct
 from pathlib import Path
 from typing import Any
 
@@ -218,20 +217,3 @@ def export(skeleton: Path, out: Path, stem: str, fps: float) -> dict[str, Path]:
     files["gltf"].write_text(json.dumps(to_gltf(rig, rest, motion, fps), indent=1) + "\n", encoding="utf-8")
     files["tpose"].write_text(json.dumps(reference_json(rig, rest), indent=1) + "\n", encoding="utf-8")
     return files
-
-
-def buffer_bytes(gltf: dict[str, Any]) -> bytes:
-    """The embedded buffer of a document written by :func:`to_gltf`."""
-    uri = gltf["buffers"][0]["uri"]
-    return base64.b64decode(uri.split(",", 1)[1])
-
-
-def read_accessor(gltf: dict[str, Any], index: int) -> np.ndarray:
-    """An accessor's values as float64 [count, width] (float32 and uint16 components)."""
-    acc = gltf["accessors"][index]
-    view = gltf["bufferViews"][acc["bufferView"]]
-    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[acc["type"]]
-    fmt = "f" if acc["componentType"] == _FLOAT else "H"
-    size = struct.calcsize("<" + fmt)
-    raw = buffer_bytes(gltf)[view["byteOffset"]:view["byteOffset"] + acc["count"] * width * size]
-    return np.array(struct.unpack(f"<{acc['count'] * width}{fmt}", raw), dtype=np.float64).reshape(acc["count"], width)

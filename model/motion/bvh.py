@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from model.motion.bvh_parser import (
-    CANONICAL_CHANNEL,
     CHANNEL_NAMES,
     POSITION_CHANNELS,
     ROTATION_CHANNELS,
@@ -99,15 +98,6 @@ class BvhDocument:
             if j.name == name:
                 return i
         raise KeyError(f"no joint named {name!r}")
-
-    def channel_index(self, joint: str, channel: str) -> int:
-        """The motion column of one joint's channel."""
-        i = self.joint_index(joint)
-        key = CANONICAL_CHANNEL.get(channel.lower(), channel)
-        try:
-            return self.channel_slices()[i].start + self.joints[i].channels.index(key)
-        except ValueError:
-            raise KeyError(f"joint {joint!r} has no channel {channel!r}") from None
 
     def children(self) -> list[list[int]]:
         kids: list[list[int]] = [[] for _ in self.joints]

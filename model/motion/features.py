@@ -183,13 +183,6 @@ def compute_features(global_positions: Tensor, global_rotations: Tensor, skeleto
     )
 
 
-def clip_features(clip: Clip, reference_frame: int) -> tuple[MotionFeatures, CanonicalFrame]:
-    """Features of a clip in the canonical frame of ``reference_frame``."""
-    pos, rot = clip.global_transforms()
-    frame = CanonicalFrame.at_frame(pos, clip.skeleton, reference_frame)
-    return compute_features(frame.positions_to(pos), frame.rotations_to(rot), clip.skeleton), frame
-
-
 def features_to_local(
     positions: Tensor, rotations_6d: Tensor, skeleton: Skeleton, frame: CanonicalFrame | None = None
 ) -> tuple[Tensor, Tensor]:
@@ -203,13 +196,6 @@ def features_to_local(
         rot = frame.rotations_from(rot)
         root = frame.positions_from(root)
     return global_to_local_rotations(rot, skeleton.parents), root
-
-
-def features_to_clip(features: MotionFeatures, skeleton: Skeleton, fps: float = MODEL_FPS,
-                     frame: CanonicalFrame | None = None, name: str = "") -> Clip:
-    """A clip from features of one motion (``[T, ...]`` tensors)."""
-    local, root = features_to_local(features.positions, features.rotations_6d, skeleton, frame)
-    return Clip(skeleton=skeleton, rotations=local, root_positions=root, fps=fps, name=name)
 
 
 def temporal_rescale(clip: Clip, generator: torch.Generator | None = None) -> Clip:

@@ -155,27 +155,6 @@ def global_to_local_rotations(global_rotations: Tensor, parents: Sequence[int]) 
     return torch.cat([global_rotations[..., :1, :], local[..., 1:, :]], dim=-2)
 
 
-def inverse_kinematics(
-    global_positions: Tensor, global_rotations: Tensor, parents: Sequence[int]
-) -> tuple[Tensor, Tensor]:
-    """Invert :func:`forward_kinematics`: ``(local_rotations [..., J, 4], root_positions [..., 3])``.
-
-    The bone offsets are the skeleton's, so only the root position is read from
-    ``global_positions``; use :func:`bone_offsets_from_positions` to recover offsets.
-    """
-    return global_to_local_rotations(global_rotations, parents), global_positions[..., 0, :]
-
-
-def bone_offsets_from_positions(
-    global_positions: Tensor, global_rotations: Tensor, parents: Sequence[int]
-) -> Tensor:
-    """Per-frame offsets ``[..., J, 3]`` in each parent's frame that reproduce the positions."""
-    idx = torch.tensor([max(p, 0) for p in parents], device=global_positions.device)
-    delta = global_positions - global_positions.index_select(-2, idx)
-    offsets = quat_rotate(quat_conjugate(global_rotations.index_select(-2, idx)), delta)
-    return torch.cat([torch.zeros_like(offsets[..., :1, :]), offsets[..., 1:, :]], dim=-2)
-
-
 def two_bone_ik(
     root_pos: Tensor, mid_pos: Tensor, end_pos: Tensor, root_rot: Tensor, mid_rot: Tensor, target: Tensor, eps: float = 1e-4
 ) -> tuple[Tensor, Tensor]:

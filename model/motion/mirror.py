@@ -13,12 +13,9 @@ so mirroring twice is exactly the identity.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import torch
 
-from model.motion.clip import Clip
-from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.rotations import matrix_to_quat, quat_to_matrix
 from model.motion.skeleton import Skeleton, SkeletonError
 
@@ -160,24 +157,3 @@ def mirror_global(
     mats = quat_to_matrix(rotations.index_select(-2, idx).double())
     mats = WORLD_MIRROR @ mats @ a
     return pos, matrix_to_quat(mats).to(rotations.dtype)
-
-
-def mirror_clip(clip: Clip, reflections: Tensor | None = None) -> Clip:
-    """The clip mirrored left/right (a left turn becomes a right turn); twice gives it back.
-
-    ``reflections`` from :func:`mirror_reflections` (with reference motion for rigs whose rest
-    pose is not anatomical); derived from the rest offsets alone when omitted.
-    """
-    sk = clip.skeleton
-    pos, rot = forward_kinematics(
-        clip.rotations.double(), clip.root_positions.double(), sk.offsets_tensor(torch.float64), sk.parents
-    )
-    mpos, mrot = mirror_global(pos, rot, sk, reflections)
-    local = global_to_local_rotations(mrot, sk.parents)
-    root = mpos[..., 0, :]  # the root lies on the midline, so it is its own counterpart
-    return replace(
-        clip,
-        rotations=local.to(clip.rotations.dtype),
-        root_positions=root.to(clip.root_positions.dtype),
-        name=f"mirror({clip.name})" if clip.name else "mirror",
-    )

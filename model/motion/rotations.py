@@ -45,8 +45,6 @@ def quat_conjugate(q: Tensor) -> Tensor:
     return torch.cat([-q[..., :3], q[..., 3:]], dim=-1)
 
 
-quat_inverse = quat_conjugate
-
 
 # Coefficient of a_i * b_j in component k of the Hamilton product a * b (x, y, z, w), as rows 4i + j.
 # One outer product and one small matmul replace 28 scalar-lane multiplies and adds: at batch 1 the
@@ -200,38 +198,6 @@ def axis_angle_to_quat(axis: Tensor, angle: Tensor) -> Tensor:
     return torch.cat([axis * torch.sin(half), torch.cos(half)], dim=-1)
 
 
-def rotvec_to_quat(v: Tensor) -> Tensor:
-    """Rotation vectors (axis times angle in radians) ``(..., 3)`` to quaternions."""
-    angle = v.norm(dim=-1, keepdim=True)
-    half = 0.5 * angle
-    # sin(x/2)/x -> 1/2 as x -> 0; the Taylor branch keeps gradients finite.
-    small = angle < 1e-6
-    k = torch.where(small, 0.5 - angle * angle / 48.0, torch.sin(half) / angle.clamp_min(1e-12))
-    return torch.cat([v * k, torch.cos(half)], dim=-1)
-
-
-def quat_to_rotvec(q: Tensor) -> Tensor:
-    """Unit quaternions to rotation vectors with angle in ``[0, pi]``."""
-    q = quat_canonical(quat_normalize(q))
-    s = q[..., :3].norm(dim=-1, keepdim=True)
-    angle = 2.0 * torch.atan2(s, q[..., 3:])
-    small = s < 1e-6
-    k = torch.where(small, 2.0 + angle * angle / 12.0, angle / s.clamp_min(1e-12))
-    return q[..., :3] * k
-
-
-def _axis_matrix(axis: int, angle: Tensor) -> Tensor:
-    c, s = torch.cos(angle), torch.sin(angle)
-    one, zero = torch.ones_like(angle), torch.zeros_like(angle)
-    if axis == 0:
-        rows = [one, zero, zero, zero, c, -s, zero, s, c]
-    elif axis == 1:
-        rows = [c, zero, s, zero, one, zero, -s, zero, c]
-    else:
-        rows = [c, -s, zero, s, c, zero, zero, zero, one]
-    return torch.stack(rows, dim=-1).reshape(*angle.shape, 3, 3)
-
-
 def _parse_order(order: str) -> tuple[int, int, int]:
     up = order.upper()
     if len(up) != 3 or any(c not in _AXES for c in up) or len(set(up)) != 3:
@@ -239,12 +205,6 @@ def _parse_order(order: str) -> tuple[int, int, int]:
             f"Euler order {order!r} is not supported: use three distinct axes from X, Y, Z, e.g. 'ZXY'"
         )
     return _AXES[up[0]], _AXES[up[1]], _AXES[up[2]]
-
-
-def euler_to_matrix(angles: Tensor, order: str) -> Tensor:
-    """Euler angles ``(..., 3)`` in radians, listed in ``order``, to matrices ``(..., 3, 3)``."""
-    i, j, k = _parse_order(order)
-    return _axis_matrix(i, angles[..., 0]) @ _axis_matrix(j, angles[..., 1]) @ _axis_matrix(k, angles[..., 2])
 
 
 def matrix_to_euler(m: Tensor, order: str) -> Tensor:
@@ -300,30 +260,6 @@ def quat_slerp(a: Tensor, b: Tensor, t: Tensor | float) -> Tensor:
     wa = torch.where(near, 1.0 - t, torch.sin((1.0 - t) * theta) / safe)
     wb = torch.where(near, t, torch.sin(t * theta) / safe)
     return quat_normalize(wa * a + wb * b)
-
-
-def quat_between(u: Tensor, v: Tensor) -> Tensor:
-    """The shortest-arc rotation taking direction ``u (..., 3)`` onto direction ``v (..., 3)``.
-
-    For opposite directions any perpendicular axis is valid; one is chosen deterministically.
-    """
-    u = u / u.norm(dim=-1, keepdim=True).clamp_min(_EPS)
-    v = v / v.norm(dim=-1, keepdim=True).clamp_min(_EPS)
-    w = 1.0 + (u * v).sum(-1, keepdim=True)
-    axis = torch.linalg.cross(u, v, dim=-1)
-    # For u ~ -v pick an axis perpendicular to u: cross with the least aligned basis vector.
-    ex = torch.zeros_like(u)
-    ex[..., 0] = 1.0
-    ey = torch.zeros_like(u)
-    ey[..., 1] = 1.0
-    other = torch.where(u[..., :1].abs() < 0.9, ex, ey)
-    perp = torch.linalg.cross(u, other, dim=-1)
-    # Only where 1 + u.v is lost in rounding is the cross product no guide: a fixed threshold (1e-7
-    # used to be) snapped directions up to 4.5e-4 rad short of opposite onto exactly -u.
-    opposite = w <= torch.finfo(w.dtype).eps
-    axis = torch.where(opposite, perp, axis)
-    w = torch.where(opposite, torch.zeros_like(w), w)
-    return quat_normalize(torch.cat([axis, w], dim=-1))
 
 
 def quat_angle(a: Tensor, b: Tensor) -> Tensor:

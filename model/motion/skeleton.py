@@ -310,12 +310,6 @@ class Skeleton:
         """Rest offsets as a ``(J, 3)`` tensor."""
         return torch.tensor(self.offsets, dtype=dtype)
 
-    def bone_lengths(self) -> torch.Tensor:
-        """Length of each joint's offset ``(J,)`` (0 for the root)."""
-        lengths = self.offsets_tensor(torch.float64).norm(dim=-1)
-        lengths[0] = 0.0
-        return lengths.float()
-
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
         return {

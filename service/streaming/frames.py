@@ -53,12 +53,3 @@ def encode_json(character: str, slot: int, seq: int, t: float, remaining: int, r
          "pose": {"root_position": root, "rotations": rotations}},
         option=orjson.OPT_SERIALIZE_NUMPY,
     ).decode()
-
-
-def decode_binary(data: bytes, joints: int) -> dict:
-    """The inverse of :func:`encode_binary` for one message (used by tests and the load script)."""
-    v = np.frombuffer(data, dtype="<f4")
-    if v.size != floats_per_frame(joints):
-        raise ValueError(f"expected {floats_per_frame(joints)} floats, got {v.size}")
-    return {"slot": int(v[0]), "seq": int(v[1]), "t": float(v[2]), "root_position": v[3:6].copy(),
-            "rotations": v[6 : 6 + 4 * joints].reshape(joints, 4).copy(), "remaining": int(v[-1])}

@@ -4,8 +4,10 @@ joints sit where the model's forward kinematics puts them. The Unity package has
 
 from __future__ import annotations
 
+import base64
 import json
 import re
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -16,12 +18,25 @@ from model.motion.bvh_clip import load_clip
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_to_matrix
 from rsmt_cli.main import main as rsmt_main
-from rsmt_cli.rig_asset import read_accessor
 from rsmt_cli.unity_meta import assets, ignored
 from tests.clients.helpers import REPO, UNITY
 
 RIG = REPO / "clients" / "rig"
 STEM = "rsmt-default-rig"
+GLTF_FLOAT = 5126  # a glTF accessor's componentType for float32 (the rig's other one: 5123, uint16)
+
+
+def read_accessor(gltf: dict, index: int) -> np.ndarray:
+    """An accessor's values of a document with one embedded buffer, as float64 [count, width]."""
+    acc = gltf["accessors"][index]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[acc["type"]]
+    fmt = "f" if acc["componentType"] == GLTF_FLOAT else "H"
+    data = base64.b64decode(gltf["buffers"][0]["uri"].split(",", 1)[1])
+    raw = data[view["byteOffset"]:view["byteOffset"] + acc["count"] * width * struct.calcsize("<" + fmt)]
+    return np.array(struct.unpack(f"<{acc['count'] * width}{fmt}", raw), dtype=np.float64).reshape(acc["count"], width)
+
+
 SKELETON = json.loads((REPO / "model" / "default_bundle" / "skeleton.json").read_text())
 NAMES = [j["name"] for j in SKELETON["joints"]]
 PARENTS = [j["parent"] for j in SKELETON["joints"]]

@@ -9,7 +9,16 @@ from typing import Any
 import numpy as np
 from websockets.sync.client import connect
 
-from service.streaming.frames import decode_binary
+from service.streaming.frames import floats_per_frame
+
+
+def decode_binary(data: bytes, joints: int) -> dict:
+    """One binary frame message (``service.streaming.frames.encode_binary``) as slot, seq, t, pose and remaining."""
+    v = np.frombuffer(data, dtype="<f4")
+    if v.size != floats_per_frame(joints):
+        raise ValueError(f"expected {floats_per_frame(joints)} floats, got {v.size}")
+    return {"slot": int(v[0]), "seq": int(v[1]), "t": float(v[2]), "root_position": v[3:6].copy(),
+            "rotations": v[6 : 6 + 4 * joints].reshape(joints, 4).copy(), "remaining": int(v[-1])}
 
 
 class Ws:

@@ -9,9 +9,10 @@ import pytest
 import torch
 
 from model.motion.bvh_clip import load_clip
-from model.motion.features import clip_features, facing_yaw, features_to_local
+from model.motion.features import facing_yaw, features_to_local
 from model.motion.kinematics import forward_kinematics
-from model.motion.mirror import mirror_clip, mirror_reflections
+from model.motion.mirror import mirror_reflections
+from tests.model.motion.clip_forms import bone_lengths, clip_features, mirror_clip
 
 pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]
 
@@ -45,7 +46,7 @@ def test_bodies_are_plausible(takes):
         assert 70.0 <= hips <= 100.0, (path.name, hips)
         # Joints stay connected: every bone keeps its rest length.
         lengths = (pos[:, 1:] - pos[:, list(sk.parents[1:])]).norm(dim=-1)
-        rest = sk.bone_lengths()[1:]
+        rest = bone_lengths(sk)[1:]
         assert torch.allclose(lengths, rest.expand_as(lengths), atol=1e-2)
 
 

@@ -32,6 +32,12 @@ def euler_matrix(degrees: np.ndarray, order: str) -> np.ndarray:
     return m
 
 
+def channel_column(doc: BvhDocument, joint: str, channel: str) -> int:
+    """The motion column of one joint's channel (``Xposition``, ``Zrotation``, ...), counted from the joints."""
+    i = [j.name for j in doc.joints].index(joint)
+    return sum(len(j.channels) for j in doc.joints[:i]) + list(doc.joints[i].channels).index(channel)
+
+
 def reference_world(doc: BvhDocument) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """World ``(positions [T, 3], rotations [T, 3, 3])`` per joint name, straight from BVH semantics.
 

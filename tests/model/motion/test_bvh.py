@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from model.motion.bvh import BvhDocument, BvhError, BvhJoint
-from tests.model.motion.bvh_reference import reference_world
+from tests.model.motion.bvh_reference import channel_column, reference_world
 
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 MIXED = FIXTURES / "mixed_channels.bvh"
@@ -40,8 +40,8 @@ def test_parse_mixed_fixture_structure() -> None:
     assert j["Hips"].offset == (1.5, 90.0, -3.0)
     assert doc.frame_time == 0.008333
     assert doc.motion.shape == (5, 34) and doc.motion.dtype == np.float64
-    assert doc.channel_index("Neck", "Yposition") == 6 + 3 + 4
-    assert doc.motion[:, doc.channel_index("Neck", "Yposition")] == pytest.approx([25.0] * 5)
+    assert channel_column(doc, "Neck", "Yposition") == 6 + 3 + 4
+    assert doc.motion[:, channel_column(doc, "Neck", "Yposition")] == pytest.approx([25.0] * 5)
     slices = doc.channel_slices()
     assert [s.stop - s.start for s in slices] == [len(jt.channels) for jt in doc.joints]
 

@@ -21,7 +21,7 @@ from model.motion.bvh import BvhDocument, BvhJoint
 from model.motion.bvh_clip import dump_clip, from_clip, load_clip, to_clip
 from model.motion.rotations import quat_angle, quat_to_matrix
 from model.motion.skeleton import SkeletonError, SkeletonProfile
-from tests.model.motion.bvh_reference import angle_between_matrices, euler_matrix, reference_world, wrapped_diff
+from tests.model.motion.bvh_reference import angle_between_matrices, channel_column, euler_matrix, reference_world, wrapped_diff
 
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 MIXED = FIXTURES / "mixed_channels.bvh"
@@ -66,7 +66,7 @@ def test_bandai_rig_folds_joint_root_into_hips() -> None:
     assert clip.fps == 30.0 and clip.name == "rig" and clip.num_frames == 3
     # joint_Root moves and turns in this fixture, so the Hips world position is not its channels.
     ref = reference_world(doc)
-    hips_channels = doc.motion[:, doc.channel_index("Hips", "Xposition"):][:, :3]
+    hips_channels = doc.motion[:, channel_column(doc, "Hips", "Xposition"):][:, :3]
     assert np.abs(ref["Hips"][0] - hips_channels).max() > 1.0
     np.testing.assert_allclose(clip.root_positions.numpy(), ref["Hips"][0], rtol=0, atol=1e-9)
     # Like the real takes, non-root position channels jitter by ~1e-5 cm around the bone length,
@@ -193,7 +193,7 @@ Frame Time: 0.04
 def test_animated_bone_translation_warns(caplog: pytest.LogCaptureFixture) -> None:
     doc = BvhDocument.read(MIXED)
     motion = doc.motion.copy()
-    col = doc.channel_index("Neck", "Xposition")
+    col = channel_column(doc, "Neck", "Xposition")
     motion[:, col] = [0.0, 0.5, 1.0, 0.5, 0.0]
     with caplog.at_level(logging.WARNING, logger="model.motion.bvh_clip"):
         clip = to_clip(BvhDocument(doc.joints, doc.frame_time, motion), profile=MIXED_PROFILE, name="moving")
