@@ -334,7 +334,6 @@ class MotionCache:
         self.styles: list[str] = sorted({t.style for t in self.takes})
         self.contents: list[str] = sorted({t.content for t in self.takes})
         self._style_ids = {s: i for i, s in enumerate(self.styles)}
-        self._content_ids = {c: i for i, c in enumerate(self.contents)}
         self._skeletons = [Skeleton.from_dict(s) for s in meta["skeletons"]]
 
     @classmethod
@@ -420,9 +419,6 @@ class MotionCache:
 
     def style_id(self, take: int | str | Take) -> int:
         return self._style_ids[self.takes[self.index_of(take)].style]
-
-    def content_id(self, take: int | str | Take) -> int:
-        return self._content_ids[self.takes[self.index_of(take)].content]
 
     @cached_property
     def split(self) -> Split:

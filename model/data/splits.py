@@ -66,10 +66,6 @@ class Split:
             raise KeyError(f"no split {name!r}: use one of {', '.join(SPLITS)}, holdout")
         return getattr(self, name)
 
-    def assignment(self) -> dict[int, str]:
-        """Split name per take index."""
-        return {i: name for name in (*SPLITS, "holdout") for i in self[name]}
-
     def sizes(self) -> dict[str, int]:
         return {name: len(self[name]) for name in (*SPLITS, "holdout")}
 

@@ -51,7 +51,7 @@ def test_build_contents(tmp_path: Path) -> None:
     torch.testing.assert_close(clip.root_positions, reference.root_positions)
     assert clip.skeleton == reference.skeleton
     i = cache.index_of(take)
-    assert cache.takes[i].style == "elderly" and cache.style_id(i) == 1 and cache.content_id(i) == 1
+    assert cache.takes[i].style == "elderly" and cache.style_id(i) == 1
     assert cache.clip(cache.takes[i]).num_frames == cache.clip(i).num_frames
     assert cache.indices_of([take, take]) == [i, i] and cache.indices_of([]) == []
     with pytest.raises(ValueError, match=r"no take nosuch, other in the data \(clips are named by take id\)"):

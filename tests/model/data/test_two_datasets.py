@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from model.data.location import DEFAULT_DATASET_1, DEFAULT_UNPACKED
-from model.data.splits import split_takes
+from model.data.splits import SPLITS, split_takes
 from model.data.takes import Take, index_takes, read_bvh_header, relabel
 
 D1_STYLES = ("active", "angry", "childish", "feminine", "happy", "masculinity", "musical", "normal", "old", "tired")
@@ -33,7 +33,7 @@ def _folders(tmp_path: Path) -> tuple[Path, Path]:
 
 def _assignment(takes: list[Take], frames: list[int] | None = None) -> dict[str, str]:
     split = split_takes(takes, frames=frames)
-    return {takes[i].take_id: name for i, name in split.assignment().items()}
+    return {takes[i].take_id: name for name in (*SPLITS, "holdout") for i in split[name]}
 
 
 def test_second_folder_moves_no_take_of_the_first(tmp_path: Path) -> None:
