@@ -166,6 +166,12 @@ class Bundle:
         self.skeleton.save(path / "skeleton.json")
         if self.gait_limits is not None:
             self.gait_limits.save(path)
+        self._save_styles(path)
+        self._save_adapters(path)
+        return path
+
+    def _save_styles(self, path: Path) -> None:
+        """``styles/``: the built-in styles encoded by these weights (none, with a warning, where any was not)."""
         own = {n: s for n, s in self.styles.items() if not s.weights}
         stale = sorted(n for n, s in own.items() if s.version != self.version)
         if own and not stale:
@@ -174,6 +180,9 @@ class Bundle:
             log.warning("%s: built-in styles %s were encoded by model version %s, not by these weights (%s); they are "
                         "not saved: re-encode them with `rsmt bundle add-styles %s --from DIR` (or --from-data DATA)",
                         path, ", ".join(stale), own[stale[0]].version, self.version, path)
+
+    def _save_adapters(self, path: Path) -> None:
+        """``adapters/``: the style adapters tuned from these weights (the others left out with a warning)."""
         kept = {n: a for n, a in self.adapters.items() if a.base_version == self.version}
         if len(kept) < len(self.adapters):  # tuned from other weights: they would not fit these
             log.warning("%s: style adapters %s were tuned from model version %s, not from these weights (%s); they are "
@@ -185,7 +194,6 @@ class Bundle:
                 save_adapters(path, kept, self.styles, self.skeleton, self.config.fps)
             except AdapterError as exc:
                 raise BundleError(f"{path}: {exc}") from exc
-        return path
 
     def _load_styles(self, path: Path, own: bool) -> None:
         """The built-in styles of ``styles/`` (``own``) and of the adapters, into ``self.styles``."""

@@ -86,39 +86,58 @@ class CharacterBatch:
         self._pending.append(ch)
 
     def _sync(self) -> None:
+        """Bring the stacked tensors up to date: characters waiting to join joined, the style contexts restacked
+        after a membership or style change."""
         if self._pending:
-            fresh = [c for c in self._pending if c.row is None]
-            resumed = [(c, c.row) for c in self._pending if c.row is not None]
-            rows = [self._state] if self._state is not None else []
-            if fresh:
-                rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
-            rows += [row for _, row in resumed]
-            joined = fresh + [c for c, _ in resumed]
-            held = [CanonicalFrame(self._yaw, self._origin)] if self._yaw is not None and self._origin is not None else []
-            frames = held + [c.canonical_frame() for c in joined]
-            self._state = type(rows[0]).stack(rows)
-            self._yaw = torch.cat([f.yaw for f in frames])
-            self._origin = torch.cat([f.origin for f in frames])
-            memories = ([self._memory] if self._memory is not None else []) + [c.memory for c in joined]
-            held_memories = [m for m in memories if m is not None]
-            if len(held_memories) < len(memories):
-                raise ValueError("character was not prepared by Engine.prepare")
-            self._memory = {k: torch.cat([m[k] for m in held_memories]) for k in held_memories[0]}
-            for c in joined:
-                c.row = None
-                c.memory = None
-            self.members.extend(joined)
+            self._join(self._pending)
             self._pending = []
             self._style_dirty = True
         if self._style_dirty and self.members:
-            contexts = [self.engine.context_of(m.style, m.style_strength) for m in self.members]
-            self._style = type(contexts[0]).stack(contexts)
-            groups = by_weights(self.members)
-            whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
-            self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))
-                            for w, idx in groups]
-            self._inverse = inverse_of(groups) if len(groups) > 1 else None
-            self._style_dirty = False
+            self._restyle()
+
+    def _join(self, waiting: list[Character]) -> None:
+        """Stack ``waiting`` under the members: newcomers warmed up in one batch, resumed ones with the rows they
+        hold; each hands its canonical frame and output memory to the batch."""
+        fresh = [c for c in waiting if c.row is None]
+        resumed = [c for c in waiting if c.row is not None]
+        joined = fresh + resumed
+        if any(c.memory is None for c in joined):
+            raise ValueError("character was not prepared by Engine.prepare")
+        rows = [] if self._state is None else [self._state]
+        if fresh:
+            rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
+        rows += [c.row for c in resumed]  # type: ignore[misc]  # resumed ones hold a row
+        self._state = type(rows[0]).stack(rows)
+        self._take_frames_and_memory(joined)
+        self.members.extend(joined)
+
+    def _take_frames_and_memory(self, joined: list[Character]) -> None:
+        """The canonical frames and output memories of ``joined`` stacked under the members' (the characters
+        hold neither afterwards)."""
+        frames = [c.canonical_frame() for c in joined]
+        memories = [c.memory for c in joined]
+        if self._yaw is not None and self._origin is not None:
+            frames.insert(0, CanonicalFrame(self._yaw, self._origin))
+        if self._memory is not None:
+            memories.insert(0, self._memory)
+        self._yaw = torch.cat([f.yaw for f in frames])
+        self._origin = torch.cat([f.origin for f in frames])
+        held = [m for m in memories if m is not None]
+        self._memory = {k: torch.cat([m[k] for m in held]) for k in held[0]}
+        for c in joined:
+            c.row = None
+            c.memory = None
+
+    def _restyle(self) -> None:
+        """The members' style contexts stacked (at each one's strength) and grouped by weight set."""
+        contexts = [self.engine.context_of(m.style, m.style_strength) for m in self.members]
+        self._style = type(contexts[0]).stack(contexts)
+        groups = by_weights(self.members)
+        whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
+        self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))
+                        for w, idx in groups]
+        self._inverse = inverse_of(groups) if len(groups) > 1 else None
+        self._style_dirty = False
 
     @torch.inference_mode()
     def set_style(self, ch: Character, style: EncodedStyle) -> None:
