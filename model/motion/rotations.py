@@ -262,16 +262,6 @@ def quat_slerp(a: Tensor, b: Tensor, t: Tensor | float) -> Tensor:
     return quat_normalize(wa * a + wb * b)
 
 
-def quat_angle(a: Tensor, b: Tensor) -> Tensor:
-    """Angle in radians between rotations ``a`` and ``b`` (sign-invariant), shape ``(...)``.
-
-    Computed as ``2 atan2(|v|, |w|)`` of the relative rotation, which stays accurate for tiny
-    angles where ``acos`` of a dot product loses everything in float32.
-    """
-    rel = quat_mul(quat_conjugate(quat_normalize(a)), quat_normalize(b))
-    return 2.0 * torch.atan2(rel[..., :3].norm(dim=-1), rel[..., 3].abs())
-
-
 def yaw_quat(angle: Tensor) -> Tensor:
     """Rotations of ``angle (...)`` radians about the +Y (up) axis."""
     half = 0.5 * angle

@@ -29,10 +29,10 @@ from rsmt_client import (
 
 from model.data.synthetic import synthetic_walk
 from model.motion.bvh_clip import dump_clip, load_clip
-from model.motion.rotations import quat_angle
 from rsmt_cli.main import main as rsmt_main
 from tests.clients.conftest import serve_command
 from tests.clients.helpers import API_KEY, FRAMES, SEED
+from tests.model.motion.rotation_angle import quat_angle
 from tests.service.server import Server
 
 

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from model.evaluation.baselines import interpolate, zero_velocity
-from model.motion.rotations import quat_angle, quat_normalize, yaw_quat
+from model.motion.rotations import quat_normalize, yaw_quat
+from tests.model.motion.rotation_angle import quat_angle
 
 BASELINES = [interpolate, zero_velocity]
 

@@ -15,7 +15,7 @@ from model.evaluation.cases import CONTEXT, LAST_CONTEXT, variant
 from model.evaluation.methods import Request
 from model.evaluation.motion_matching import MotionMatchingMethod, key_joints, smoothstep
 from model.evaluation.scoring import to_canonical
-from model.motion.rotations import quat_angle
+from tests.model.motion.rotation_angle import quat_angle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -8,7 +8,8 @@ import torch
 from model.data.synthetic import synthetic_walk
 from model.inference.output.arrival import arrival_weight, exact_arrival
 from model.motion.kinematics import forward_kinematics
-from model.motion.rotations import axis_angle_to_quat, quat_angle
+from model.motion.rotations import axis_angle_to_quat
+from tests.model.motion.rotation_angle import quat_angle
 
 
 def test_weight_schedule():

@@ -168,7 +168,7 @@ def test_style_switch_mid_motion(engine, walk):
 
 
 def test_exact_arrival_lands_on_the_target(engine, walk):
-    from model.motion.rotations import quat_angle
+    from tests.model.motion.rotation_angle import quat_angle
 
     style, _ = engine.encode_style(walk.window(30, 150))
     target = walk.window(40, 42)

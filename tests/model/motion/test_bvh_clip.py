@@ -19,9 +19,10 @@ from hypothesis import strategies as st
 
 from model.motion.bvh import BvhDocument, BvhJoint
 from model.motion.bvh_clip import dump_clip, from_clip, load_clip, to_clip
-from model.motion.rotations import quat_angle, quat_to_matrix
+from model.motion.rotations import quat_to_matrix
 from model.motion.skeleton import SkeletonError, SkeletonProfile
 from tests.model.motion.bvh_reference import angle_between_matrices, channel_column, euler_matrix, reference_world, wrapped_diff
+from tests.model.motion.rotation_angle import quat_angle
 
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 MIXED = FIXTURES / "mixed_channels.bvh"

@@ -23,8 +23,9 @@ from model.motion.features import (
     velocities,
 )
 from model.motion.kinematics import forward_kinematics
-from model.motion.rotations import quat_angle, quat_normalize, quat_to_sixd
+from model.motion.rotations import quat_normalize, quat_to_sixd
 from tests.model.motion.clip_forms import clip_features
+from tests.model.motion.rotation_angle import quat_angle
 
 
 def test_facing_follows_walking_direction():

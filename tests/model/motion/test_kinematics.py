@@ -18,13 +18,13 @@ from model.motion.kinematics import (
 )
 from model.motion.rotations import (
     axis_angle_to_quat,
-    quat_angle,
     quat_conjugate,
     quat_identity,
     quat_mul,
     quat_normalize,
     quat_rotate,
 )
+from tests.model.motion.rotation_angle import quat_angle
 
 PARENTS = (-1, 0, 1, 2, 1, 0)
 OFFSETS = torch.tensor([[0, 0, 0], [0, 10, 0], [0, 10, 0], [0, 5, 0], [5, 0, 0], [0, -10, 0]], dtype=torch.float64)

@@ -9,8 +9,9 @@ import torch
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.motion.features import facing_yaw
 from model.motion.mirror import WORLD_MIRROR, mirror_reflections
-from model.motion.rotations import quat_angle, quat_normalize
+from model.motion.rotations import quat_normalize
 from tests.model.motion.clip_forms import mirror_clip
+from tests.model.motion.rotation_angle import quat_angle
 
 
 def test_mirror_twice_is_identity():

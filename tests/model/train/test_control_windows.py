@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from model.data.synthetic import write_synthetic_dataset
 from model.inference.bundle import Bundle
-from model.motion.rotations import quat_angle, quat_mul, quat_to_sixd, sixd_to_quat, yaw_quat
+from model.motion.rotations import quat_mul, quat_to_sixd, sixd_to_quat, yaw_quat
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerConfig, SamplerState, TransitionSampler
 from model.train.from_bundle import sampler_from_bundle
@@ -24,6 +24,7 @@ from model.train.sampler_config import SamplerStageConfig
 from model.train.sampler_rollout import turn_target
 from model.train.sampler_stage import trained_parameters
 from rsmt_cli.main import main
+from tests.model.motion.rotation_angle import quat_angle
 from tests.model.tiny_bundles import MANIFOLD, SAMPLER, tiny_bundle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
