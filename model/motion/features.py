@@ -19,7 +19,6 @@ from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
 
-MODEL_FPS = 30.0
 # Soft contact thresholds on foot speed (cm/frame at 30 fps), from the RSMT reference (1.8).
 CONTACT_SLOW = 0.5
 CONTACT_FAST = 1.0

@@ -31,7 +31,6 @@ TOE_REST_CM = 4.25
 CONTACT_HEIGHT_CM = 2.5
 MOVING_CM_S = 30.0
 AIRBORNE_CM = 15.0
-REST_PERCENTILE = 0.05
 
 
 def toe_joints(skeleton: Skeleton) -> tuple[int, int]:
@@ -100,11 +99,3 @@ def longest_airborne(pos: Tensor, toes: Sequence[int], rest: float | Tensor = TO
         run = torch.where(up[:, t], run + 1, torch.zeros_like(run))
         best = torch.maximum(best, run)
     return best
-
-
-def toe_rest_height(pos: Tensor, toes: Sequence[int], percentile: float = REST_PERCENTILE) -> float:
-    """A take's toe rest height (cm): the ``percentile`` of the lower toe's height over the frames of ``pos [T, J, 3]``."""
-    if pos.dim() != 3 or pos.shape[0] < 1:
-        raise ValueError(f"positions must be [T, J, 3] with T >= 1, got {list(pos.shape)}")
-    lower = pos[:, list(toes), 1].min(dim=-1).values
-    return float(torch.quantile(lower.double(), percentile))

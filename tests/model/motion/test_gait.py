@@ -74,10 +74,3 @@ def test_longest_airborne_run_counts_frames_with_both_toes_up() -> None:
     one_foot = ground.clone()
     one_foot[:, :, TOES[0], 1] += 30.0
     assert int(gait.longest_airborne(one_foot, TOES, rest)[0]) == 0
-
-
-def test_toe_rest_height_reads_the_planted_height() -> None:
-    pos = _walk(100, (0.0, 1.0), 0.3)[0]
-    lifted = pos.clone()
-    lifted[50:, :, 1] += 10.0  # half the take with the feet up
-    assert abs(gait.toe_rest_height(lifted, TOES) - float(pos[:, list(TOES), 1].min())) < 1e-4
