@@ -3,13 +3,13 @@
 Each model gets three executors: ``work`` (``request_threads`` threads) for HTTP requests (parsing,
 style encoding, ``prepare``, ``generate``) behind a bounded :class:`~service.work_queue.WorkQueue`;
 ``setup`` (as many threads) for stream setup (``start``, ``retarget`` and ``style`` payloads), a lane of
-its own so that an HTTP burst never delays a stream; and ``step``, a single thread that owns the
-scheduler's batches. Engine calls never run on the event loop.
+its own so that an HTTP burst never delays a stream, behind a queue of the same kind without a bound; and
+``step``, a single thread that owns the scheduler's batches. Both queues serve each API key's jobs in turn
+(:mod:`service.key_turns`). Engine calls never run on the event loop.
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
 from collections.abc import Awaitable, Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -29,6 +29,7 @@ from service.motion import MotionLimits
 from service.settings import Settings
 from service.streaming.scheduler import Scheduler
 from service.streaming.step_shares import StepShares
+from service.style_book import ANONYMOUS
 from service.style_store import StyleStore, style_store_factory
 from service.work_queue import WorkQueue
 
@@ -67,6 +68,7 @@ class LoadedModel:
     step: ThreadPoolExecutor
     setup: ThreadPoolExecutor  # stream setup: its own lane, never behind HTTP work
     queue: WorkQueue  # HTTP work waits here for ``work``
+    setup_queue: WorkQueue  # stream setup waits here for ``setup`` (no bound: each connection sends one at a time)
     max_transition: int
     limits: MotionLimits
     book: StyleStore  # the styles registered through this model, by owner (service.style_store)
@@ -97,14 +99,17 @@ class LoadedModel:
             "builtin_styles": builtin_list(engine),
         }
 
-    async def run(self, fn: Callable[..., T], *args: Any, gone: Callable[[], Awaitable[None]] | None = None) -> T:
-        """Run ``fn(*args)`` for an HTTP request on this model's work threads, through its bounded queue
-        (``overloaded`` when full, ``shutting_down`` once closed; ``gone``: see :meth:`WorkQueue.run`)."""
-        return await self.queue.run(fn, *args, gone=gone)
+    async def run(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS,
+                  gone: Callable[[], Awaitable[None]] | None = None) -> T:
+        """Run ``fn(*args)`` for an HTTP request of ``owner`` (the caller's owner digest) on this model's work
+        threads, through its bounded queue (``overloaded`` when ``owner``'s part is full, ``shutting_down`` once
+        closed; ``gone``: see :meth:`WorkQueue.run`)."""
+        return await self.queue.run(fn, *args, owner=owner, gone=gone)
 
-    async def run_stream(self, fn: Callable[..., T], *args: Any) -> T:
-        """Run ``fn(*args)`` for a stream's message on this model's stream-setup threads."""
-        return await asyncio.get_running_loop().run_in_executor(self.setup, fn, *args)
+    async def run_stream(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS) -> T:
+        """Run ``fn(*args)`` for a stream's message of ``owner`` on this model's stream-setup threads, in turn
+        with the other keys' (``shutting_down`` once closed)."""
+        return await self.setup_queue.run(fn, *args, owner=owner)
 
     def check_frames(self, frames: int) -> None:
         if frames > self.max_transition:
@@ -156,6 +161,7 @@ class Registry:
                 await m.scheduler.stop()
         self.close_queues()
         for m in self:
+            m.setup_queue.close()
             m.work.shutdown(wait=False, cancel_futures=True)
             m.setup.shutdown(wait=False, cancel_futures=True)
             m.step.shutdown(wait=False, cancel_futures=True)
@@ -194,10 +200,11 @@ def load_registry(settings: Settings) -> Registry:
         max_transition = min(engine.max_frames, cap) if cap else engine.max_frames
         limits = MotionLimits(settings.max_clip_frames, settings.quaternion_tolerance, settings.max_abs_position)
         work = _threads(settings.request_threads, f"work-{name}", settings.threads)
+        setup = _threads(settings.request_threads, f"setup-{name}", settings.threads)
         models.append(LoadedModel(
             name=name, path=path, engine=engine, max_transition=max_transition, limits=limits, work=work,
             queue=WorkQueue(work, settings.request_threads, settings.queue_limit, name=name),
-            setup=_threads(settings.request_threads, f"setup-{name}", settings.threads),
+            setup=setup, setup_queue=WorkQueue(setup, settings.request_threads, None, name=name),
             step=_threads(1, f"step-{name}", settings.threads),
             book=new_book(name, engine),
         ))

@@ -1,12 +1,16 @@
-"""The bounded queue in front of a model's work threads: HTTP engine work waits here, first come first served.
+"""The bounded queue in front of a model's threads: HTTP engine work waits here (and, without a bound, stream setup).
 
-At most ``threads`` jobs run at once; at most ``limit`` more wait. A job that finds the queue full is
-refused at once with 503 ``overloaded`` and a ``Retry-After`` estimated from the recent job times, so a
-burst costs the server nothing beyond what it can serve; :mod:`service.http.queue_gate` asks
-:meth:`WorkQueue.refusal` before the request's body is even read. A waiting job whose HTTP client has gone (its
-connection closed before the job started) is dropped, not run. At shutdown :meth:`WorkQueue.close`
-answers every waiting job 503 ``shutting_down`` at once and refuses new ones, so that only the jobs
-already running (at most ``threads``) are left for the graceful shutdown to wait for.
+At most ``threads`` jobs run at once. Each API key's jobs wait in a queue of their own, in order, and a free
+thread goes to the key that has used the least thread time (:mod:`service.key_turns`), so one key's burst
+delays another key's job by about one job, not by the whole burst. At most ``limit`` jobs of one key wait: its
+next one is refused at once with 503 ``overloaded`` and a ``Retry-After`` estimated from the recent job times,
+so a burst costs the server nothing beyond what it can serve and the refusal goes to the key that floods, never
+to a quiet one; :mod:`service.http.queue_gate` asks :meth:`WorkQueue.refusal` before the request's body is even
+read. With API keys off every job has the one owner ``""``: one first-come queue of at most ``limit``.
+
+A waiting job whose HTTP client has gone (its connection closed before the job started) is dropped, not run.
+At shutdown :meth:`WorkQueue.close` answers every waiting job 503 ``shutting_down`` at once and refuses new
+ones, so that only the jobs already running (at most ``threads``) are left for the graceful shutdown to wait for.
 
 Used from the event loop only; the jobs themselves run on the executor's threads.
 """
@@ -17,7 +21,7 @@ import asyncio
 import logging
 import math
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Awaitable, Callable
 from concurrent.futures import Executor
 from typing import Any, TypeVar
@@ -25,7 +29,9 @@ from typing import Any, TypeVar
 from starlette.types import Receive
 
 from service.errors import ClientGone, ServiceError
+from service.key_turns import KeyTurns
 from service.metrics import Metrics
+from service.style_book import ANONYMOUS
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -41,9 +47,10 @@ def shutting_down_error(started: bool = False) -> ServiceError:
 
 
 class WorkQueue:
-    """A FIFO of at most ``limit`` waiting jobs in front of ``threads`` running ones on ``executor``."""
+    """Per-key queues of at most ``limit`` waiting jobs each (None: no bound) in front of ``threads`` running ones
+    on ``executor``."""
 
-    def __init__(self, executor: Executor, threads: int, limit: int, metrics: Metrics | None = None,
+    def __init__(self, executor: Executor, threads: int, limit: int | None, metrics: Metrics | None = None,
                  name: str = "model") -> None:
         self.executor = executor
         self.threads = threads
@@ -52,40 +59,54 @@ class WorkQueue:
         self.name = name
         self.running = 0
         self.closed = False
-        self._waiting: deque[asyncio.Future[None]] = deque()
+        self._waiting: dict[str, deque[asyncio.Future[None]]] = {}  # per owner, oldest first; no empty deque
+        self._arrived: dict[asyncio.Future[None], int] = {}  # each waiting ticket's place in the order of arrival
+        self._arrivals = 0
+        self._running_of: Counter[str] = Counter()  # jobs running per owner
+        self._turns = KeyTurns()  # thread time per owner with jobs waiting or running
         self._job_s = 0.05  # moving average of job times, for Retry-After
 
     @property
     def waiting(self) -> int:
-        return len(self._waiting)
+        return sum(len(q) for q in self._waiting.values())
 
-    def retry_after_s(self) -> int:
-        """Whole seconds until the queue has likely room again (at least 1)."""
-        backlog = (len(self._waiting) + self.running) * self._job_s / max(1, self.threads)
+    def waiting_of(self, owner: str) -> int:
+        """How many jobs of ``owner`` wait."""
+        return len(self._waiting.get(owner, ()))
+
+    def retry_after_s(self, owner: str = ANONYMOUS) -> int:
+        """Whole seconds until ``owner``'s queue has likely room again (at least 1): its own waiting jobs, and as
+        many of every other key's (their turns come in between), at the recent job time."""
+        own = self.waiting_of(owner)
+        ahead = sum(min(len(q), max(1, own)) for q in self._waiting.values())
+        backlog = (ahead + self.running) * self._job_s / max(1, self.threads)
         return max(1, math.ceil(backlog))
 
-    async def run(self, fn: Callable[..., T], *args: Any, gone: Callable[[], Awaitable[None]] | None = None) -> T:
-        """Run ``fn(*args)`` on a work thread once a slot is free; ``gone`` (awaitable) completes when the
-        caller's client disconnects, in which case a job not yet started raises :class:`ClientGone`.
+    async def run(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS,
+                  gone: Callable[[], Awaitable[None]] | None = None) -> T:
+        """Run ``fn(*args)`` on a thread once ``owner`` (the API key's owner digest, :class:`service.style_book.Caller`)
+        has its turn; ``gone`` (awaitable) completes when the caller's client disconnects, in which case a job not
+        yet started raises :class:`ClientGone`.
 
-        Raises ``overloaded`` (queue full) or ``shutting_down`` (closed) without waiting.
+        Raises ``overloaded`` (``owner``'s queue full) or ``shutting_down`` (closed) without waiting.
         """
-        refused = self.refusal()
+        refused = self.refusal(owner)
         if refused is not None:
             raise refused
         if self._has_free_thread():
             self.running += 1
         else:
-            await self._wait_for_slot(gone)
+            await self._wait_for_slot(owner, gone)
         # From here this call holds a slot, released exactly once: when the job is done on its thread.
         self._count(RUN)
+        self._running_of[owner] += 1
         started = time.perf_counter()
         try:
             future = asyncio.get_running_loop().run_in_executor(self.executor, fn, *args)
         except BaseException:
-            self._release()
+            self._done(owner, 0.0)
             raise
-        future.add_done_callback(lambda f: self._finished(f, started))
+        future.add_done_callback(lambda f: self._finished(f, owner, started))
         try:
             return await asyncio.shield(future)
         except asyncio.CancelledError:
@@ -98,77 +119,100 @@ class WorkQueue:
     def _has_free_thread(self) -> bool:
         return self.running < self.threads and not self._waiting
 
-    def _full(self) -> bool:
-        """No free thread and ``limit`` jobs already waiting: a job arriving now is refused."""
-        return not self._has_free_thread() and len(self._waiting) >= self.limit
+    def _full(self, owner: str) -> bool:
+        """No free thread and ``limit`` jobs of ``owner`` already waiting: its job arriving now is refused."""
+        return self.limit is not None and not self._has_free_thread() and self.waiting_of(owner) >= self.limit
 
-    def refusal(self) -> ServiceError | None:
-        """The error a job arriving now would get at once (``shutting_down`` or ``overloaded``), counted as
-        refused; None when it would run or wait. For a check before the request's body is read
+    def refusal(self, owner: str = ANONYMOUS) -> ServiceError | None:
+        """The error a job of ``owner`` arriving now would get at once (``shutting_down`` or ``overloaded``),
+        counted as refused; None when it would run or wait. For a check before the request's body is read
         (:mod:`service.http.queue_gate`); :meth:`run` checks again, as the queue may fill meanwhile."""
         if self.closed:
             self._count(SHUT_DOWN)
             return shutting_down_error()
-        return self.reject() if self._full() else None
+        return self.reject(owner) if self._full(owner) else None
 
-    def reject(self) -> ServiceError:
-        """Count a job refused for want of room and return its ``overloaded`` error (with Retry-After)."""
+    def reject(self, owner: str = ANONYMOUS) -> ServiceError:
+        """Count a job of ``owner`` refused for want of room and return its ``overloaded`` error (with
+        Retry-After)."""
         self._count(REJECTED)
-        wait = self.retry_after_s()
-        return ServiceError("overloaded", f"model {self.name!r} already has {self.limit} requests waiting "
-                                          f"(RSMT_QUEUE_LIMIT) and {self.running} running; retry in about "
-                                          f"{wait} s, or on another replica", headers={"Retry-After": str(wait)})
+        wait = self.retry_after_s(owner)
+        whose = "requests waiting" if owner == ANONYMOUS else "requests of this API key waiting"
+        return ServiceError("overloaded", f"model {self.name!r} already has {self.limit} {whose} (RSMT_QUEUE_LIMIT) "
+                                          f"and {self.running} running; retry in about {wait} s, or on another "
+                                          "replica", headers={"Retry-After": str(wait)})
 
-    def would_refuse(self) -> bool:
-        """Whether :meth:`refusal` would refuse now (counts nothing)."""
-        return self.closed or self._full()
+    def would_refuse(self, owner: str = ANONYMOUS) -> bool:
+        """Whether :meth:`refusal` would refuse a job of ``owner`` now (counts nothing)."""
+        return self.closed or self._full(owner)
 
-    def _finished(self, future: asyncio.Future[Any], started: float) -> None:
+    def _finished(self, future: asyncio.Future[Any], owner: str, started: float) -> None:
         if not future.cancelled():
             future.exception()  # retrieved here too, for a caller cancelled meanwhile
-        self._job_s += 0.2 * (time.perf_counter() - started - self._job_s)
+        seconds = time.perf_counter() - started
+        self._job_s += 0.2 * (seconds - self._job_s)
+        self._done(owner, seconds)
+
+    def _done(self, owner: str, seconds: float) -> None:
+        """A job of ``owner`` that held a thread for ``seconds`` is done: charge its key, pass the slot on."""
+        self._turns.charge(owner, seconds)
+        self._running_of[owner] -= 1
+        if self._running_of[owner] <= 0:
+            del self._running_of[owner]
+        self._turns.keep([*self._waiting, *self._running_of])
         self._release()
 
-    async def _wait_for_slot(self, gone: Callable[[], Awaitable[None]] | None) -> None:
-        """Wait in line (:meth:`run` has checked there is room)."""
+    async def _wait_for_slot(self, owner: str, gone: Callable[[], Awaitable[None]] | None) -> None:
+        """Wait for ``owner``'s turn (:meth:`run` has checked there is room)."""
         ticket: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._waiting.append(ticket)
+        self._waiting.setdefault(owner, deque()).append(ticket)
+        self._arrived[ticket] = self._arrivals
+        self._arrivals += 1
         self._gauge()
-        watcher = None if gone is None else asyncio.create_task(self._watch(ticket, gone), name="work-queue-watch")
+        watcher = None if gone is None else asyncio.create_task(self._watch(owner, ticket, gone),
+                                                                name="work-queue-watch")
         try:
             await ticket
         except BaseException:
             if ticket.done() and not ticket.cancelled() and ticket.exception() is None:
                 self._release()  # granted, then cancelled before it could start: pass the slot on
             else:
-                self._forget(ticket)
+                self._forget(owner, ticket)
             raise
         finally:
             if watcher is not None:
                 watcher.cancel()
 
-    async def _watch(self, ticket: asyncio.Future[None], gone: Callable[[], Awaitable[None]]) -> None:
+    async def _watch(self, owner: str, ticket: asyncio.Future[None], gone: Callable[[], Awaitable[None]]) -> None:
         try:
             await gone()
         except Exception:  # nothing to learn from a broken receive: the job stays queued
             log.debug("watching for a disconnect failed", exc_info=True)
             return
         if not ticket.done():
-            self._forget(ticket)
+            self._forget(owner, ticket)
             self._count(ABANDONED)
             ticket.set_exception(ClientGone())
 
-    def _forget(self, ticket: asyncio.Future[None]) -> None:
-        try:
-            self._waiting.remove(ticket)
-        except ValueError:
-            pass
+    def _forget(self, owner: str, ticket: asyncio.Future[None]) -> None:
+        queue = self._waiting.get(owner)
+        if queue is not None and ticket in queue:
+            queue.remove(ticket)
+            if not queue:
+                del self._waiting[owner]
+        self._arrived.pop(ticket, None)
         self._gauge()
 
     def _release(self) -> None:
-        """A running job is done: hand its slot to the first waiting job, or free it."""
+        """A running job is done: hand its slot to the first waiting job of the key whose turn it is, or free it."""
         while self._waiting:
-            ticket = self._waiting.popleft()
+            owner = self._turns.first(sorted(self._waiting, key=lambda k: self._arrived[self._waiting[k][0]]))
+            assert owner is not None
+            queue = self._waiting[owner]
+            ticket = queue.popleft()
+            if not queue:
+                del self._waiting[owner]
+            self._arrived.pop(ticket, None)
             if not ticket.done():
                 ticket.set_result(None)  # the slot passes on; ``running`` is unchanged
                 self._gauge()
@@ -180,8 +224,10 @@ class WorkQueue:
         """Refuse new jobs and answer every waiting one ``shutting_down``; returns how many were waiting."""
         self.closed = True
         dropped = 0
-        while self._waiting:
-            ticket = self._waiting.popleft()
+        tickets = [t for queue in self._waiting.values() for t in queue]
+        self._waiting.clear()
+        self._arrived.clear()
+        for ticket in tickets:
             if not ticket.done():
                 ticket.set_exception(shutting_down_error())
                 dropped += 1
@@ -196,7 +242,7 @@ class WorkQueue:
 
     def _gauge(self) -> None:
         if self.metrics is not None:
-            self.metrics.work_waiting.labels(self.name).set(len(self._waiting))
+            self.metrics.work_waiting.labels(self.name).set(self.waiting)
 
 
 def disconnect_of(receive: Receive) -> Callable[[], Awaitable[None]]:

@@ -44,10 +44,11 @@ async def create_style(body: StyleCreate, request: Request, registry: RegistryDe
     model = registry.get(body.model)
     gone = disconnect_of(request.receive)
     if body.motion is not None:
-        style, clip = await model.run(encode_registration, model, body.motion, body.name, gone=gone)
+        style, clip = await model.run(encode_registration, model, body.motion, body.name, owner=caller.owner, gone=gone)
         clips = [clip]
     else:
-        style, clips = await model.run(encode_clips_registration, model, body.clips, body.name, gone=gone)
+        style, clips = await model.run(encode_clips_registration, model, body.clips, body.name, owner=caller.owner,
+                                        gone=gone)
     had = await file_style(request.app.state.service, model, caller.owner, style, clips)  # the store's lane
     return style_info(model, style, had)
 

@@ -35,7 +35,7 @@ async def transition(body: TransitionRequest, request: Request, registry: Regist
     arrived = time.perf_counter()
     model = registry.get(body.model)
     registered = await registered_style(state, model, caller, body.style_id)  # on the store's lane, not the work thread
-    result = await model.run(run_transition, model, caller, body, arrived, registered,
+    result = await model.run(run_transition, model, caller, body, arrived, registered, owner=caller.owner,
                              gone=disconnect_of(request.receive))
     result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)
     state.metrics.transition_frames.labels(model.name).inc(body.frames)

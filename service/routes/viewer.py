@@ -15,7 +15,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi import Path as PathParam
 
 from service.deps import RegistryDep
-from service.http.auth import require_access
+from service.http.auth import CallerDep, require_access
 from service.motion import dumps
 from service.schemas import ERROR_RESPONSES, ModelName
 from service.viewer.rig import rig_info
@@ -43,15 +43,15 @@ async def demos(registry: RegistryDep, model: Annotated[ModelName | None, Query(
             summary="a demo take as JSON poses on the model's rig (a walk the model generates from a standing "
                     "pose in a built-in style, or a procedural walk on the synthetic test rig)")
 async def demo(name: Annotated[str, PathParam(max_length=64)], request: Request, registry: RegistryDep,
-               model: Annotated[ModelName | None, Query()] = None) -> Response:
+               caller: CallerDep, model: Annotated[ModelName | None, Query()] = None) -> Response:
     m = registry.get(model)
-    return Response(dumps(await m.run(demo_poses, m, name, gone=disconnect_of(request.receive))),
+    return Response(dumps(await m.run(demo_poses, m, name, owner=caller.owner, gone=disconnect_of(request.receive))),
                     media_type="application/json")
 
 
 @router.post("/clip", response_model=ClipPoses, responses={k: ERROR_RESPONSES[k] for k in (400, 404, 413, 422)},
              summary="read a take (BVH text or JSON poses) onto the model's rig and fps, as JSON poses")
-async def clip(body: ClipRequest, request: Request, registry: RegistryDep) -> Response:
+async def clip(body: ClipRequest, request: Request, registry: RegistryDep, caller: CallerDep) -> Response:
     m = registry.get(body.model)
-    return Response(dumps(await m.run(uploaded_poses, m, body, gone=disconnect_of(request.receive))),
+    return Response(dumps(await m.run(uploaded_poses, m, body, owner=caller.owner, gone=disconnect_of(request.receive))),
                     media_type="application/json")

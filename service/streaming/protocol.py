@@ -197,7 +197,8 @@ class Session:
         began = time.perf_counter()
         try:
             registered = await registered_style(self.state, model, self.caller, msg.style_id)  # the store's lane
-            character, style, seed = await model.run_stream(prepare_character, model, self.caller, msg, cid, registered)
+            character, style, seed = await model.run_stream(prepare_character, model, self.caller, msg, cid,
+                                                              registered, owner=self.caller.owner)
             self.state.metrics.prepare_seconds.labels(model.name).observe(time.perf_counter() - began)
         finally:
             conn.reserved.discard(cid)
@@ -248,7 +249,8 @@ class Session:
             model.check_frames(msg.frames)
         target = None
         if msg.target is not None:
-            target = await model.run_stream(motion_to_clip, msg.target, model.engine, model.limits, "target")
+            target = await model.run_stream(motion_to_clip, msg.target, model.engine, model.limits, "target",
+                                           owner=self.caller.owner)
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.retarget(stream, target, msg.frames)
         self.conn.send_message({"type": "retargeted", "character": msg.character, "from_seq": from_seq,
@@ -259,7 +261,7 @@ class Session:
         if msg.style_id is not None:
             style = await on_lane(self.state, lookup_style, model, self.caller, msg.style_id)  # may reach Redis
         else:
-            style = await model.run_stream(resolve_style, model, self.caller, None, msg.style)
+            style = await model.run_stream(resolve_style, model, self.caller, None, msg.style, owner=self.caller.owner)
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.set_style(stream, style)
         self.conn.send_message({"type": "style_changed", "character": msg.character, "from_seq": from_seq,

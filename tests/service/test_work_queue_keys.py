@@ -1,0 +1,119 @@
+"""The work queue's per-key turns and bounds (issue 64, item 4), on a real one-thread executor with jobs that sleep:
+another key's job waits for the running job only, not for a burst; the bound refuses the key that floods; two keys
+that keep jobs waiting get about equal thread time whatever their jobs' lengths."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+
+from service.errors import ServiceError
+from service.key_turns import CREDIT_S, KeyTurns
+from service.work_queue import WorkQueue
+
+
+def _job(log: list[str], name: str, seconds: float) -> Callable[[], str]:
+    def run() -> str:
+        log.append(name)
+        time.sleep(seconds)
+        return name
+
+    return run
+
+
+def test_a_quiet_keys_job_waits_for_the_running_job_only_and_the_flooding_key_is_refused():
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            queue = WorkQueue(pool, threads=1, limit=4)
+            log: list[str] = []
+            burst = [asyncio.create_task(queue.run(_job(log, f"b{i}", 0.05), owner="b")) for i in range(5)]
+            await asyncio.sleep(0.01)  # b0 runs, four of b wait: b's part of the queue is full
+            with pytest.raises(ServiceError) as refused:
+                await queue.run(_job(log, "b5", 0.05), owner="b")
+            assert refused.value.code == "overloaded" and "of this API key" in refused.value.message
+            assert int(refused.value.headers["Retry-After"]) >= 1
+            assert queue.waiting == 4 and queue.waiting_of("b") == 4
+            quiet = asyncio.create_task(queue.run(_job(log, "a0", 0.01), owner="a"))  # not refused: a's own part
+            await asyncio.gather(quiet, *burst)
+            assert log == ["b0", "a0", "b1", "b2", "b3", "b4"]
+            assert queue.waiting == 0 and queue.running == 0
+
+    asyncio.run(main())
+
+
+def test_without_keys_the_queue_is_first_come_first_served_with_one_bound():
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            queue = WorkQueue(pool, threads=1, limit=2)
+            log: list[str] = []
+            jobs = [asyncio.create_task(queue.run(_job(log, f"j{i}", 0.02))) for i in range(3)]
+            await asyncio.sleep(0.005)
+            with pytest.raises(ServiceError) as refused:
+                await queue.run(_job(log, "late", 0.01))
+            assert refused.value.code == "overloaded" and "of this API key" not in refused.value.message
+            await asyncio.gather(*jobs)
+            assert log == ["j0", "j1", "j2"]
+
+    asyncio.run(main())
+
+
+def test_two_busy_keys_get_about_equal_thread_time_whatever_their_job_lengths():
+    began = time.monotonic()
+    runs: list[tuple[str, float, float]] = []  # owner, when its job started, how long it held the thread
+
+    def job(owner: str, seconds: float) -> None:
+        runs.append((owner, time.monotonic() - began, seconds))
+        time.sleep(seconds)
+
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            queue = WorkQueue(pool, threads=1, limit=100)
+
+            async def loop(owner: str, seconds: float) -> None:
+                while time.monotonic() - began < 1.6:
+                    await queue.run(job, owner, seconds, owner=owner)
+
+            # Two jobs of each key at a time, so that each always has one waiting.
+            await asyncio.gather(*(loop(k, s) for k, s in (("short", 0.01), ("long", 0.05)) for _ in range(2)))
+
+    asyncio.run(main())
+    # After the first key's head start (a key that joins is given up to CREDIT_S), in turn.
+    window = (CREDIT_S + 0.2, 1.5)
+    used = {k: sum(s for o, t, s in runs if o == k and window[0] <= t < window[1]) for k in ("short", "long")}
+    print(f"thread time from {window[0]:.2f} to {window[1]} s: {used}")
+    assert abs(used["short"] - used["long"]) <= 2 * 0.05 + 0.01, used
+
+
+def test_close_answers_every_keys_waiting_jobs():
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            queue = WorkQueue(pool, threads=1, limit=4)
+            running = asyncio.create_task(queue.run(time.sleep, 0.1, owner="a"))
+            waiting = [asyncio.create_task(queue.run(time.sleep, 0.1, owner=k)) for k in ("a", "b", "b")]
+            await asyncio.sleep(0.01)
+            assert queue.close() == 3
+            for task in waiting:
+                with pytest.raises(ServiceError) as err:
+                    await task
+                assert err.value.code == "shutting_down"
+            await running
+
+    asyncio.run(main())
+
+
+def test_key_turns_least_used_first_a_returning_key_within_the_credit():
+    turns = KeyTurns(credit_s=0.25)
+    assert turns.first([]) is None
+    turns.charge("b", 2.0)
+    assert turns.first(["b", "a"]) == "a" and turns.used["a"] == pytest.approx(1.75)  # joins at the floor
+    turns.charge("a", 0.5)
+    assert turns.first(["b", "a"]) == "b"
+    assert turns.first(["a", "c"]) == "c"  # ties go to the earlier of equals; a new key at the floor
+    turns.keep(["a"])
+    assert set(turns.used) == {"a"}
+    with pytest.raises(ValueError):
+        turns.charge("a", -1.0)
