@@ -8,6 +8,7 @@ listed. :func:`from_clip` goes back.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -42,38 +43,61 @@ from model.motion.skeleton import (
     Skeleton,
     SkeletonError,
     SkeletonProfile,
+    fit_names,
     plain_joint_name,
     resolve_roles,
 )
 
 logger = logging.getLogger(__name__)
-def _fit_profile(doc: BvhDocument, profile: SkeletonProfile | str | Path | None) -> tuple[SkeletonProfile, int, list[int]]:
-    """The profile, the file index of its root joint, and the joints kept (root then descendants)."""
-    names = doc.names
-    plain = [plain_joint_name(n) for n in names]
-    candidates = [profile] if profile is not None else list(BUILTIN_PROFILES)
+def _fit_profile(doc: BvhDocument, profile: SkeletonProfile | str | Path | None
+                 ) -> tuple[SkeletonProfile, int, list[int], BvhDocument]:
+    """The profile, the file index of its root joint, the joints kept (root then descendants), and the document
+    with its joints under the profile's names where it carries another rig's (the profile's ``aliases``)."""
+    candidates = [c if isinstance(c, SkeletonProfile) else SkeletonProfile.load(c)
+                  for c in ([profile] if profile is not None else BUILTIN_PROFILES)]
     errors: list[str] = []
-    for cand in candidates:
-        prof = cand if isinstance(cand, SkeletonProfile) else SkeletonProfile.load(cand)
-        try:
-            if plain_joint_name(prof.root) not in plain:
-                resolve_roles(names, prof)  # raises, listing every joint the rig lacks
-                raise SkeletonError(f"no joint {prof.root!r} (root of profile {prof.name!r})")
-            root = plain.index(plain_joint_name(prof.root))
-            inside = [False] * len(names)
-            inside[root] = True
-            # File order is topological, so one pass marks the whole subtree.
-            for i in range(root + 1, len(names)):
-                inside[i] = inside[doc.joints[i].parent]
-            kept = [i for i in range(len(names)) if inside[i] and (i == root or not prof.drops(names[i]))]
-            _check_drops(prof, names, root)
-            resolve_roles(tuple(names[i] for i in kept), prof)
-            return prof, root, kept
-        except SkeletonError as exc:
-            errors.append(str(exc))
+    # The names as they are first, against every candidate: another rig's names only when no profile's own fit.
+    for aliased in (False, True):
+        for prof in candidates:
+            try:
+                fitted = _renamed(doc, prof) if aliased else doc
+                root, kept = _fit_one(fitted, prof)
+                return prof, root, kept, fitted
+            except SkeletonError as exc:
+                if not aliased:
+                    errors.append(str(exc))
     if profile is not None:
         raise SkeletonError(errors[0])
     raise SkeletonError("no built-in skeleton profile fits this rig:\n  " + "\n  ".join(errors))
+
+
+def _renamed(doc: BvhDocument, prof: SkeletonProfile) -> BvhDocument:
+    """``doc`` with its joints named as ``prof`` names them (raises when no alias scheme of ``prof`` fits)."""
+    names, scheme = fit_names(doc.names, prof)
+    if scheme is None:
+        return doc
+    logger.info("reading %s joint names as profile %r's", scheme.name, prof.name)
+    joints = [dataclasses.replace(j, name=n) for j, n in zip(doc.joints, names)]
+    return BvhDocument(joints, doc.frame_time, doc.motion)
+
+
+def _fit_one(doc: BvhDocument, prof: SkeletonProfile) -> tuple[int, list[int]]:
+    """The file index of ``prof``'s root joint and the joints kept; raises when the profile does not fit."""
+    names = doc.names
+    plain = [plain_joint_name(n) for n in names]
+    if plain_joint_name(prof.root) not in plain:
+        resolve_roles(names, prof)  # raises, listing every joint the rig lacks
+        raise SkeletonError(f"no joint {prof.root!r} (root of profile {prof.name!r})")
+    root = plain.index(plain_joint_name(prof.root))
+    inside = [False] * len(names)
+    inside[root] = True
+    # File order is topological, so one pass marks the whole subtree.
+    for i in range(root + 1, len(names)):
+        inside[i] = inside[doc.joints[i].parent]
+    kept = [i for i in range(len(names)) if inside[i] and (i == root or not prof.drops(names[i]))]
+    _check_drops(prof, names, root)
+    resolve_roles(tuple(names[i] for i in kept), prof)
+    return root, kept
 
 
 def _check_drops(prof: SkeletonProfile, names: Sequence[str], root: int) -> None:
@@ -170,7 +194,7 @@ def to_clip(
     ``BONE_TRANSLATION_TOLERANCE`` a warning is logged, since a Clip cannot animate bone lengths.
     Everything is computed in float64 and converted to ``dtype`` at the end.
     """
-    prof, root, kept = _fit_profile(doc, profile)
+    prof, root, kept, doc = _fit_profile(doc, profile)
     frames = doc.num_frames
 
     lineage = [root]  # the root and its ancestors, file root last

@@ -18,17 +18,14 @@ from typing import Any
 
 import torch
 
+from model.motion.joint_aliases import NameScheme, closest_scheme, plain_joint_name, renamed
+
 PROFILE_DIR = "profiles"
 BUILTIN_PROFILES = ("bandai-namco", "100style")
 
 
 class SkeletonError(ValueError):
     """A rig that a profile cannot resolve, or an inconsistent skeleton."""
-
-
-def plain_joint_name(name: str) -> str:
-    """Joint names compare without a namespace prefix (``mixamorig:Hips``) and case-insensitively."""
-    return name.rsplit(":", 1)[-1].strip().lower()
 
 
 @dataclass(frozen=True)
@@ -48,6 +45,8 @@ class SkeletonProfile:
             pattern that matches the whole name (case ignored, as for roles) gives the twin.
         drop: regexes (whole name, case ignored) of joints removed on import: finger and helper
             joints. A dropped joint's children hang from its parent, its motion folded into them.
+        aliases: other rigs' names for the profile's joints (Mixamo, Unreal Mannequin, CMU), by scheme: a rig
+            that does not fit the profile's own names is read under the scheme that makes it fit (:func:`fit_names`).
     """
 
     name: str
@@ -62,6 +61,7 @@ class SkeletonProfile:
     mirror: tuple[tuple[str, str], ...]
     description: str = ""
     drop: tuple[str, ...] = ()
+    aliases: tuple[NameScheme, ...] = ()
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SkeletonProfile:
@@ -85,12 +85,16 @@ class SkeletonProfile:
                 re.compile(pattern)
         except (TypeError, re.error) as exc:
             raise SkeletonError(f"profile 'drop' must be a list of joint-name regexes: {exc}") from exc
+        try:
+            aliases = tuple(NameScheme.from_dict(k, v) for k, v in dict(data.get("aliases", {})).items())
+        except (TypeError, ValueError) as exc:
+            raise SkeletonError(f"profile 'aliases' must map scheme names to {{joint: name or [names]}}: {exc}") from exc
         return cls(
             name=str(data["name"]), root=str(data["root"]), head=str(data["head"]),
             left_foot=tuple(map(str, data["left_foot"])), right_foot=tuple(map(str, data["right_foot"])),
             left_hip=str(data["left_hip"]), right_hip=str(data["right_hip"]),
             left_shoulder=str(data["left_shoulder"]), right_shoulder=str(data["right_shoulder"]),
-            mirror=mirror, description=str(data.get("description", "")), drop=drop,
+            mirror=mirror, description=str(data.get("description", "")), drop=drop, aliases=aliases,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -100,6 +104,10 @@ class SkeletonProfile:
             d["drop"] = list(self.drop)
         else:  # absent when empty: a profile without drops describes (and caches) as before
             del d["drop"]
+        if self.aliases:
+            d["aliases"] = {scheme.name: scheme.to_dict() for scheme in self.aliases}
+        else:  # as drop
+            del d["aliases"]
         return d
 
     def drops(self, name: str) -> bool:
@@ -183,6 +191,8 @@ def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonR
         "left_hip": idx(profile.left_hip), "right_hip": idx(profile.right_hip),
         "left_shoulder": idx(profile.left_shoulder), "right_shoulder": idx(profile.right_shoulder),
     }
+    if missing:  # the mirror twins of a rig that lacks the roles tell nothing (a thigh_l is not the profile's _L)
+        raise SkeletonError(_mismatch(names, profile, missing))
     mirror = list(range(len(names)))
     for i, name in enumerate(names):
         if profile.drops(name):
@@ -199,12 +209,55 @@ def resolve_roles(names: tuple[str, ...], profile: SkeletonProfile) -> SkeletonR
                     mirror[i], mirror[j] = j, i
                 break
     if missing:
-        raise SkeletonError(
-            f"the rig does not match skeleton profile {profile.name!r}: missing joint(s) "
-            f"{', '.join(missing)}. Rename the joints or write a profile for this rig "
-            "(see model/motion/profiles/README.md)."
-        )
+        raise SkeletonError(_mismatch(names, profile, missing))
     return SkeletonRoles(profile=profile.name, mirror=tuple(mirror), **roles)
+
+
+def _mismatch(names: tuple[str, ...], profile: SkeletonProfile, missing: list[str]) -> str:
+    """The error for a rig the profile does not resolve: what it lacks, and in the names the rig seems to use."""
+    text = f"the rig does not match skeleton profile {profile.name!r}: missing joint(s) {', '.join(missing)}."
+    near = closest_scheme(names, profile.aliases)
+    theirs: list[str] = []
+    if near is not None:
+        scheme, known = near
+        changes = scheme.renames(names)
+        have = {plain_joint_name(changes.get(i, n)) for i, n in enumerate(names)}
+        theirs = [scheme.name_of(j) for j in _role_joints(profile) if plain_joint_name(j) not in have]
+    if near is not None and theirs:
+        shown = ", ".join(known[:6]) + (", ..." if len(known) > 6 else "")
+        text += (f" Its names look like {scheme.name} names ({shown}), which this profile also reads: under them it "
+                 f"lacks {', '.join(theirs)}.")
+    elif profile.aliases:
+        text += f" It also reads {', '.join(s.name for s in profile.aliases)} names (docs/retargeting.md)."
+    return text + " Rename the joints or write a profile for this rig (see model/motion/profiles/README.md)."
+
+
+def _role_joints(profile: SkeletonProfile) -> list[str]:
+    """The joints the profile gives a role, each once, in the order errors list them."""
+    named = [profile.root, profile.head, *profile.left_foot, *profile.right_foot, profile.left_hip, profile.right_hip,
+             profile.left_shoulder, profile.right_shoulder]
+    return list(dict.fromkeys(named))
+
+
+def fit_names(names: tuple[str, ...], profile: SkeletonProfile) -> tuple[tuple[str, ...], NameScheme | None]:
+    """``names`` as the profile reads them: as they are when it resolves them, else renamed by the alias scheme
+    that makes them resolve (and that scheme); raises :func:`resolve_roles`'s error when neither does."""
+    try:
+        resolve_roles(names, profile)
+        return names, None
+    except SkeletonError:
+        found = renamed(names, profile.aliases, lambda out: _resolves(out, profile))
+        if found is None:
+            raise
+        return found
+
+
+def _resolves(names: tuple[str, ...], profile: SkeletonProfile) -> bool:
+    try:
+        resolve_roles(names, profile)
+    except SkeletonError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -177,3 +179,24 @@ def test_any_bvh_text_converts_or_is_refused_cleanly(engine, text):
         assert exc.code in ("bad_motion", "skeleton_mismatch", "too_few_frames", "too_many_frames"), exc
         return
     assert torch.isfinite(clip.rotations).all()
+
+
+# The default rig's joints under Mixamo names (issue 64): its two spine joints as Mixamo's Spine and Spine1.
+MIXAMO_NAMES = {"Chest": "Spine1", **{f"{part}_{s}": f"{side}{theirs}" for s, side in (("L", "Left"), ("R", "Right"))
+                                      for part, theirs in (("Shoulder", "Shoulder"), ("UpperArm", "Arm"),
+                                                           ("LowerArm", "ForeArm"), ("Hand", "Hand"), ("UpperLeg", "UpLeg"),
+                                                           ("LowerLeg", "Leg"), ("Foot", "Foot"), ("Toes", "ToeBase"))}}
+
+
+def test_the_default_rig_under_mixamo_names_is_served_without_a_profile():
+    from model.inference.bundle import DEFAULT_BUNDLE
+
+    engine = Engine(Bundle.load(DEFAULT_BUNDLE), threads=1)
+    text = (Path(__file__).parents[2] / "clients" / "rig" / "rsmt-default-rig.bvh").read_text()
+    mixamo = re.sub(r"^(\s*(?:ROOT|JOINT)\s+)(\S+)\s*$",
+                    lambda m: f"{m.group(1)}mixamorig:{MIXAMO_NAMES.get(m.group(2), m.group(2))}", text, flags=re.M)
+    assert "mixamorig:LeftUpLeg" in mixamo and "UpperLeg_L" not in mixamo
+    ours, theirs = convert(engine, {"bvh": text}), convert(engine, {"bvh": mixamo})
+    assert theirs.skeleton.names == ours.skeleton.names == engine.skeleton.names
+    assert torch.allclose(theirs.rotations, ours.rotations, atol=1e-6)
+    assert torch.allclose(theirs.root_positions, ours.root_positions, atol=1e-4)
