@@ -103,6 +103,13 @@ class SamplerStageConfig:
 
     def __post_init__(self) -> None:
         self.control_contents = tuple(self.control_contents)
+        self._check_critic_inputs()
+        self._check_extra_batches()
+        self._check_control_and_warp()
+        self._check_rates()
+
+    def _check_critic_inputs(self) -> None:
+        """Turn ``critic_inputs`` into a tuple and check it names distinct position-only selections."""
         if isinstance(self.critic_inputs, str):  # configs written before critics became a list
             self.critic_inputs = (self.critic_inputs,)
         self.critic_inputs = tuple(self.critic_inputs)
@@ -111,16 +118,25 @@ class SamplerStageConfig:
             # Critics read positions only (critic_logits): no gradient through 6D-to-quaternion conversions.
             raise ValueError(f"critic_inputs must be distinct selections among {', '.join(CRITIC_INPUTS)}, "
                              f"got {list(self.critic_inputs)!r}")
+
+    def _check_extra_batches(self) -> None:
+        """The other-style and changed-control window counts, and the other-style critics' weight."""
         if self.cross_batch < 0 or self.control_batch < 0:
             raise ValueError("cross_batch and control_batch must be 0 or more")
         if self.w_cross_style is not None and self.w_cross_style < 0:
             raise ValueError(f"w_cross_style must be 0 or more (or null: w_style), got {self.w_cross_style}")
+
+    def _check_control_and_warp(self) -> None:
+        """The ranges of the changed controls, the time-warped windows and the steering window."""
         if self.control_dt < 1.0 or self.control_shift < 0.0 or self.control_turn < 0.0 or self.control_side < 0.0:
             raise ValueError("control_dt must be at least 1, and control_shift, control_turn and control_side at least 0")
         if self.warp_batch < 0 or self.warp_ramp < 0 or self.w_warp_foot < 0 or not 1.0 <= self.warp_factor <= MAX_FACTOR:
             raise ValueError(f"warp_batch, warp_ramp and w_warp_foot must be 0 or more and warp_factor in [1, {MAX_FACTOR:g}]")
         if self.steering_window < 0:
             raise ValueError(f"steering_window must be 0 (off) or more frames, got {self.steering_window}")
+
+    def _check_rates(self) -> None:
+        """The target-velocity drop rate, the style code's contrastive term and the decoder's rate scale."""
         if not 0.0 <= self.target_velocity_drop <= 1.0:
             raise ValueError(f"target_velocity_drop must be in [0, 1], got {self.target_velocity_drop}")
         if self.w_code_contrast < 0 or self.code_contrast_styles < 2 or self.code_contrast_clips < 2:
