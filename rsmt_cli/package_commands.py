@@ -16,6 +16,7 @@ default bundle's built-in styles are made (and remade after its weights change):
 ``rsmt bundle gait-limits BUNDLE --from-data DATA`` measures the capture's speed and hips height limits
 per style on the data's train split (:mod:`model.data.gait_capture`) and writes ``BUNDLE/gait_limits.json``;
 ``rsmt package --gait-data DATA`` does the same for the copy (without it, the copy keeps the bundle's own).
+``rsmt bundle database BUNDLE --from-data DATA`` writes its motion database (:mod:`rsmt_cli.database_commands`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rsmt_cli.database_commands import add_database_parser
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 from rsmt_cli.renamed_flags import add_renamed
 
@@ -79,7 +81,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         add_renamed(p, old, new, kind)
     p.set_defaults(func=_run)
 
-    b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles in place (weights untouched)")
+    b = subparsers.add_parser("bundle", help="edit a bundle's built-in styles, gait limits or motion database in place "
+                                             "(weights untouched)")
     bsub = b.add_subparsers(dest="bundle_command", required=True, metavar="ACTION")
     a = bsub.add_parser("add-styles", help="write the bundle's styles/ folder (built-in styles, builtin:NAME)",
                         description="Encode the given clips with the bundle's weights and replace BUNDLE/styles/ with "
@@ -103,6 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--from-data", type=Path, required=True, metavar="DATA",
                    help="the training data (folders separated by the path separator, as RSMT_DATA)")
     g.set_defaults(func=_gait_limits)
+    add_database_parser(bsub)
 
 
 def _run(args: argparse.Namespace) -> int:

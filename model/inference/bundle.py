@@ -11,6 +11,8 @@ Layout::
                            :mod:`model.motion.gait_limits`): the engine keeps the root within them
       styles/              built-in style codes, served as ``builtin:NAME`` (optional; :mod:`model.inference.bundle_styles`)
       adapters/NAME/       weights of their own for a style fine-tuned later (optional; :mod:`model.inference.bundle_adapters`)
+      database.safetensors the compressed poses of real locomotion for motion matching, and database.json (optional;
+                           :mod:`model.retrieval.database`, written by ``rsmt bundle database``)
 
 A bundle loads from its own files alone; loading is strict (missing or unexpected tensors fail).
 """
@@ -37,6 +39,7 @@ from model.nets.manifold import ManifoldConfig, ManifoldDecoder
 from model.nets.phase import PeriodicAutoencoder, PhaseConfig
 from model.nets.sampler import SamplerConfig, TransitionSampler
 from model.nets.transition_net import DEFAULT_NETWORK, TransitionNet, build_network
+from model.retrieval.database import DatabaseError, MotionDatabase
 
 FORMAT = "rsmt-bundle/1"
 log = logging.getLogger(__name__)
@@ -82,6 +85,7 @@ class Bundle:
     adapters: dict[str, StyleAdapter] = field(default_factory=dict)  # weights of their own per style (adapters/)
     gait_limits: GaitLimits | None = None  # the capture's limits per style (gait_limits.json; None: none measured)
     network: str = DEFAULT_NETWORK  # the name of ``net`` in model.nets.transition_net.NETWORKS
+    database: MotionDatabase | None = None  # real locomotion for motion matching (database.safetensors; None: none)
 
     @property
     def config(self) -> SamplerConfig:
@@ -168,6 +172,8 @@ class Bundle:
             self.gait_limits.save(path)
         self._save_styles(path)
         self._save_adapters(path)
+        if self.database is not None:
+            self.database.save(path)
         return path
 
     def _save_styles(self, path: Path) -> None:
@@ -194,6 +200,12 @@ class Bundle:
                 save_adapters(path, kept, self.styles, self.skeleton, self.config.fps)
             except AdapterError as exc:
                 raise BundleError(f"{path}: {exc}") from exc
+
+    def _load_database(self, path: Path) -> None:
+        try:
+            self.database = MotionDatabase.load(path, self.skeleton)
+        except DatabaseError as exc:
+            raise BundleError(str(exc)) from exc
 
     def _load_styles(self, path: Path, own: bool) -> None:
         """The built-in styles of ``styles/`` (``own``) and of the adapters, into ``self.styles``."""
@@ -262,6 +274,7 @@ class Bundle:
         except ValueError as exc:
             raise BundleError(str(exc)) from exc
         bundle._load_styles(path, styles)
+        bundle._load_database(path)
         bundle.net.eval()
         if bundle.phase_model is not None:
             bundle.phase_model.eval()
