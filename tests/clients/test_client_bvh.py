@@ -4,6 +4,7 @@ malformed text refused with an error naming the line, exactly when the project's
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -300,3 +301,14 @@ def test_any_text_reads_or_is_a_bvh_error_as_on_the_server(text: str) -> None:
     """Fuzzing: any text (or file bytes) gives a file or BvhError, never another exception, and exactly when
     the project's reader (itself fuzzed in tests/model/motion/test_bvh_hostile.py) accepts it."""
     _reads_as_the_server_reads(text, ProjectBvhError)
+
+
+def test_the_cutter_refuses_a_frame_time_that_overflows_in_the_readers_words() -> None:
+    """Issue 64: a Frame Time of 1e-310 reached round(inf) in the cutter (an OverflowError under rsmt client)."""
+    from rsmt_client.motion_cuts import Cutter, ModelLimits
+
+    tiny = re.sub(r"Frame Time: .*", "Frame Time: 1e-310", GOOD)
+    cutter = Cutter(ModelLimits(fps=30.0, context_frames=10, style_min=16, style_max=240))
+    for cut in (cutter.context, cutter.target, cutter.style):
+        with pytest.raises(BvhError, match="Frame Time 1e-310 s gives inf fps; accepted: 1 to 1000 fps"):
+            cut({"bvh": tiny})

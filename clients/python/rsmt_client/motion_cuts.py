@@ -24,12 +24,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from rsmt_client.bvh import BvhFile
+from rsmt_client.bvh import MAX_FPS, MIN_FPS, BvhFile
 
 log = logging.getLogger("rsmt_client")
 TARGET_FRAMES = 2  # the target pose and the frame before it (its velocity)
 # The header lines that say how long a take is: read without parsing the frames (most payloads are sent whole).
-_FRAMES = re.compile(r"^\s*frames\s*:\s*(\d{1,18})\s*$", re.I | re.M)
+_FRAMES = re.compile(r"^\s*frames\s*:\s*([0-9]{1,18})\s*$", re.I | re.M)
 _FRAME_TIME = re.compile(r"^\s*frame\s+time\s*:\s*(\S+)\s*$", re.I | re.M)
 
 
@@ -93,8 +93,8 @@ def payload_frames(payload: Mapping[str, Any], default_fps: float) -> tuple[int,
             seconds = float(frame_time.group(1)) if frame_time else 0.0
         except ValueError:
             seconds = 0.0
-        if frames is None or not (math.isfinite(seconds) and seconds > 0):
-            bvh = BvhFile.parse(text)
+        if frames is None or not (math.isfinite(seconds) and 1.0 / MAX_FPS <= seconds <= 1.0 / MIN_FPS):
+            bvh = BvhFile.parse(text)  # the reader's error names the problem (a Frame Time of 1e-310 s, say)
             return bvh.num_frames, bvh.fps
         fps, whole = 1.0 / seconds, round(1.0 / seconds)
         return int(frames.group(1)), float(whole) if whole >= 1 and abs(fps - whole) <= 1e-4 * fps else fps
