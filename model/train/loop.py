@@ -210,6 +210,72 @@ def load_checkpoint(folder: Path, model: nn.Module, optimizer: torch.optim.Optim
     return int(meta["step"]), list(meta["history"]), dict(meta.get("extra", {}))
 
 
+def _resume(name: str, folder: Path, model: nn.Module, optimizer: torch.optim.Optimizer,
+            cfg: LoopConfig) -> tuple[int, list[dict]]:
+    """The step to start at and the history so far: from the folder's checkpoint, or 0 and none."""
+    restored = load_checkpoint(folder, model, optimizer)
+    if restored is None:
+        return 0, []
+    start, history, _ = restored
+    log.info("%s: resuming at step %d of %d", name, start, cfg.iterations)
+    return start, history
+
+
+def _take_step(step: int, cfg: LoopConfig, model: nn.Module, params: list[tuple[str, nn.Parameter]],
+               optimizer: torch.optim.Optimizer,
+               train_step: Callable[[int], dict[str, float]]) -> tuple[float, dict[str, float]]:
+    """One optimiser step at the schedule's rate: the rate used and ``train_step``'s losses."""
+    model.train()
+    lr = learning_rate(step, cfg)
+    for g in optimizer.param_groups:
+        g["lr"] = lr * g.get("lr_scale", 1.0)
+    optimizer.zero_grad(set_to_none=True)
+    distributed.reseed_global(cfg.seed, step)  # several processes: each rank its own noise
+    losses = train_step(step)
+    # Several processes: the mean gradient over the ranks, so every rank takes the same step.
+    # (Not DistributedDataParallel: the stages call methods other than forward() and the
+    # sampler keeps a frozen decoder; averaging here serves every stage alike.)
+    distributed.average_gradients(p for _, p in params)
+    torch.nn.utils.clip_grad_norm_([p for _, p in params], cfg.grad_clip)
+    optimizer.step()
+    return lr, losses
+
+
+def _show_losses(running: dict[str, float], losses: dict[str, float], bar: tqdm) -> None:
+    """Fold a step's losses into their running means and show the first four on the bar."""
+    for k, v in losses.items():
+        running[k] = 0.9 * running.get(k, v) + 0.1 * v
+    bar.update(1)
+    bar.set_postfix({k: f"{v:.4g}" for k, v in list(running.items())[:4]})
+
+
+def _validate_epoch(name: str, step: int, lr: float, cfg: LoopConfig, model: nn.Module,
+                    validate: Callable[[], dict[str, float]], running: dict[str, float],
+                    history: list[dict], bar: tqdm) -> None:
+    """Validate at an epoch's end, append the entry to ``history`` and write it under the bar."""
+    model.eval()
+    with torch.no_grad():
+        figures = validate()
+    entry = {"step": step, "lr": lr, **{f"train_{k}": round(v, 6) for k, v in running.items()},
+             **{f"val_{k}": round(v, 6) for k, v in figures.items()}}
+    history.append(entry)
+    bar.write(f"{name} step {step}/{cfg.iterations}: "
+              + ", ".join(f"{k} {v:.4g}" for k, v in entry.items() if k.startswith(("val_", "train_"))))
+
+
+def _stop_at_time_limit(name: str, folder: Path, model: nn.Module, optimizer: torch.optim.Optimizer,
+                        step: int, history: list[dict], cfg: LoopConfig, elapsed: float, main: bool) -> bool:
+    """Whether the run stops at its time limit (after rank 0 writes a checkpoint).
+
+    The ranks stop together, when rank 0 reaches the time limit."""
+    if not (cfg.time_limit_s and distributed.rank0_decides(elapsed > cfg.time_limit_s and step < cfg.iterations)):
+        return False
+    if main:
+        save_checkpoint(folder, model, optimizer, step, history)
+    log.warning("%s: time limit reached at step %d; run again to resume", name, step)
+    return True
+
+
 def train_loop(
     name: str,
     folder: Path,
@@ -234,12 +300,7 @@ def train_loop(
     first = next(iter(p for _, p in params), None)
     log.info("%s: training on %s", name, first.device if first is not None else "cpu")
     optimizer = make_optimizer(params, cfg, lr_scales)
-    start = 0
-    history: list[dict] = []
-    restored = load_checkpoint(folder, model, optimizer)
-    if restored is not None:
-        start, history, _ = restored
-        log.info("%s: resuming at step %d of %d", name, start, cfg.iterations)
+    start, history = _resume(name, folder, model, optimizer, cfg)
     distributed.broadcast_state(model)  # every rank starts from rank 0's weights (they agree already)
     main = distributed.is_main()
     began = time.monotonic()
@@ -250,43 +311,17 @@ def train_loop(
     step = start
     try:
         while step < cfg.iterations:
-            model.train()
-            lr = learning_rate(step, cfg)
-            for g in optimizer.param_groups:
-                g["lr"] = lr * g.get("lr_scale", 1.0)
-            optimizer.zero_grad(set_to_none=True)
-            distributed.reseed_global(cfg.seed, step)  # several processes: each rank its own noise
-            losses = train_step(step)
-            # Several processes: the mean gradient over the ranks, so every rank takes the same step.
-            # (Not DistributedDataParallel: the stages call methods other than forward() and the
-            # sampler keeps a frozen decoder; averaging here serves every stage alike.)
-            distributed.average_gradients(p for _, p in params)
-            torch.nn.utils.clip_grad_norm_([p for _, p in params], cfg.grad_clip)
-            optimizer.step()
+            lr, losses = _take_step(step, cfg, model, params, optimizer, train_step)
             step += 1
-            for k, v in losses.items():
-                running[k] = 0.9 * running.get(k, v) + 0.1 * v
-            bar.update(1)
-            bar.set_postfix({k: f"{v:.4g}" for k, v in list(running.items())[:4]})
+            _show_losses(running, losses, bar)
             epoch_end = step % cfg.epoch_iterations == 0 or step == cfg.iterations
             if epoch_end and main:  # rank 0 validates and keeps the history (the others' losses are not in it)
-                model.eval()
-                with torch.no_grad():
-                    figures = validate()
-                entry = {"step": step, "lr": lr, **{f"train_{k}": round(v, 6) for k, v in running.items()},
-                         **{f"val_{k}": round(v, 6) for k, v in figures.items()}}
-                history.append(entry)
-                bar.write(f"{name} step {step}/{cfg.iterations}: "
-                          + ", ".join(f"{k} {v:.4g}" for k, v in entry.items() if k.startswith(("val_", "train_"))))
+                _validate_epoch(name, step, lr, cfg, model, validate, running, history, bar)
             now = time.monotonic()
             if main and (epoch_end or now - last_ckpt > cfg.checkpoint_every_s):
                 save_checkpoint(folder, model, optimizer, step, history)
                 last_ckpt = now
-            # The ranks stop together, when rank 0 reaches the time limit.
-            if cfg.time_limit_s and distributed.rank0_decides(now - began > cfg.time_limit_s and step < cfg.iterations):
-                if main:
-                    save_checkpoint(folder, model, optimizer, step, history)
-                log.warning("%s: time limit reached at step %d; run again to resume", name, step)
+            if _stop_at_time_limit(name, folder, model, optimizer, step, history, cfg, now - began, main):
                 break
     except KeyboardInterrupt:
         if main:
