@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 import time
 from pathlib import Path
 
@@ -170,6 +171,55 @@ def test_an_uploaded_take_and_style(browser, viewer_server, tmp_path) -> None:
     browser.click("#generate")
     assert browser.wait_for(f"{V}.transition().result", 90, "the transition")["tracks"][0] == "RSMT"
     assert browser.execute(f"return {V}.errors") == []
+
+
+def test_a_long_style_clip_is_cut_as_the_clients_cut_it_and_the_page_says_so(browser, viewer_server, tmp_path) -> None:
+    """Issue 64: the viewer refused a 289-frame style upload where the clients send its middle frames."""
+    most = browser_model_max(browser, viewer_server)
+    style = tmp_path / "long-style.bvh"
+    style.write_text(dump_clip(synthetic_walk(400, cadence_hz=1.2)))
+    browser.send_keys("#style-file", str(style))
+    browser.wait_for("document.getElementById('style-select').selectedOptions[0].text.startsWith('long-style')", 60,
+                     "the long style to be registered (cut) and chosen")
+    page = browser.execute("return {status: document.getElementById('status').textContent, "
+                           "note: document.getElementById('style-note').textContent, "
+                           "option: document.getElementById('style-select').selectedOptions[0].text}")
+    start = (400 - most) // 2
+    assert page["note"] == f"style long-style: cut to the middle {most} of 400 frames", page
+    assert f"its middle {most} (frames {start}-{start + most - 1}) were sent" in page["status"], page
+    assert page["option"] == f"long-style ({most} frames)", page
+    browser.click("#generate")
+    assert browser.wait_for(f"{V}.transition().result", 90, "the transition")["tracks"][0] == "RSMT"
+    assert browser.execute(f"return {V}.errors") == []
+
+
+def test_a_failed_style_upload_leaves_no_style_chosen(browser, viewer_server, tmp_path) -> None:
+    """Issue 64: after a refused upload, Generate quietly used the style chosen before."""
+    open_viewer(browser, viewer_server)
+    browser.click("#generate")  # a first result, with the style chosen at load
+    browser.wait_for(f"{V}.transition().result", 90, "the first transition")
+    browser.execute(f"window.firstResult = {V}.modes.transition.result")
+    broken = tmp_path / "broken-style.bvh"
+    broken.write_text(re.sub(r"Frame Time: .*", "Frame Time: 1e-310", dump_clip(synthetic_walk(60))))
+    browser.send_keys("#style-file", str(broken))
+    browser.wait_for("document.getElementById('status').className === 'error'", 30, "the upload's error")
+    page = browser.execute("return {status: document.getElementById('status').textContent, "
+                           "note: document.getElementById('style-note').textContent, "
+                           "value: document.getElementById('style-select').value, "
+                           "option: document.getElementById('style-select').selectedOptions[0].text}")
+    assert page["status"].startswith("style broken-style.bvh was not registered: ") and "Frame Time" in page["status"], page
+    assert page["note"] == page["status"] and page["value"] == "", page
+    assert page["option"] == "broken-style.bvh: not registered (see the error)", page
+    browser.click("#generate")
+    browser.wait_for("document.getElementById('status').textContent.startsWith('pick a style')", 30,
+                     "Generate to ask for a style")
+    assert browser.execute(f"return {V}.modes.transition.result === window.firstResult")  # nothing generated since
+
+
+def browser_model_max(browser, server) -> int:
+    """The viewer open on ``server``, and the most style frames its model reads."""
+    open_viewer(browser, server)
+    return int(browser.execute(f"return {V}.app.model.style_clip_frames.max"))
 
 
 def test_live_mode_streams_frames_and_follows_clicks(browser, viewer_server, artefacts) -> None:

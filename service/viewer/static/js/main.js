@@ -42,7 +42,7 @@ async function boot() {
     api, model, skeleton, camera, renderer, demos: demos.demos, errors: [], take: null,
     controls: new ViewControls(canvas, renderer, camera),
     player: new Player(model.fps),
-    styles: new StylePicker(api, demos.demos, [$("style-select"), $("live-style")], model.builtin_styles || []),
+    styles: new StylePicker(api, demos.demos, [$("style-select"), $("live-style")], model.builtin_styles || [], model),
   };
   new ResizeObserver(() => renderer.resize()).observe(canvas);
   const transition = new TransitionMode(app), live = new LiveMode(app);

@@ -23,7 +23,7 @@ export class TransitionMode {
     this.els = {
       takeSelect: $("take-select"), takeFile: $("take-file"), context: $("context-frame"), contextOut: $("context-frame-out"),
       frames: $("frames"), framesOut: $("frames-out"), place: $("place-target"), style: $("style-select"),
-      styleFile: $("style-file"), seed: $("seed"), deterministic: $("deterministic"), generate: $("generate"),
+      styleFile: $("style-file"), styleNote: $("style-note"), seed: $("seed"), deterministic: $("deterministic"), generate: $("generate"),
       exportBtn: $("export"), showTake: $("show-take"), sideBySide: $("side-by-side"), follow: $("follow"),
       info: $("transition-info"),
     };
@@ -38,8 +38,16 @@ export class TransitionMode {
     e.takeSelect.addEventListener("change", () => this.run(() => this.loadDemo(e.takeSelect.value)));
     e.takeFile.addEventListener("change", () => e.takeFile.files[0] && this.run(() => this.loadUpload(e.takeFile.files[0])));
     e.styleFile.addEventListener("change", () => e.styleFile.files[0] && this.run(async () => {
-      const info = await app.styles.upload(e.styleFile.files[0], e.style);
-      status(`registered style ${info.name} (${info.frames} frames${info.cached ? ", already cached" : ""})`, "ok");
+      const file = e.styleFile.files[0];
+      e.styleFile.value = "";  // choosing the same file again (after fixing it) uploads it again
+      e.styleNote.textContent = "";
+      let info;
+      try { info = await app.styles.upload(file, e.style); } catch (err) { e.styleNote.textContent = err.message; throw err; }
+      const cut = info.cut ? `; the clip has ${info.cut.from} frames at ${info.cut.fps} fps and the model reads at most ` +
+        `${info.cut.frames}: its middle ${info.cut.frames} (frames ${info.cut.start}-${info.cut.start + info.cut.frames - 1}) ` +
+        "were sent, as the clients cut a long clip (cut it yourself to choose the part)" : "";
+      e.styleNote.textContent = info.cut ? `style ${info.name}: cut to the middle ${info.cut.frames} of ${info.cut.from} frames` : "";
+      status(`registered style ${info.name} (${info.frames} frames${info.cached ? ", already cached" : ""})${cut}`, "ok");
     }));
     e.context.addEventListener("input", () => this.changed());
     e.frames.addEventListener("input", () => this.changed());

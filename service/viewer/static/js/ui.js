@@ -126,11 +126,14 @@ export class ViewControls {
 // The model's built-in styles (GET /v1/model builtin_styles: ids "builtin:NAME", usable at once), the styles
 // registered on the server (GET /v1/styles) and the demo style clips, which are registered (POST /v1/styles)
 // the first time they are chosen; uploads are registered at once. Option values are "id:<style_id>" or
-// "demo:<name>".
+// "demo:<name>". An upload longer than the model reads (style_clip_frames.max at its fps) is cut to its middle
+// frames, as the Python, Unity and Unreal clients cut one, and the page says so; an upload that fails leaves no
+// style chosen, so Generate cannot quietly use the one chosen before.
 export class StylePicker {
-  constructor(api, demos, selects, builtins = []) {
+  constructor(api, demos, selects, builtins = [], model = null) {
     this.api = api;
     this.builtins = builtins;
+    this.maxFrames = model && model.style_clip_frames ? model.style_clip_frames.max : null;
     this.demos = demos.filter((d) => d.kind === "style");
     this.selects = selects;
     this.styles = [];
@@ -166,10 +169,32 @@ export class StylePicker {
     return info.style_id;
   }
 
+  // Registers a style BVH; resolves to the POST /v1/styles answer plus `cut`: {from, start, frames} when the clip
+  // was longer than the model reads and its middle was sent, else null.
   async upload(file, select) {
-    const text = await file.text();
-    const info = await this.api.registerStyle(file.name.replace(/\.bvh$/i, ""), { bvh: text });
-    await this.refresh(select, `id:${info.style_id}`);
-    return info;
+    const name = file.name.replace(/\.bvh$/i, "");
+    try {
+      const text = await file.text();
+      let motion = { bvh: text }, cut = null;
+      if (this.maxFrames) {
+        // The clip on the model's rig at its fps (POST /v1/viewer/clip), to count the frames the model would read.
+        const clip = await this.api.readTake(file.name, text);
+        if (clip.frames > this.maxFrames) {
+          const start = Math.floor((clip.frames - this.maxFrames) / 2), stop = start + this.maxFrames;
+          cut = { from: clip.frames, start, frames: this.maxFrames, fps: clip.fps };
+          motion = { root_positions: clip.root_positions.slice(start, stop), rotations: clip.rotations.slice(start, stop),
+                     fps: clip.fps };
+        }
+      }
+      const info = await this.api.registerStyle(name, motion);
+      await this.refresh(select, `id:${info.style_id}`);
+      return { ...info, cut };
+    } catch (err) {
+      // Nothing chosen in place of the style that failed: Generate asks for one instead of using the previous.
+      const failed = new Option(`${file.name}: not registered (see the error)`, "");
+      select.add(failed, 0);
+      select.value = "";
+      throw new Error(`style ${file.name} was not registered: ${err.message}`);
+    }
   }
 }
