@@ -177,6 +177,11 @@ class Settings(BaseSettings):
     write_timeout_s: float = Field(
         default=30.0, ge=0, description="a connection whose answers the client has not read for this long (the "
         "server's writes blocked on it) is closed; 0: never")
+    pipelined_requests_per_s: float = Field(
+        default=100.0, ge=0, description="HTTP requests one connection sends before the answer to its previous one "
+        "(pipelined) are started at most this often per second, in bursts of up to this many, and nothing more of "
+        "the connection is read while one waits; 0: no limit (requests sent after their previous answer are not "
+        "limited by it)")
 
     # ------------------------------------------------------------------ auth and rate limits
     api_keys: Annotated[list[str], NoDecode] = Field(

@@ -27,6 +27,13 @@ as many connections as the file-descriptor limit allows. :class:`GuardedHttpTool
   (``RSMT_FORWARDED_ALLOW_IPS``) are not capped, and must enforce their own per-client limits.
 * **head size** (``max_header_bytes``, ``max_header_line_bytes``): a request line and headers past either
   bound are answered ``431`` and nothing more of the connection is read (:mod:`service.http.header_cap`).
+  A chunked body's trailers count against the same bounds (head and trailers together) and must be complete
+  within ``header_timeout_s`` of their first byte (and within the body's time); past either the request gets
+  ``431`` / ``408``, or, when it was already answered (a refused key), the connection is closed.
+* **pipelining** (``pipelined_requests_per_s``): a request sent before the answer to the previous one (one
+  that waits in uvicorn's pipeline) is started at most this often per connection, and nothing more of the
+  connection is parsed while one waits, so a client that pipelines requests and never reads holds neither a
+  core nor memory (its answers then fill its socket and the write timeout ends it).
 * **writes** (``write_timeout_s``): a client that stops reading its answers (e.g. pipelines requests and
   never reads) is cut off once the server's writes have been blocked on it this long.
 
@@ -42,6 +49,7 @@ import logging
 import socket
 import struct
 import weakref
+from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any, cast
@@ -49,7 +57,8 @@ from typing import TYPE_CHECKING, Any, cast
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
 from service.http.addresses import address_key
-from service.http.header_cap import HEADERS_TOO_LARGE_RESPONSE, HeadMeter
+from service.http.header_cap import HEADERS_TOO_LARGE_RESPONSE, BodyMeter, HeadMeter, body_meter
+from service.http.ratelimit import TokenBucket
 
 if TYPE_CHECKING:
     from uvicorn.config import Config
@@ -79,6 +88,7 @@ class ConnectionLimits:
     max_header_bytes: int = 32 << 10
     max_header_line_bytes: int = 8 << 10
     write_timeout_s: float = 30.0
+    pipelined_requests_per_s: float = 100.0
     #: Peers the cap leaves alone: the trusted proxies (``forwarded_allow_ips``: addresses, networks or ``*``),
     #: whose connections carry many clients and which must enforce their own per-client limits.
     uncapped: tuple[str, ...] = ()
@@ -122,6 +132,7 @@ class ConnectionLimits:
                            max_header_bytes=settings.max_header_bytes,
                            max_header_line_bytes=settings.max_header_line_bytes,
                            write_timeout_s=settings.write_timeout_s,
+                           pipelined_requests_per_s=settings.pipelined_requests_per_s,
                            uncapped=tuple(settings.forwarded_allow_ips))
             app = getattr(app, "app", None)
             if app is None:
@@ -205,6 +216,11 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self.handshake_deadline: float | None = None  # read by the WebSocket protocol this connection becomes
         self._head = HeadMeter(self.limits.max_header_bytes, self.limits.max_header_line_bytes)
         self._head_refused = False
+        self._body: BodyMeter | None = None  # the current request's body framing, once its head is complete
+        self._trailer_clock = False  # the trailers' header clock is running
+        self._held: deque[tuple[bytes, int]] = deque()  # bytes not parsed yet (from where): behind a pipelined request
+        self._pipelined = TokenBucket(self.limits.pipelined_requests_per_s)
+        self._pipeline_timer: asyncio.TimerHandle | None = None
         self._write_timer: asyncio.TimerHandle | None = None
         self._cycles: weakref.WeakSet[Any] = weakref.WeakSet()  # this connection's requests (for the write timeout)
 
@@ -229,6 +245,10 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
             return
         self._disarm()
         self._writable()
+        self._held.clear()
+        if self._pipeline_timer is not None:
+            self._pipeline_timer.cancel()
+            self._pipeline_timer = None
         _release(self.server_state, self._address)
         self._address = None
         super().connection_lost(exc)
@@ -242,10 +262,51 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def data_received(self, data: bytes) -> None:
         if self._head_refused:
             return
-        if not self._in_body and self._head.feed(data):
-            self._refuse_head()
-            return
-        super().data_received(data)
+        self._held.append((data, 0))
+        if len(self._held) == 1:
+            self._feed_held()
+        else:  # behind bytes still held: parsed in order after them
+            self.flow.pause_reading()
+
+    def _feed_held(self) -> None:
+        """Parse the bytes received and not parsed yet, until a pipelined request waits (the rest is held until
+        it has started, and reading pauses) or all are parsed."""
+        held = self._held
+        while held:
+            data, pos = held[0]
+            stop = self._parse(data, pos)
+            if self._head_refused or self.transport.is_closing() or self.transport.get_protocol() is not self:
+                held.clear()
+                return
+            if stop < len(data):
+                held[0] = (data, stop)
+                self.flow.pause_reading()
+                return
+            held.popleft()
+
+    def _parse(self, data: bytes, pos: int) -> int:
+        """Measure and parse ``data[pos:]`` one part at a time (a head, a body with its trailers), so that the
+        parser's callbacks at each part's end set how the next is measured; stop while a pipelined request
+        waits, at a bound or when the connection changed hands. Returns where it stopped."""
+        view = memoryview(data)
+        size = len(data)
+        while pos < size and not self.pipeline:
+            body = self._body
+            over, end = self._head.measure(data, pos) if body is None else body.measure(data, pos)
+            if over:
+                self._refuse_head() if body is None else self._refuse_trailers()
+                return pos
+            if body is not None and body.in_trailer and not self._trailer_clock:
+                self._trailer_clock = True
+                self._arm(min(self._timer_deadline, self.loop.time() + self.limits.header_timeout_s))
+            stop = size if end < 0 else end
+            super().data_received(view[pos:stop])  # type: ignore[arg-type]  # the parser takes any buffer
+            pos = stop
+            if end >= 0 and body is not None:
+                self._body = None  # the body's end as this meter sees it: what follows is measured as a head
+            if self._head_refused or self.transport.is_closing() or self.transport.get_protocol() is not self:
+                return size
+        return pos
 
     def _refuse_head(self) -> None:
         """431, then no more reading: the connection is closed once the answer had time to leave."""
@@ -257,6 +318,42 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         transport.pause_reading()
         transport.write(HEADERS_TOO_LARGE_RESPONSE)
         self.loop.call_later(_ABORT_AFTER_S, transport.abort)
+
+    def _refuse_trailers(self) -> None:
+        """Trailers past a bound: 431 when the request has no answer yet, else the connection is closed (after
+        what was already written); either way its request is over and nothing more is read."""
+        self._head_refused = True
+        self._disarm()
+        log.debug("refusing %s: request trailers over the head's bounds", self.client)
+        cycle = self.cycle
+        answer = cycle is not None and not cycle.response_started
+        if cycle is not None:
+            cycle.disconnected = True  # the app's receive ends and its sends are dropped
+            cycle.message_event.set()
+        self.transport.pause_reading()
+        if answer:
+            self.transport.write(HEADERS_TOO_LARGE_RESPONSE)
+        _close(self.transport, self.loop, answer=False)
+
+    # ------------------------------------------------------------------ pipelining
+    def on_response_complete(self) -> None:
+        if self.pipeline and not self.transport.is_closing() and (wait := self._pipelined.take(self.loop.time())) > 0:
+            # As uvicorn's, but the next pipelined request starts once the connection's budget allows it.
+            self.server_state.total_requests += 1
+            self._unset_keepalive_if_required()
+            self._pipeline_timer = self.loop.call_later(wait, self._start_pipelined)
+            return
+        super().on_response_complete()
+        self._feed_held()
+
+    def _start_pipelined(self) -> None:
+        self._pipeline_timer = None
+        if self.transport.is_closing() or not self.pipeline:
+            return
+        self.flow.resume_reading()
+        cycle, app = self.pipeline.pop()
+        self._start_asgi_task(cycle, app)
+        self._feed_held()
 
     # ------------------------------------------------------------------ write timeout
     def pause_writing(self) -> None:
@@ -304,10 +401,13 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
             self._cycles.add(self.cycle)
         if not (self.parser.should_upgrade() and self._should_upgrade()):
             self._in_body = True
+            self._body = body_meter(self.headers, self._head)
+            self._trailer_clock = False
             self._arm(self.loop.time() + self.limits.body_timeout_s)
 
     def on_message_complete(self) -> None:
         self._in_body = False
+        self._body = None
         self._request_bytes = False
         self._disarm()
         super().on_message_complete()

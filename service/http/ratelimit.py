@@ -60,5 +60,27 @@ class RateLimiter:
             buckets.popitem(last=False)
 
 
+class TokenBucket:
+    """One token bucket of ``rate_per_s`` tokens a second holding up to ``burst`` (default: one second's
+    worth, at least 1); ``rate_per_s`` 0: no limit. For one connection's own budget, on the event loop."""
+
+    def __init__(self, rate_per_s: float, burst: float | None = None) -> None:
+        self.rate = rate_per_s
+        self.burst = max(1.0, rate_per_s if burst is None else burst)
+        self.tokens = self.burst
+        self._last: float | None = None
+
+    def take(self, now: float) -> float:
+        """Spend one token at loop time ``now``: 0 when there was one, else the seconds until it is paid for
+        (the token is spent in advance: whoever waits that long may go on)."""
+        if self.rate <= 0:
+            return 0.0
+        if self._last is not None:
+            self.tokens = min(self.burst, self.tokens + (now - self._last) * self.rate)
+        self._last = now
+        self.tokens -= 1.0
+        return 0.0 if self.tokens >= 0 else -self.tokens / self.rate
+
+
 def retry_after_header(wait_s: float) -> dict[str, str]:
     return {"Retry-After": str(max(1, math.ceil(wait_s)))}
