@@ -17,11 +17,11 @@ from typing import TYPE_CHECKING, Any
 
 from model.inference.engine import EncodedStyle
 from service.errors import ServiceError
+from service.style_ids import PREFIX
 
 if TYPE_CHECKING:
     from model.inference.engine import Engine
 
-PREFIX = "builtin:"
 
 _served: weakref.WeakKeyDictionary[Engine, dict[str, EncodedStyle]] = weakref.WeakKeyDictionary()
 _lock = threading.Lock()

@@ -14,6 +14,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import Response
 
 from model.inference.errors import EngineError, SkeletonMismatch, TooFewFrames, TooManyFrames
+from service.shape_hints import motion_errors, raw_bvh_body_hint
 
 log = logging.getLogger(__name__)
 CLIENT_CLOSED_REQUEST = 499
@@ -100,8 +101,6 @@ def _count(request: Request, code: str) -> None:
 def describe_validation(errors: Sequence[Mapping[str, Any]], limit: int = 5, builtin_names: Iterable[str] = ()) -> str:
     """One readable line per pydantic error: ``frames: Input should be greater than or equal to 1``; an error on
     a Motion names what to send instead (``builtin_names``: the built-in styles a name in ``style`` may mean)."""
-    from service.shape_hints import motion_errors  # here: shape_hints imports service.builtin_styles, which imports this
-
     parts, rest = motion_errors(errors, builtin_names)
     for err in rest:
         loc = ".".join(str(p) for p in err.get("loc", ()) if p not in ("body",)) or "body"
@@ -125,8 +124,6 @@ def _whole_body(error: Mapping[str, Any]) -> bool:
 
 def _raw_bvh_hint(body: Any) -> str:
     """The wrapper a BVH file sent as the whole body needed (``""`` for another body)."""
-    from service.shape_hints import raw_bvh_body_hint  # see describe_validation
-
     start = body[:64] if isinstance(body, bytes | bytearray) else str(body)[:64].encode() if isinstance(body, str) else b""
     return raw_bvh_body_hint(bytes(start))
 
