@@ -24,6 +24,8 @@ from service.schemas import BvhMotion, PoseMotion, StartMessage, TransitionReque
 from service.style_book import Caller
 from service.style_hints import builtin_suggestion, style_length_hint
 from service.style_store import StyleEntry
+from service.transition_steps import TransitionSteps
+from service.work_queue import Continue
 
 
 def lookup_style(model: LoadedModel, caller: Caller, style_id: str) -> EncodedStyle:
@@ -114,11 +116,12 @@ def new_seed() -> int:
 
 
 def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, queued_at: float,
-                   registered: Registered = None) -> dict[str, Any]:
+                   registered: Registered = None) -> dict[str, Any] | Continue[dict[str, Any]]:
     """Generate a whole transition alone (batch of one, so a seed always gives the same frames);
     ``registered``: its ``style_id`` already fetched from the store (:mod:`service.style_lookups`).
 
-    Returns the response body; ``timing_ms.total`` is left for the caller, which sees the whole request.
+    Returns the response body, after as many slices of stepping as it takes (:class:`Continue`, each on the
+    key's next turn of the work queue); ``timing_ms.total`` is left for the caller, which sees the whole request.
     """
     start = time.perf_counter()
     engine = model.engine
@@ -133,21 +136,32 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
                             exact_arrival=req.exact_arrival, style_strength=req.style_strength)
     except EngineError as exc:
         raise from_engine(exc) from exc
-    rotations, roots = engine.generate([ch])[0]
-    generated = time.perf_counter()
+    steps = TransitionSteps(engine, ch)
+    prepare_s = time.perf_counter() - parsed
+    timing = {"queue": round((start - queued_at) * 1e3, 3), "parse": round((parsed - start) * 1e3, 3)}
+    return _generate(model, req, ch, style, seed, steps, prepare_s, timing)
+
+
+def _generate(model: LoadedModel, req: TransitionRequest, ch: Character, style: EncodedStyle, seed: int,
+              steps: TransitionSteps, prepare_s: float,
+              timing: dict[str, float]) -> dict[str, Any] | Continue[dict[str, Any]]:
+    """One slice of a transition's stepping; the response body once it has ended."""
+    if not steps.advance():
+        return Continue(_generate, (model, req, ch, style, seed, steps, prepare_s, timing))
+    engine = model.engine
+    rotations, roots = steps.frames()
     body: dict[str, Any] = {"fps": engine.config.fps, "model": model.name, "style_id": style.style_id, "seed": seed,
                             "deterministic": req.deterministic, "reach": reach_body(ch)}
     if req.output == "bvh":
         body["bvh"] = frames_bvh(rotations, roots, engine.skeleton, engine.config.fps)
     else:
         body["frames"] = frames_json(rotations, roots)
-    engine_ms = (generated - parsed) * 1e3
+    engine_ms = (prepare_s + steps.seconds) * 1e3  # the thread's time, not the turns of other keys between slices
     body["timing_ms"] = {
         "total": 0.0,  # filled by the route, which also sees the wait for this thread
         "engine": round(engine_ms, 3),
         "per_frame": round(engine_ms / req.frames, 4),
-        "queue": round((start - queued_at) * 1e3, 3),
-        "parse": round((parsed - start) * 1e3, 3),
+        **timing,
     }
     return body
 

@@ -31,7 +31,7 @@ from service.streaming.scheduler import Scheduler
 from service.streaming.step_shares import StepShares
 from service.style_book import ANONYMOUS
 from service.style_store import StyleStore, style_store_factory
-from service.work_queue import WorkQueue
+from service.work_queue import Continue, WorkQueue
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -99,11 +99,11 @@ class LoadedModel:
             "builtin_styles": builtin_list(engine),
         }
 
-    async def run(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS,
+    async def run(self, fn: Callable[..., T | Continue[T]], *args: Any, owner: str = ANONYMOUS,
                   gone: Callable[[], Awaitable[None]] | None = None) -> T:
         """Run ``fn(*args)`` for an HTTP request of ``owner`` (the caller's owner digest) on this model's work
         threads, through its bounded queue (``overloaded`` when ``owner``'s part is full, ``shutting_down`` once
-        closed; ``gone``: see :meth:`WorkQueue.run`)."""
+        closed; ``gone``: see :meth:`WorkQueue.run`; a :class:`Continue` it returns runs on the key's next turn)."""
         return await self.queue.run(fn, *args, owner=owner, gone=gone)
 
     async def run_stream(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS) -> T:

@@ -8,6 +8,10 @@ so a burst costs the server nothing beyond what it can serve and the refusal goe
 to a quiet one; :mod:`service.http.queue_gate` asks :meth:`WorkQueue.refusal` before the request's body is even
 read. With API keys off every job has the one owner ``""``: one first-come queue of at most ``limit``.
 
+A long job may give the thread back between slices of its work: a job function that returns :class:`Continue`
+has its next slice queued first in its key's turn, and the thread goes to whichever key's turn it is meanwhile, so
+another key's job waits for one slice, not a whole long job (a 120-frame transition, say).
+
 A waiting job whose HTTP client has gone (its connection closed before the job started) is dropped, not run.
 At shutdown :meth:`WorkQueue.close` answers every waiting job 503 ``shutting_down`` at once and refuses new
 ones, so that only the jobs already running (at most ``threads``) are left for the graceful shutdown to wait for.
@@ -24,7 +28,8 @@ import time
 from collections import Counter, deque
 from collections.abc import Awaitable, Callable
 from concurrent.futures import Executor
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 from starlette.types import Receive
 
@@ -46,6 +51,15 @@ def shutting_down_error(started: bool = False) -> ServiceError:
                                          "replica (or here once it is back)")
 
 
+@dataclass(frozen=True)
+class Continue(Generic[T]):
+    """What a job returns to go on later: ``fn(*args)`` (which may return another) runs on its key's next turn,
+    before the key's jobs that wait; its result is the job's."""
+
+    fn: Callable[..., T | Continue[T]]
+    args: tuple[Any, ...] = ()
+
+
 class WorkQueue:
     """Per-key queues of at most ``limit`` waiting jobs each (None: no bound) in front of ``threads`` running ones
     on ``executor``."""
@@ -60,6 +74,8 @@ class WorkQueue:
         self.running = 0
         self.closed = False
         self._waiting: dict[str, deque[asyncio.Future[None]]] = {}  # per owner, oldest first; no empty deque
+        self._resuming: dict[str, deque[asyncio.Future[None]]] = {}  # per owner: next slices of started jobs
+        self._continuations: dict[asyncio.Future[Any], asyncio.Future[None]] = {}  # a slice -> its next one's ticket
         self._arrived: dict[asyncio.Future[None], int] = {}  # each waiting ticket's place in the order of arrival
         self._arrivals = 0
         self._running_of: Counter[str] = Counter()  # jobs running per owner
@@ -82,11 +98,12 @@ class WorkQueue:
         backlog = (ahead + self.running) * self._job_s / max(1, self.threads)
         return max(1, math.ceil(backlog))
 
-    async def run(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS,
+    async def run(self, fn: Callable[..., T | Continue[T]], *args: Any, owner: str = ANONYMOUS,
                   gone: Callable[[], Awaitable[None]] | None = None) -> T:
         """Run ``fn(*args)`` on a thread once ``owner`` (the API key's owner digest, :class:`service.style_book.Caller`)
-        has its turn; ``gone`` (awaitable) completes when the caller's client disconnects, in which case a job not
-        yet started raises :class:`ClientGone`.
+        has its turn, and the slices it returns (:class:`Continue`) on its next turns; ``gone`` (awaitable)
+        completes when the caller's client disconnects, in which case a job not yet started raises
+        :class:`ClientGone`.
 
         Raises ``overloaded`` (``owner``'s queue full) or ``shutting_down`` (closed) without waiting.
         """
@@ -96,9 +113,31 @@ class WorkQueue:
         if self._has_free_thread():
             self.running += 1
         else:
-            await self._wait_for_slot(owner, gone)
-        # From here this call holds a slot, released exactly once: when the job is done on its thread.
+            await self._wait(owner, self._enqueue(self._waiting, owner), gone)
         self._count(RUN)
+        thread_s = 0.0
+        try:
+            # Each slice holds a slot, released exactly once: when it is done on its thread.
+            result, ticket, seconds = await self._on_thread(fn, args, owner)
+            thread_s += seconds
+            while isinstance(result, Continue):
+                assert ticket is not None  # queued by _finished before the slot was passed on
+                await self._wait(owner, ticket, None)
+                result, ticket, seconds = await self._on_thread(result.fn, result.args, owner)
+                thread_s += seconds
+        except asyncio.CancelledError:
+            # uvicorn cancels the requests still running when its graceful shutdown times out: answer them
+            # in JSON rather than let the server write a plain-text 500 (a slice runs to its end).
+            if self.closed:
+                raise shutting_down_error(started=True) from None
+            raise
+        self._job_s += 0.2 * (thread_s - self._job_s)
+        return result
+
+    async def _on_thread(self, fn: Callable[..., T | Continue[T]], args: tuple[Any, ...],
+                         owner: str) -> tuple[T | Continue[T], asyncio.Future[None] | None, float]:
+        """Run one slice on a thread (the caller holds a slot); its result, the ticket of the next slice when it
+        returned :class:`Continue`, and its seconds on the thread."""
         self._running_of[owner] += 1
         started = time.perf_counter()
         try:
@@ -108,16 +147,14 @@ class WorkQueue:
             raise
         future.add_done_callback(lambda f: self._finished(f, owner, started))
         try:
-            return await asyncio.shield(future)
+            result = await asyncio.shield(future)
         except asyncio.CancelledError:
-            # uvicorn cancels the requests still running when its graceful shutdown times out: answer them
-            # in JSON rather than let the server write a plain-text 500 (the job itself runs to its end).
-            if self.closed:
-                raise shutting_down_error(started=True) from None
+            future.add_done_callback(lambda f: self._drop_continuation(owner, f))  # after _finished
             raise
+        return result, self._continuations.pop(future, None), time.perf_counter() - started
 
     def _has_free_thread(self) -> bool:
-        return self.running < self.threads and not self._waiting
+        return self.running < self.threads and not self._waiting and not self._resuming
 
     def _full(self, owner: str) -> bool:
         """No free thread and ``limit`` jobs of ``owner`` already waiting: its job arriving now is refused."""
@@ -147,11 +184,21 @@ class WorkQueue:
         return self.closed or self._full(owner)
 
     def _finished(self, future: asyncio.Future[Any], owner: str, started: float) -> None:
-        if not future.cancelled():
-            future.exception()  # retrieved here too, for a caller cancelled meanwhile
-        seconds = time.perf_counter() - started
-        self._job_s += 0.2 * (seconds - self._job_s)
-        self._done(owner, seconds)
+        """A slice is done: queue the job's next slice (if any) first in its key's turn, then pass the slot on."""
+        if not future.cancelled() and future.exception() is None and isinstance(future.result(), Continue):
+            self._continuations[future] = self._enqueue(self._resuming, owner)
+        self._done(owner, time.perf_counter() - started)
+
+    def _drop_continuation(self, owner: str, future: asyncio.Future[Any]) -> None:
+        """The caller of a slice was cancelled: its job goes no further, and the next slice's turn is given up."""
+        ticket = self._continuations.pop(future, None)
+        if ticket is None:
+            return
+        if ticket.done() and not ticket.cancelled() and ticket.exception() is None:
+            self._release()  # granted meanwhile: pass the slot on
+        else:
+            self._forget(owner, ticket)
+            ticket.cancel()
 
     def _done(self, owner: str, seconds: float) -> None:
         """A job of ``owner`` that held a thread for ``seconds`` is done: charge its key, pass the slot on."""
@@ -159,16 +206,20 @@ class WorkQueue:
         self._running_of[owner] -= 1
         if self._running_of[owner] <= 0:
             del self._running_of[owner]
-        self._turns.keep([*self._waiting, *self._running_of])
+        self._turns.keep([*self._waiting, *self._resuming, *self._running_of])
         self._release()
 
-    async def _wait_for_slot(self, owner: str, gone: Callable[[], Awaitable[None]] | None) -> None:
-        """Wait for ``owner``'s turn (:meth:`run` has checked there is room)."""
+    def _enqueue(self, queues: dict[str, deque[asyncio.Future[None]]], owner: str) -> asyncio.Future[None]:
+        """A new ticket of ``owner``, last in its queue of ``queues`` (``_waiting`` or ``_resuming``)."""
         ticket: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._waiting.setdefault(owner, deque()).append(ticket)
+        queues.setdefault(owner, deque()).append(ticket)
         self._arrived[ticket] = self._arrivals
         self._arrivals += 1
         self._gauge()
+        return ticket
+
+    async def _wait(self, owner: str, ticket: asyncio.Future[None], gone: Callable[[], Awaitable[None]] | None) -> None:
+        """Wait until ``ticket`` is granted a slot (:meth:`run` has checked there is room)."""
         watcher = None if gone is None else asyncio.create_task(self._watch(owner, ticket, gone),
                                                                 name="work-queue-watch")
         try:
@@ -195,23 +246,26 @@ class WorkQueue:
             ticket.set_exception(ClientGone())
 
     def _forget(self, owner: str, ticket: asyncio.Future[None]) -> None:
-        queue = self._waiting.get(owner)
-        if queue is not None and ticket in queue:
-            queue.remove(ticket)
-            if not queue:
-                del self._waiting[owner]
+        for queues in (self._waiting, self._resuming):
+            queue = queues.get(owner)
+            if queue is not None and ticket in queue:
+                queue.remove(ticket)
+                if not queue:
+                    del queues[owner]
         self._arrived.pop(ticket, None)
         self._gauge()
 
     def _release(self) -> None:
         """A running job is done: hand its slot to the first waiting job of the key whose turn it is, or free it."""
-        while self._waiting:
-            owner = self._turns.first(sorted(self._waiting, key=lambda k: self._arrived[self._waiting[k][0]]))
+        while self._waiting or self._resuming:
+            # Each key's next ticket: the next slice of a started job, else its oldest waiting job.
+            heads = {k: q[0] for k, q in self._waiting.items()} | {k: q[0] for k, q in self._resuming.items()}
+            owner = self._turns.first(sorted(heads, key=lambda k: self._arrived[heads[k]]))
             assert owner is not None
-            queue = self._waiting[owner]
-            ticket = queue.popleft()
-            if not queue:
-                del self._waiting[owner]
+            queues = self._resuming if owner in self._resuming else self._waiting
+            ticket = queues[owner].popleft()
+            if not queues[owner]:
+                del queues[owner]
             self._arrived.pop(ticket, None)
             if not ticket.done():
                 ticket.set_result(None)  # the slot passes on; ``running`` is unchanged
@@ -221,13 +275,14 @@ class WorkQueue:
         self._gauge()
 
     def close(self) -> int:
-        """Refuse new jobs and answer every waiting one ``shutting_down``; returns how many were waiting."""
+        """Refuse new jobs and answer every waiting one ``shutting_down`` (started ones go on to their end);
+        returns how many were waiting."""
         self.closed = True
         dropped = 0
         tickets = [t for queue in self._waiting.values() for t in queue]
         self._waiting.clear()
-        self._arrived.clear()
         for ticket in tickets:
+            self._arrived.pop(ticket, None)
             if not ticket.done():
                 ticket.set_exception(shutting_down_error())
                 dropped += 1

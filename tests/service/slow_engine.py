@@ -1,8 +1,8 @@
 """``python -m tests.service.slow_engine serve ...``: the ``rsmt`` command with every whole transition
-slowed by ``RSMT_TEST_GENERATE_DELAY_S`` seconds (a sleep before ``Engine.generate``: it holds a work
-thread without using CPU), so that a test can fill a model's work queue with a few requests on a
-small machine. Everything else is the real command: ``rsmt serve`` under uvicorn with its signals,
-drain and graceful shutdown."""
+slowed by ``RSMT_TEST_GENERATE_DELAY_S`` seconds (a sleep before its first step,
+``service.transition_steps.TransitionSteps``: it holds a work thread without using CPU), so that a test can
+fill a model's work queue with a few requests on a small machine. Everything else is the real command:
+``rsmt serve`` under uvicorn with its signals, drain and graceful shutdown."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from model.inference.engine import Engine
+from service.transition_steps import TransitionSteps
 from tests.service.server import Server
 
 DELAY_ENV = "RSMT_TEST_GENERATE_DELAY_S"
@@ -28,13 +28,13 @@ def slow_server(bundle: Path, delay_s: float, queue_limit: int, env: dict[str, s
 
 
 def install(delay_s: float) -> None:
-    original = Engine.generate
+    original = TransitionSteps.__init__
 
-    def generate(self: Engine, *args: Any, **kwargs: Any) -> Any:
+    def init(self: TransitionSteps, *args: Any, **kwargs: Any) -> None:
         time.sleep(delay_s)
-        return original(self, *args, **kwargs)
+        original(self, *args, **kwargs)
 
-    setattr(Engine, original.__name__, generate)
+    TransitionSteps.__init__ = init  # type: ignore[method-assign]
 
 
 if __name__ == "__main__":

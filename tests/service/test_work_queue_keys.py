@@ -1,6 +1,6 @@
 """The work queue's per-key turns and bounds (issue 64, item 4), on a real one-thread executor with jobs that sleep:
-another key's job waits for the running job only, not for a burst; the bound refuses the key that floods; two keys
-that keep jobs waiting get about equal thread time whatever their jobs' lengths."""
+another key's job waits for the running job (or slice of one) only, not for a burst; the bound refuses the key that
+floods; two keys that keep jobs waiting get about equal thread time whatever their jobs' lengths."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 from service.errors import ServiceError
 from service.key_turns import CREDIT_S, KeyTurns
-from service.work_queue import WorkQueue
+from service.work_queue import Continue, WorkQueue
 
 
 def _job(log: list[str], name: str, seconds: float) -> Callable[[], str]:
@@ -117,3 +117,30 @@ def test_key_turns_least_used_first_a_returning_key_within_the_credit():
     assert set(turns.used) == {"a"}
     with pytest.raises(ValueError):
         turns.charge("a", -1.0)
+
+
+def _sliced(log: list[str], name: str, slices: int, seconds: float) -> Callable[[], object]:
+    """A job of ``slices`` slices of ``seconds`` each, given back to the queue between them (:class:`Continue`)."""
+
+    def part(i: int) -> object:
+        log.append(f"{name}.{i}")
+        time.sleep(seconds)
+        return Continue(part, (i + 1,)) if i + 1 < slices else name
+
+    return lambda: part(0)
+
+
+def test_a_long_job_in_slices_lets_another_keys_job_run_between_them_and_keeps_its_own_keys_order():
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            queue = WorkQueue(pool, threads=1, limit=4)
+            log: list[str] = []
+            long = [asyncio.create_task(queue.run(_sliced(log, f"b{i}", 4, 0.03), owner="b")) for i in range(2)]
+            await asyncio.sleep(0.04)  # b0's first slice has run, its second is under way
+            quiet = asyncio.create_task(queue.run(_job(log, "a0", 0.01), owner="a"))
+            assert await asyncio.gather(quiet, *long) == ["a0", "b0", "b1"]
+            # a0 waits for one slice, not for b0's four; b1 starts only when b0 has ended (one key's jobs in order).
+            assert log.index("a0") <= 3 and log.index("b1.0") == log.index("b0.3") + 1, log
+            assert queue.running == 0 and queue.waiting == 0
+
+    asyncio.run(main())
