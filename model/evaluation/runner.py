@@ -31,12 +31,8 @@ from model.data.preprocessed import MotionCache
 from model.data.splits import Split
 from model.evaluation import metrics
 from model.evaluation.cases import (
-    CASE_STEP,
     CONTEXT,
     GAP_VARIANTS,
-    LOCOMOTION,
-    SPAN,
-    STYLE_CLIP_FRAMES,
     VARIANTS,
     CaseSet,
     Variant,
@@ -46,6 +42,13 @@ from model.evaluation.cases import (
 from model.evaluation.floor import floor_depth
 from model.evaluation.methods import BaselineMethod, Method, Request, Unavailable
 from model.evaluation.reference import ReferenceStats, reference_stats
+from model.evaluation.run_description import (
+    describe_cases,
+    describe_protocol,
+    describe_reference,
+    describe_scorers,
+    describe_variants,
+)
 from model.evaluation.scoring import (
     Transitions,
     gait_rows,
@@ -168,15 +171,8 @@ def evaluate(
     cache.indices_of(settings.clips_only, "clips-only takes")  # a ValueError for an unknown one
     if stats is None:
         stats = reference_stats(cache, split.train, progress=progress)
-    unknown = sorted(set(settings.styles) - set(cache.styles))
-    if unknown:
-        raise ValueError(f"unknown style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
-    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles,
-                            clip_fallback=split.train if settings.split != "train" else (),
-                            clips_only=settings.clips_only)
-    cases = CaseSet.load(cache, case_list, style_set_takes(cache, settings.style_sets))
+    cases = _load_cases(cache, settings, takes, split)
     scorer = StyleScorer(classifier, cases.skeleton) if classifier is not None else None
-    styles = [c.style for c in cases.cases]
     render_index = _render_cases(cases, settings.render_cases)
     if settings.target_frames not in (1, 2):
         raise ValueError(f"target frames must be 1 or 2, not {settings.target_frames}")
@@ -185,6 +181,39 @@ def evaluate(
                   judge2=judge2)
 
     gt_rows, gt_features = _score_ground_truth(run, scorer)
+    method_reports = _score_methods(run, methods, settings, scorer, gt_features, progress)
+    if render_index and not any(isinstance(m, BaselineMethod) and m.name == "interp" for m in methods):
+        _render_interpolation(run)
+
+    run.report = {
+        "format": FORMAT,
+        **describe_cases(cache, asdict(settings), cases),
+        "protocol": describe_protocol(settings.target_frames, settings.noise),
+        "variants": describe_variants(),
+        "reference": describe_reference(stats, cases),
+        **describe_scorers(classifier, classifier_path, judge, judge_path, judge2, judge2_path),
+        "ground_truth": gt_rows,
+        "ground_truth_locomotion": _score_ground_truth_locomotion(run),
+        "methods": method_reports,
+        "seconds": round(time.perf_counter() - began, 2),
+    }
+    return run
+
+
+def _load_cases(cache: MotionCache, settings: EvalSettings, takes: Sequence[int], split: Split) -> CaseSet:
+    """The cases of ``takes`` (of the styles asked for, when any), loaded with their style clips."""
+    unknown = sorted(set(settings.styles) - set(cache.styles))
+    if unknown:
+        raise ValueError(f"unknown style(s) {', '.join(unknown)}: the data has {', '.join(cache.styles)}")
+    case_list = build_cases(cache, takes, settings.limit, only_styles=settings.styles,
+                            clip_fallback=split.train if settings.split != "train" else (),
+                            clips_only=settings.clips_only)
+    return CaseSet.load(cache, case_list, style_set_takes(cache, settings.style_sets))
+
+
+def _score_methods(run: EvalRun, methods: list[Method], settings: EvalSettings, scorer: StyleScorer | None,
+                   gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
+    """Each method's report by its name (primed where two methods share one, or one is the ground truth's)."""
     method_reports: dict[str, Any] = {}
     names: list[str] = []
     for method in methods:
@@ -197,54 +226,15 @@ def evaluate(
         loco_rows = rows.pop("locomotion")
         method_reports[name] = {**method.describe(), "name": name, "seconds": round(time.perf_counter() - t0, 2),
                                 "locomotion": loco_rows, "variants": rows}
+    return method_reports
 
-    if render_index and not any(isinstance(m, BaselineMethod) and m.name == "interp" for m in methods):
-        # The contact sheet always shows interpolation beside the model and the ground truth.
-        interp, sub = BaselineMethod("interp"), cases.subset(render_index)
-        run.render["interp"] = {v.name: to_canonical(sub, *interp.generate(sub, Request(v))).positions
-                                for v in VARIANTS if not v.locomotion_only}
 
-    run.report = {
-        "format": FORMAT,
-        "data": str(cache.data_root),
-        "cache": cache.key,
-        "split": settings.split,
-        "settings": asdict(settings),
-        "cases": len(cases),
-        "locomotion_cases": len(cases.locomotion_index),
-        "locomotion_contents": list(LOCOMOTION),
-        "target_frames": settings.target_frames,
-        "takes": len({c.take for c in cases.cases}),
-        "case_ids": [c.id for c in cases.cases],
-        "styles": sorted(set(styles)),
-        "protocol": {
-            "context_frames": CONTEXT, "case_frames": SPAN, "case_step": CASE_STEP,
-            "canonical_frame": "last context frame (window frame 9)",
-            "style_clip_frames": STYLE_CLIP_FRAMES,
-            "target": "the target frame alone" if settings.target_frames == 1
-                      else "the target frame and the frame before it (its velocity)",
-            "noise": ("sampled, a seed per case and variant (as the API's default request)" if settings.noise
-                      else "none (deterministic)"),
-            "style_pairing": "same style, another take of the split (120+ frames first, same content first), "
-                             "hash-ranked; cross: a hash-chosen other style, same ranking",
-        },
-        "variants": [{"name": v.name, "label": v.label, "gap": v.gap, "frames": v.frames, "d": v.d, "dt": v.dt,
-                      "turn_deg": v.turn, "side_cm": v.side, "locomotion_only": v.locomotion_only,
-                      "ground_truth": v.has_ground_truth} for v in VARIANTS],
-        "reference": {"takes": stats.takes, "windows": stats.windows,
-                      "feet": [cases.skeleton.names[j] for j in stats.feet],
-                      "ground_cm": [round(x, 3) for x in stats.ground.tolist()]},
-        "classifier": None if classifier is None else {
-            "path": classifier_path, "styles": classifier.styles, "inputs": classifier.config.inputs,
-            "window": classifier.config.window},
-        "judge": None if judge is None else {"path": judge_path, **judge.describe()},
-        "judge2": None if judge2 is None else {"path": judge2_path, **judge2.describe()},
-        "ground_truth": gt_rows,
-        "ground_truth_locomotion": _score_ground_truth_locomotion(run),
-        "methods": method_reports,
-        "seconds": round(time.perf_counter() - began, 2),
-    }
-    return run
+def _render_interpolation(run: EvalRun) -> None:
+    """Interpolation's transitions of the rendered cases: the contact sheet always shows interpolation beside
+    the model and the ground truth."""
+    interp, sub = BaselineMethod("interp"), run.cases.subset(run.render_index)
+    run.render["interp"] = {v.name: to_canonical(sub, *interp.generate(sub, Request(v))).positions
+                            for v in VARIANTS if not v.locomotion_only}
 
 
 def _score_ground_truth(run: EvalRun, scorer: StyleScorer | None) -> tuple[dict[str, dict[str, Any]], Tensor | None]:
@@ -307,12 +297,11 @@ def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSetting
                   gt_features: Tensor | None, progress: bool) -> dict[str, Any]:
     """One method's rows, one per variant, on all cases (returned) and on the locomotion cases
     (``rows["locomotion"]``, a dict by variant like the rest)."""
-    cases = run.cases
     rows: dict[str, Any] = {}
     loco_rows: dict[str, Any] = {}
     run.render[name] = {}
     for v in tqdm(VARIANTS, desc=name, unit="variant", disable=not progress, leave=False, file=sys.stderr):
-        on = run.loco if v.locomotion_only else cases
+        on = run.loco if v.locomotion_only else run.cases
         if on is None:
             loco_rows[v.name] = {"unavailable": "no locomotion case"}
             continue
@@ -327,27 +316,43 @@ def _score_method(run: EvalRun, method: Method, name: str, settings: EvalSetting
         if v.locomotion_only:
             loco_rows[v.name] = _judged(run, v, on, out)
             continue
-        row: dict[str, Any] = _judged(run, v, cases, out)
-        run.render[name][v.name] = out.positions[run.render_index]
-        cross = None
-        if v.gap == STYLE_GAP and v.has_ground_truth and (scorer is not None or run.judge is not None
-                                                          or run.judge2 is not None):
-            cross = _cross_style(run, method, v, out, settings, progress)
-        if scorer is not None and v.gap == STYLE_GAP:
-            row.update(_style_row(run, v, out, cross, scorer, gt_features))
-        if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
-                and settings.diversity_cases > 0):
-            row.update(_diversity(method, cases, v, settings, progress))
-        rows[v.name] = row
-        if cross is not None:
-            row.update(_judges_cross(run, cases, cross.positions))
+        rows[v.name], cross = _variant_row(run, method, name, v, out, settings, scorer, gt_features, progress)
         if run.loco is not None:
-            idx = cases.locomotion_index
-            loco_rows[v.name] = _judged(run, v, run.loco, Transitions(out.positions[idx], out.rotations[idx]))
-            if cross is not None:
-                loco_rows[v.name].update(_judges_cross(run, run.loco, cross.positions[idx]))
+            loco_rows[v.name] = _locomotion_row(run, run.loco, v, out, cross)
     rows["locomotion"] = loco_rows
     return rows
+
+
+def _variant_row(run: EvalRun, method: Method, name: str, v: Variant, out: Transitions, settings: EvalSettings,
+                 scorer: StyleScorer | None, gt_features: Tensor | None,
+                 progress: bool) -> tuple[dict[str, Any], Transitions | None]:
+    """A method's row of variant ``v`` on all cases (scores, style, diversity, the judges on other-style clips),
+    and its transitions with the other-style clips where any scorer reads them (else None)."""
+    cases = run.cases
+    row: dict[str, Any] = _judged(run, v, cases, out)
+    run.render[name][v.name] = out.positions[run.render_index]
+    cross = None
+    if v.gap == STYLE_GAP and v.has_ground_truth and (scorer is not None or run.judge is not None
+                                                      or run.judge2 is not None):
+        cross = _cross_style(run, method, v, out, settings, progress)
+    if scorer is not None and v.gap == STYLE_GAP:
+        row.update(_style_row(run, v, out, cross, scorer, gt_features))
+    if (method.stochastic and v.has_ground_truth and settings.diversity_samples >= 2
+            and settings.diversity_cases > 0):
+        row.update(_diversity(method, cases, v, settings, progress))
+    if cross is not None:
+        row.update(_judges_cross(run, cases, cross.positions))
+    return row, cross
+
+
+def _locomotion_row(run: EvalRun, loco: CaseSet, v: Variant, out: Transitions,
+                    cross: Transitions | None) -> dict[str, Any]:
+    """The row of variant ``v`` on the locomotion cases, cut from the transitions of all cases."""
+    idx = run.cases.locomotion_index
+    row = _judged(run, v, loco, Transitions(out.positions[idx], out.rotations[idx]))
+    if cross is not None:
+        row.update(_judges_cross(run, loco, cross.positions[idx]))
+    return row
 
 
 def _judged(run: EvalRun, v: Variant, cases: CaseSet, out: Transitions) -> dict[str, Any]:
