@@ -19,7 +19,7 @@ from model.motion.bvh import BvhDocument, BvhError
 from model.motion.bvh_clip import dump_clip, to_clip
 from model.motion.bvh_parser import MAX_FPS, MIN_FPS  # the reader refuses a Frame Time outside them
 from model.motion.clip import Clip
-from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError, profile_of
+from model.motion.skeleton import BUILTIN_PROFILES, Skeleton, SkeletonError, SkeletonProfile, fit_names, profile_of
 from model.motion.skeleton import plain_joint_name as _plain
 from service.errors import ServiceError, from_engine
 from service.schemas import BvhMotion, PoseMotion
@@ -112,7 +112,7 @@ def _pose_clip(motion: PoseMotion, skeleton: Skeleton, fps: float, limits: Motio
                                                     "send them in that order or add `joints` to map them by name")
     else:
         lookup: dict[str, int] = {}
-        for i, n in enumerate(names):
+        for i, n in enumerate(_profile_names(tuple(names), skeleton)):  # Mixamo names and the like, read as the model's
             if _plain(n) in lookup:
                 raise ServiceError("bad_motion", f"{what}: joint {n!r} is listed twice in `joints`")
             lookup[_plain(n)] = i
@@ -123,6 +123,18 @@ def _pose_clip(motion: PoseMotion, skeleton: Skeleton, fps: float, limits: Motio
         rot = rot[:, [lookup[_plain(n)] for n in skeleton.names]]
     rot = rot / np.linalg.norm(rot, axis=-1, keepdims=True)
     return Clip(skeleton, torch.from_numpy(rot).float(), torch.from_numpy(root).float(), fps, what)
+
+
+def _profile_names(names: tuple[str, ...], skeleton: Skeleton) -> tuple[str, ...]:
+    """``joints`` under another rig's names (Mixamo, Unreal Mannequin, CMU) as the model's built-in profile reads
+    them (its ``aliases``, as for a BVH); as they came when they name the model's joints or fit no alias scheme."""
+    have = {_plain(n) for n in names}
+    if skeleton.roles.profile not in BUILTIN_PROFILES or all(_plain(n) in have for n in skeleton.names):
+        return names
+    try:
+        return fit_names(names, SkeletonProfile.load(skeleton.roles.profile))[0]
+    except SkeletonError:
+        return names  # the error that follows names the joints the model lacks
 
 
 def _check_values(rot: np.ndarray, root: np.ndarray, names: tuple[str, ...], limits: MotionLimits, what: str,

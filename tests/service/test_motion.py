@@ -200,3 +200,15 @@ def test_the_default_rig_under_mixamo_names_is_served_without_a_profile():
     assert theirs.skeleton.names == ours.skeleton.names == engine.skeleton.names
     assert torch.allclose(theirs.rotations, ours.rotations, atol=1e-6)
     assert torch.allclose(theirs.root_positions, ours.root_positions, atol=1e-4)
+
+
+def test_json_poses_may_name_their_joints_as_mixamo_does(engine):
+    clip = walk(20)
+    mixamo = [f"mixamorig:{MIXAMO_NAMES.get(n, n)}" for n in clip.skeleton.names]
+    order = list(reversed(range(clip.skeleton.num_joints)))  # and in another order, mapped by name
+    payload = {"root_positions": clip.root_positions.tolist(), "rotations": clip.rotations[:, order].tolist(),
+               "joints": [mixamo[j] for j in order]}
+    out = convert(engine, payload)
+    assert torch.allclose(out.rotations, convert(engine, poses(clip)).rotations, atol=1e-6)
+    payload["joints"] = [f"Bone{j}" for j in order]  # names of no scheme: the missing joints are named
+    assert error(engine, payload).message.startswith("clip: `joints` lacks joint(s) of the model's skeleton: Hips")
