@@ -151,8 +151,9 @@ class Settings(BaseSettings):
 
     # -- work queue and shutdown
     queue_limit: int = Field(
-        default=32, ge=1, description="per model: HTTP requests that may wait for a work thread; beyond, 503 "
-        "overloaded with Retry-After at once (stream setup has its own threads and does not wait here)")
+        default=32, ge=1, description="per model and API key (with keys off: of everyone): HTTP requests that "
+        "may wait for a work thread; beyond, 503 overloaded with Retry-After at once, to that key only (stream setup "
+        "has its own threads and does not wait here)")
 
     # -- connection limits (slow clients)
     # Enforced by service.http.connection_guard (the uvicorn protocol `rsmt serve` runs), per process.
