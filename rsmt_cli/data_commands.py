@@ -11,7 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from model.data.splits import DEFAULT_RATIOS, SPLITS, parse_ratios, split_takes
+from model.data.splits import DEFAULT_RATIOS, SPLITS, Split, parse_ratios, split_takes
 from model.data.takes import Problem, Take, TakeIndex, describe_layout, index_takes, read_bvh_header, relative_path
 
 if TYPE_CHECKING:
@@ -120,23 +120,15 @@ def inspect_data(
     index = index_takes(folder, manifest)
     unit = parse_units(units)
     prof = None if profile is None else SkeletonProfile.load(profile)
-    cache_folder = None
     if use_cache:
-        from model.data.preprocessed import load_motion_cache  # torch-heavy; only needed with --cache
-
-        cache = load_motion_cache(folder, fps=fps, profile=prof, manifest=manifest, units=unit)
-        rows = [(t, n, cache.fps) for t, n in zip(cache.takes, cache.frame_counts)]
-        problems = list(cache.problems)
-        cache_folder = str(cache.folder)
-        rigs: list[dict[str, Any]] = []
+        rows, problems, rigs, cache_folder = _from_cache(folder, manifest, prof, fps, unit)
     else:
         rows, probe_problems, rigs = _probe_headers(index, prof, unit)
-        problems = index.problems + probe_problems
+        problems, cache_folder = index.problems + probe_problems, None
     takes = [t for t, _, _ in rows]
     styles = sorted({t.style for t in takes})
     contents = sorted({t.content for t in takes})
     split = split_takes(takes, ratios, holdout_styles, frames=[f for _, f, _ in rows])
-    split_names = [*SPLITS, "holdout"] if split.holdout_styles else list(SPLITS)
     return {
         "folder": str(index.root),
         "layout": index.layout,
@@ -147,6 +139,28 @@ def inspect_data(
         "total": _tally(rows),
         "styles": styles,
         "contents": contents,
+        **_tallies_by_label(rows, styles, contents),
+        "split": _split_tallies(rows, split),
+        "rigs": rigs,
+        "problems": [asdict(p) for p in problems],
+    }
+
+
+def _from_cache(folder: Path, manifest: Path | None, profile: SkeletonProfile | None, fps: float,
+                units: str | float) -> tuple[list[tuple[Take, int, float]], list[Problem], list[dict[str, Any]], str]:
+    """Frames of each take as the preprocessed cache holds them (built or reused), its problems, no rig
+    reports, and the cache's folder."""
+    from model.data.preprocessed import load_motion_cache  # torch-heavy; only needed with --cache
+
+    cache = load_motion_cache(folder, fps=fps, profile=profile, manifest=manifest, units=units)
+    rows = [(t, n, cache.fps) for t, n in zip(cache.takes, cache.frame_counts)]
+    return rows, list(cache.problems), [], str(cache.folder)
+
+
+def _tallies_by_label(rows: Sequence[tuple[Take, int, float]], styles: Sequence[str],
+                      contents: Sequence[str]) -> dict[str, Any]:
+    """Tallies per style, per content, and per style and content (takes and frames only)."""
+    return {
         "per_style": {s: _tally([r for r in rows if r[0].style == s]) for s in styles},
         "per_content": {c: _tally([r for r in rows if r[0].content == c]) for c in contents},
         "table": {
@@ -154,13 +168,16 @@ def inspect_data(
                     if k != "minutes"} for c in contents}
             for s in styles
         },
-        "split": {
-            "ratios": list(split.ratios),
-            "holdout_styles": list(split.holdout_styles),
-            **{name: _tally([rows[i] for i in split[name]]) for name in split_names},
-        },
-        "rigs": rigs,
-        "problems": [asdict(p) for p in problems],
+    }
+
+
+def _split_tallies(rows: Sequence[tuple[Take, int, float]], split: Split) -> dict[str, Any]:
+    """The split's ratios, held-out styles and a tally of each of its parts."""
+    split_names = [*SPLITS, "holdout"] if split.holdout_styles else list(SPLITS)
+    return {
+        "ratios": list(split.ratios),
+        "holdout_styles": list(split.holdout_styles),
+        **{name: _tally([rows[i] for i in split[name]]) for name in split_names},
     }
 
 
@@ -184,69 +201,96 @@ def format_report(report: dict[str, Any]) -> str:
         f"Layout:      {report['labels']}",
         f"Takes:       {total['takes']} takes, {total['frames']:,} frames, {total['minutes']:.1f} min; "
         f"{len(styles)} styles x {len(contents)} contents",
+        _frames_line(report),
     ]
+    if styles:
+        out += _style_content_lines(report)
+        out += _per_label_lines(report)
+    for rig in report.get("rigs", []):
+        out += _rig_lines(rig)
+    out += _split_lines(report["split"])
+    out += _problem_lines(report["problems"])
+    return "\n".join(out)
+
+
+def _frames_line(report: dict[str, Any]) -> str:
+    """Where the frames were counted (the cache or the BVH headers) and at which rates."""
     rates = ", ".join(f"{f:g}" for f in report["fps"]) or "-"
     if report["frames_from"] == "cache":
-        out.append(f"Frames:      preprocessed at {rates} fps (cache {report['cache']})")
-    else:
-        out.append(f"Frames:      from the BVH headers, at the files' own rate ({rates} fps); minutes at that rate")
+        return f"Frames:      preprocessed at {rates} fps (cache {report['cache']})"
+    return f"Frames:      from the BVH headers, at the files' own rate ({rates} fps); minutes at that rate"
 
-    if styles:
-        # The longer label list runs down the rows so the table stays narrow (100STYLE: 100 styles).
-        by_style = len(styles) > len(contents)
-        rows_l, cols_l = (styles, contents) if by_style else (contents, styles)
-        corner = "style \\ content" if by_style else "content \\ style"
 
-        def cell(r: str, c: str) -> dict[str, int]:
-            return report["table"][r][c] if by_style else report["table"][c][r]
+def _style_content_lines(report: dict[str, Any]) -> list[str]:
+    """The style x content table of takes/frames, with totals and minutes."""
+    total = report["total"]
+    styles, contents = report["styles"], report["contents"]
+    # The longer label list runs down the rows so the table stays narrow (100STYLE: 100 styles).
+    by_style = len(styles) > len(contents)
+    rows_l, cols_l = (styles, contents) if by_style else (contents, styles)
+    corner = "style \\ content" if by_style else "content \\ style"
 
-        def sums(label: str, along_rows: bool) -> dict[str, float]:
-            key = ("per_style" if by_style else "per_content") if along_rows else ("per_content" if by_style else "per_style")
-            return report[key][label]
+    def cell(r: str, c: str) -> dict[str, int]:
+        return report["table"][r][c] if by_style else report["table"][c][r]
 
-        body = []
-        for r in rows_l:
-            t = sums(r, True)
-            body.append([r, *(f"{cell(r, c)['takes']}/{cell(r, c)['frames']:,}" for c in cols_l),
-                         f"{t['takes']}/{t['frames']:,}", f"{t['minutes']:.1f}"])
-        body.append(["total", *(f"{sums(c, False)['takes']}/{sums(c, False)['frames']:,}" for c in cols_l),
-                     f"{total['takes']}/{total['frames']:,}", f"{total['minutes']:.1f}"])
-        body.append(["minutes", *(f"{sums(c, False)['minutes']:.1f}" for c in cols_l), f"{total['minutes']:.1f}", ""])
-        out += ["", "Takes/frames per style and content (cell = takes/frames):"]
-        out += _table([corner, *cols_l, "total", "minutes"], body)
+    def sums(label: str, along_rows: bool) -> dict[str, float]:
+        key = ("per_style" if by_style else "per_content") if along_rows else ("per_content" if by_style else "per_style")
+        return report[key][label]
 
-        for title, key in (("style", "per_style"), ("content", "per_content")):
-            out += ["", f"Per {title}:"]
-            out += _table([title, "takes", "frames", "minutes"],
-                          [[k, v["takes"], f"{v['frames']:,}", f"{v['minutes']:.1f}"] for k, v in report[key].items()])
+    body = []
+    for r in rows_l:
+        t = sums(r, True)
+        body.append([r, *(f"{cell(r, c)['takes']}/{cell(r, c)['frames']:,}" for c in cols_l),
+                     f"{t['takes']}/{t['frames']:,}", f"{t['minutes']:.1f}"])
+    body.append(["total", *(f"{sums(c, False)['takes']}/{sums(c, False)['frames']:,}" for c in cols_l),
+                 f"{total['takes']}/{total['frames']:,}", f"{total['minutes']:.1f}"])
+    body.append(["minutes", *(f"{sums(c, False)['minutes']:.1f}" for c in cols_l), f"{total['minutes']:.1f}", ""])
+    return ["", "Takes/frames per style and content (cell = takes/frames):",
+            *_table([corner, *cols_l, "total", "minutes"], body)]
 
-    for rig in report.get("rigs", []):
-        out += ["", f"Rig of {rig['example']} ({rig['takes']} take(s) share it): profile {rig['profile']}, "
-                    f"{rig['joints']} of the file's {rig['file_joints']} joints kept, {rig['fps']:g} fps",
-                f"  units:   {rig['cm_per_unit']:g} cm per file unit; head {rig['head_cm']:.1f} cm, "
-                f"hips {rig['hips_cm']:.1f} cm above the lowest foot joint",
-                f"  facing:  {rig['facing']} (pairs {rig['hips_spread_cm']:.1f} and "
-                f"{rig['shoulders_spread_cm']:.1f} cm apart)",
-                f"  dropped: {', '.join(rig['dropped']) or 'none'}"]
-    split = report["split"]
+
+def _per_label_lines(report: dict[str, Any]) -> list[str]:
+    """A table of takes, frames and minutes per style, then one per content."""
+    out: list[str] = []
+    for title, key in (("style", "per_style"), ("content", "per_content")):
+        out += ["", f"Per {title}:"]
+        out += _table([title, "takes", "frames", "minutes"],
+                      [[k, v["takes"], f"{v['frames']:,}", f"{v['minutes']:.1f}"] for k, v in report[key].items()])
+    return out
+
+
+def _rig_lines(rig: dict[str, Any]) -> list[str]:
+    """What the check of one rig found: its profile, joints, units, facing and dropped joints."""
+    return ["", f"Rig of {rig['example']} ({rig['takes']} take(s) share it): profile {rig['profile']}, "
+                f"{rig['joints']} of the file's {rig['file_joints']} joints kept, {rig['fps']:g} fps",
+            f"  units:   {rig['cm_per_unit']:g} cm per file unit; head {rig['head_cm']:.1f} cm, "
+            f"hips {rig['hips_cm']:.1f} cm above the lowest foot joint",
+            f"  facing:  {rig['facing']} (pairs {rig['hips_spread_cm']:.1f} and "
+            f"{rig['shoulders_spread_cm']:.1f} cm apart)",
+            f"  dropped: {', '.join(rig['dropped']) or 'none'}"]
+
+
+def _split_lines(split: dict[str, Any]) -> list[str]:
+    """How the takes were split and the size of each part."""
     ratios = "/".join(f"{r:g}" for r in split["ratios"])
     held = f"; held out: {', '.join(split['holdout_styles'])}" if split["holdout_styles"] else ""
-    out += ["", f"Split by take (ratios {ratios}, stratified by style x content, hash of the take id{held}):"]
     names = [n for n in (*SPLITS, "holdout") if n in split]
-    out += _table(["split", "takes", "frames", "minutes"],
-                  [[n, split[n]["takes"], f"{split[n]['frames']:,}", f"{split[n]['minutes']:.1f}"] for n in names])
+    return ["", f"Split by take (ratios {ratios}, stratified by style x content, hash of the take id{held}):",
+            *_table(["split", "takes", "frames", "minutes"],
+                    [[n, split[n]["takes"], f"{split[n]['frames']:,}", f"{split[n]['minutes']:.1f}"] for n in names])]
 
-    problems = report["problems"]
+
+def _problem_lines(problems: list[dict[str, Any]]) -> list[str]:
+    """The skipped files by kind, then the first of them (``MAX_PROBLEMS_SHOWN``)."""
     if not problems:
-        out += ["", "Problems: none"]
-    else:
-        kinds = Counter(p["kind"] for p in problems)
-        out += ["", f"Problems: {len(problems)} file(s) skipped ("
-                + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items())) + ")"]
-        out += [f"  {Problem(**p)}" for p in problems[:MAX_PROBLEMS_SHOWN]]
-        if len(problems) > MAX_PROBLEMS_SHOWN:
-            out.append(f"  ... and {len(problems) - MAX_PROBLEMS_SHOWN} more (--json lists them all)")
-    return "\n".join(out)
+        return ["", "Problems: none"]
+    kinds = Counter(p["kind"] for p in problems)
+    out = ["", f"Problems: {len(problems)} file(s) skipped ("
+           + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items())) + ")"]
+    out += [f"  {Problem(**p)}" for p in problems[:MAX_PROBLEMS_SHOWN]]
+    if len(problems) > MAX_PROBLEMS_SHOWN:
+        out.append(f"  ... and {len(problems) - MAX_PROBLEMS_SHOWN} more (--json lists them all)")
+    return out
 
 
 def inspect_command(args: argparse.Namespace) -> int:
