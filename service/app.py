@@ -48,7 +48,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                      auth_failures=RateLimiter(settings.auth_failure_rate_per_s,
                                                                settings.auth_failure_burst,
                                                                max_keys=settings.rate_limit_max_tracked),
-                                     store_lane=StoreLane(4, settings.style_store_timeout_s))
+                                     store_lane=StoreLane(4, settings.style_store_timeout_s),
+                                     message_budgets=RateLimiter(settings.ws_key_messages_per_s,
+                                                                 int(2 * settings.ws_key_messages_per_s),
+                                                                 max_keys=settings.rate_limit_max_tracked))
     app.dependency_overrides[get_settings] = lambda: settings
     install_error_handlers(app)
     # Added last = outermost: metrics see every request, including 413s.

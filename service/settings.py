@@ -148,6 +148,18 @@ class Settings(BaseSettings):
     max_pending_messages: int = Field(
         default=1024, ge=16, description="control messages queued for one connection before it is closed (1008)"
     )
+    ws_messages_per_s: float = Field(
+        default=200.0, gt=0, description="messages one WebSocket connection may send per second, in bursts of up "
+        "to twice this; the message past it closes the connection with 1008 before it is read")
+    ws_max_queued_messages: int = Field(
+        default=512, ge=1, description="messages one WebSocket connection has sent that wait to be handled (its "
+        "earlier ones still being handled); one more closes the connection with 1008 before it is read")
+    ws_key_messages_per_s: float = Field(
+        default=2000.0, gt=0, description="messages all WebSocket connections of one API key (of one client address "
+        "without keys) may send per second together, in bursts of up to twice this, each handshake counting one "
+        "and a connection closed for going over a budget paying for the messages it left unread; past it the "
+        "connection whose message found none left is closed with 1008, and new handshakes get 429 rate_limited "
+        "until the budget refills")
 
     # -- work queue and shutdown
     queue_limit: int = Field(

@@ -35,6 +35,8 @@ class ServiceState:
     reserved_characters: int = 0  # starts being prepared, counted against max_characters
     failure: str = ""
     store_lane: StoreLane = field(default_factory=lambda: StoreLane(4, 1.0))  # style-store calls (create_app sets it)
+    #: WebSocket messages per API key (per address without keys), every connection's together (create_app sets it).
+    message_budgets: RateLimiter = field(default_factory=lambda: RateLimiter(0.0, 1))
 
     @property
     def ready(self) -> bool:

@@ -48,6 +48,17 @@ class RateLimiter:
         self._prune(now)
         return wait
 
+    def charge(self, key: str, cost: float) -> None:
+        """Spend ``cost`` tokens at once, into debt if need be: work already done on the key's behalf (its
+        later :meth:`take` calls wait until the debt is paid off)."""
+        if not self.enabled or cost <= 0:
+            return
+        now = self.clock()
+        tokens, last = self._buckets.pop(key, (self.burst, now))
+        tokens = min(self.burst, tokens + (now - last) * self.rate) - cost
+        self._buckets[key] = (tokens, now)  # the most recently used end
+        self._prune(now)
+
     def _prune(self, now: float) -> None:
         """Drop refilled buckets from the least recently used end (each is dropped once: O(1) amortized),
         then the oldest ones over the cap."""

@@ -1,5 +1,6 @@
-"""WebSocket ``/v1/stream`` (docs/protocol.md): the handshake checks, then the connection's messages handed
-one at a time to its :class:`~service.streaming.protocol.Session` until the client leaves."""
+"""WebSocket ``/v1/stream`` (docs/protocol.md): the handshake checks, then the connection's messages, each
+within the connection's budgets (:mod:`service.streaming.message_budget`), handed one at a time to its
+:class:`~service.streaming.protocol.Session` until the client leaves."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from service.errors import ServiceError, error_response
 from service.http.auth import check_access, key_from
 from service.state import ServiceState
 from service.streaming.connection import Connection
+from service.streaming.message_budget import MessageBudget, close_flooded
 from service.streaming.protocol import Session
 from service.style_book import Caller
 
@@ -25,6 +27,7 @@ async def stream(ws: WebSocket) -> None:
     encoding = ws.query_params.get("encoding", "json")
     try:
         caller, bucket = _admit(ws, state, encoding)
+        await MessageBudget.admit(state, bucket)
     except ServiceError as exc:
         state.metrics.errors.labels(exc.code).inc()
         await _deny(ws, exc)
@@ -37,6 +40,7 @@ async def stream(ws: WebSocket) -> None:
     state.connections.add(conn)
     state.metrics.live_streams.inc()
     session = Session(state, conn, caller, bucket)
+    budget = MessageBudget(state, conn, bucket)
     conn.start(settings.ws_send_buffer_bytes)
     conn.send_message(session.hello())
     try:
@@ -47,6 +51,11 @@ async def stream(ws: WebSocket) -> None:
             conn.touch()
             if conn.closing:
                 continue
+            flooded = budget.spend()  # before any of the message is read
+            if flooded is not None:
+                budget.charge_unread()
+                await close_flooded(conn, flooded)
+                break
             await session.handle(message)
     except Exception:  # a vanished client surfaces here as various errors: the cleanup below is all we need
         log.debug("stream ended with an error", exc_info=True)

@@ -126,7 +126,7 @@ class Connection:
             except (asyncio.CancelledError, Exception):
                 pass
 
-    def _transport(self) -> Any:
+    def transport(self) -> Any:
         """uvicorn's transport of this connection, or None under another server."""
         raw = self.ws.scope.get(_RAW_SEND)
         return getattr(getattr(raw, "__self__", None), "transport", None)
@@ -134,7 +134,7 @@ class Connection:
     def _limit_send_buffer(self, size: int) -> None:
         # Loopback and LAN sockets autotune their send buffer up to 4 MiB: a client that stops reading
         # would hold that much before the send queue fills. A fixed buffer bounds it.
-        transport = self._transport()
+        transport = self.transport()
         sock = transport.get_extra_info("socket") if transport is not None else None
         if sock is not None:
             try:
@@ -143,7 +143,7 @@ class Connection:
                 log.debug("could not set SO_SNDBUF", exc_info=True)
 
     def _abort(self) -> None:
-        transport = self._transport()
+        transport = self.transport()
         if transport is not None:
             log.warning("closing a WebSocket whose client does not read: connection aborted")
             transport.abort()
