@@ -144,3 +144,28 @@ def test_a_long_job_in_slices_lets_another_keys_job_run_between_them_and_keeps_i
             assert queue.running == 0 and queue.waiting == 0
 
     asyncio.run(main())
+
+
+# Cancelled while waiting to start; during its first slice; with its next slice queued behind key c's job.
+@pytest.mark.parametrize("cancel_at_s", [0.01, 0.055, 0.08])
+def test_a_sliced_job_whose_caller_is_cancelled_goes_no_further_and_frees_its_slot(cancel_at_s: float):
+    async def main() -> None:
+        with ThreadPoolExecutor(1) as pool:
+            queue = WorkQueue(pool, threads=1, limit=4)
+            log: list[str] = []
+            began = time.monotonic()
+            a0 = asyncio.create_task(queue.run(_job(log, "a0", 0.04), owner="a"))  # 0 - 0.04
+            sliced = asyncio.create_task(queue.run(_sliced(log, "b0", 5, 0.03), owner="b"))  # from 0.04, 30 ms slices
+            await asyncio.sleep(0.05)
+            c0 = asyncio.create_task(queue.run(_job(log, "c0", 0.02), owner="c"))  # new key: before b0's next slice
+            await asyncio.sleep(max(0.0, cancel_at_s - (time.monotonic() - began)))
+            sliced.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await sliced
+            assert await a0 == "a0" and await c0 == "c0"
+            assert await asyncio.wait_for(queue.run(_job(log, "a1", 0.01), owner="a"), 2) == "a1"
+            await asyncio.sleep(0.1)
+            assert queue.running == 0 and queue.waiting == 0 and not queue._resuming and not queue._continuations
+            assert "b0.2" not in log, log
+
+    asyncio.run(main())
