@@ -90,28 +90,30 @@ class GroundTruthMethod(Method):
 
 
 class BundleMethod(Method):
-    """A model bundle run through the engine, in batches of ``batch`` transitions."""
+    """A model bundle run through the engine, in batches of ``batch`` transitions; ``source``: the engine's motion
+    source (:data:`model.inference.engine.SOURCES`: the bundle's network, or matching over its motion database)."""
 
     kind = "bundle"
     uses_style = True
     stochastic = True
 
     def __init__(self, path: str | Path, batch: int = 128, name: str | None = None, exact_arrival: bool = False,
-                 overrides: Overrides | None = None) -> None:
+                 overrides: Overrides | None = None, source: str = "network") -> None:
         from model.inference.bundle import Bundle
         from model.inference.engine import Engine
 
         self.path = Path(path)
         self.bundle = Bundle.load(self.path)
-        self.engine = Engine(self.bundle, overrides=overrides)
-        self.name = name or self.path.name
+        self.engine = Engine(self.bundle, overrides=overrides, source=source)
+        self.source = source
+        self.name = name or (self.path.name if source == "network" else f"{self.path.name} ({source})")
         self.batch = batch
         self.exact_arrival = exact_arrival
 
     def describe(self) -> dict:
         d = super().describe()
         d.update(path=str(self.path), version=self.bundle.version, bundle_name=self.bundle.meta.name,
-                 max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival,
+                 max_transition=self.engine.max_frames, exact_arrival=self.exact_arrival, source=self.source,
                  output=self.engine.output.to_dict(), inference=self.engine.inference.to_dict(),
                  adapters=sorted(self.bundle.adapters))
         return d

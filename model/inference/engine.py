@@ -43,11 +43,13 @@ from model.motion.features import CanonicalFrame, FacingChains, local_frame_feat
 from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
+from model.nets.matching_net import MatchingNet
 from model.nets.pose_state import PoseState, state_from_positions
 from model.nets.transition_net import NetState, TransitionNet
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
+SOURCES = ("network", "matching")
 __all__ = ["Character", "CharacterBatch", "EncodedStyle", "Engine", "StepOutput", "WeightSet"]
 
 
@@ -55,18 +57,22 @@ class Engine:
     """Serves one bundle. Thread settings are process-wide torch settings, applied here once."""
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
-                 cache_bytes: int = 256 << 20, compiled: bool = True, overrides: Overrides | None = None) -> None:
+                 cache_bytes: int = 256 << 20, compiled: bool = True, overrides: Overrides | None = None,
+                 source: str = "network") -> None:
         """``overrides``: a caller's changes to the bundle's output steps and inference settings
         (:class:`model.inference.overrides.Overrides`; None keeps them all).
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
-        their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging."""
+        their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging.
+        ``source``: what makes the motion, one of :data:`SOURCES`: ``network`` (the bundle's network, and its style
+        adapters) or ``matching`` (windows of the bundle's motion database, :mod:`model.nets.matching_net`)."""
         overrides = overrides or Overrides()
         self.output = overrides.output(bundle.output)
         self.inference = overrides.inference(bundle.inference)
         if threads:
             torch.set_num_threads(threads)
         self.bundle = bundle
-        self.net: TransitionNet = bundle.net.eval()  # the network behind the seam (model.nets.transition_net)
+        self.source = source
+        self.net: TransitionNet = self._source_net(bundle, source)  # behind the seam (model.nets.transition_net)
         for p in self.net.parameters():
             p.requires_grad_(False)
         self.skeleton: Skeleton = bundle.skeleton
@@ -80,7 +86,7 @@ class Engine:
         self._compiled = compiled
         self.facing = FacingChains.of(self.skeleton)  # the skeleton's facing chains, for steering the facing
         self.weight_sets = {"": self._weight_set("", self.net, bundle.version)}
-        for name, adapter in sorted(bundle.adapters.items()):
+        for name, adapter in sorted(bundle.adapters.items() if source == "network" else ()):
             self.weight_sets[name] = self._weight_set(name, adapter.apply(self.net), adapter.version)
         self.step_fn = self.weight_sets[""].step_fn
         self.output_fn = CompiledFrameOutput(self.pipeline.frame, traced=compiled)
@@ -95,6 +101,17 @@ class Engine:
         self.neutral_style = NeutralStyle.of(own) if own else None
         self._usable_strength(self.inference.style_strength)
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
+
+    @staticmethod
+    def _source_net(bundle: Bundle, source: str) -> TransitionNet:
+        if source == "network":
+            return bundle.net.eval()
+        if source != "matching":
+            raise EngineError(f"unknown motion source {source!r}; one of {', '.join(SOURCES)}")
+        if bundle.database is None:
+            raise EngineError(f"model {bundle.meta.name!r} has no motion database for the matching source: build one "
+                              "with `rsmt bundle database BUNDLE --from-data DATA`")
+        return MatchingNet(bundle.config, bundle.database).eval()
 
     def _weight_set(self, name: str, net: TransitionNet, version: str) -> WeightSet:
         """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with int8
@@ -361,9 +378,10 @@ class Engine:
         assert row is not None and ch.goal is not None
         goal, known = ch.goal
         aim = self._limit(ch, row.pose.root_xz, goal, ch.remaining)
-        if target is not None or aim is not goal:  # a new target, or one now out of reach: the network's aim changes
+        if target is not None or frames is not None or aim is not goal:  # a new target or time, or one out of reach
             with torch.inference_mode():
-                updates.update(self.weights(ch.style.weights).net.target_fields(aim, torch.tensor([known])))
+                updates.update(self.weights(ch.style.weights).net.target_fields(
+                    row, aim, torch.tensor([known]), torch.tensor([ch.remaining])))
         if batch is not None:
             batch.update_row(ch, updates)
         else:

@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 
 def int8_lstm_sampler(sampler: TransitionNet) -> TransitionNet | None:
     """A copy of ``sampler`` with its recurrent cells (``LSTMCell``, ``GRUCell``) quantised to int8, or None where
-    this PyTorch cannot (the float32 network then serves, with a warning)."""
+    this PyTorch cannot (the float32 network then serves, with a warning); the network itself where it has none."""
+    if not any(isinstance(m, (torch.nn.LSTMCell, torch.nn.GRUCell)) for m in sampler.modules()):
+        return sampler
     try:
         with warnings.catch_warnings():
             # torch 2.13 marks its quantised tensor types deprecated (to move to torchao); the

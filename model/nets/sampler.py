@@ -269,8 +269,10 @@ class TransitionSampler(nn.Module):
             return torch.zeros(1, 2 * c.width)
         return torch.randn(1, 2 * c.width, generator=generator) * c.noise_std
 
-    def target_fields(self, target: PoseState, velocity_known: Tensor) -> dict[str, Tensor]:
-        """The state's fields that hold a target ``[B, J, *]``, encoded by these weights."""
+    def target_fields(self, state: SamplerState, target: PoseState, velocity_known: Tensor,
+                      frames: Tensor) -> dict[str, Tensor]:
+        """The state's fields that hold a target ``[B, J, *]``, encoded by these weights (the state and the frames
+        left do not change them: ``tta`` carries the frames)."""
         vec = self.target_input(target, velocity_known)
         return {"target_vec": vec, "target_pos": target.positions(), "target_rot": target.rot,
                 "target_emb": self.target_encoder(vec)}

@@ -114,8 +114,9 @@ class TransitionNet(Protocol):
         """Every character one frame on: the new state (``tta`` one less) and the raw predictions."""
         ...
 
-    def target_fields(self, target: PoseState, velocity_known: Tensor) -> dict[str, Tensor]:
-        """The state's fields that hold a target ``[B, J, *]`` (a retarget writes them)."""
+    def target_fields(self, state: Any, target: PoseState, velocity_known: Tensor, frames: Tensor) -> dict[str, Tensor]:
+        """The fields of ``state`` (characters under way) that a new ``target [B, J, *]`` and ``frames [B]`` left
+        change (a retarget or a new duration writes them)."""
         ...
 
     def reencoded(self, state: Any) -> dict[str, Tensor]:
@@ -132,6 +133,8 @@ class TransitionNet(Protocol):
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any: ...
 
     def eval(self) -> Any: ...
+
+    def modules(self) -> Iterator[torch.nn.Module]: ...
 
 
 NetFactory = Callable[[SamplerConfig, ManifoldDecoder], TransitionNet]

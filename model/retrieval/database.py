@@ -2,11 +2,11 @@
 for motion matching (``BUNDLE/database.safetensors`` beside ``database.json``).
 
 What it stores, per frame: local rotations as int16 quaternion components (``round(q * 32767)``; decoded and
-normalised, a component is off by at most 1.6e-5, about 0.002 degrees) and the root position in whole millimetres
-relative to its segment's first frame (int16: segments up to 32 m). Per segment: its first row, its length, its
-style and its content. The matching features are not stored: :mod:`model.retrieval.matching` computes them from the
-poses when the database is loaded (a few milliseconds for tens of thousands of frames), so the file holds poses
-alone and the features can change without rebuilding it.
+normalised, a component is off by at most 1.6e-5, about 0.002 degrees) and the root position in whole millimetres,
+on the ground relative to its segment's first frame and in height as captured (int16: segments up to 32 m). Per
+segment: its first row, its length, its style and its content. The matching features are not stored:
+:mod:`model.retrieval.matching` computes them from the poses when the database is loaded (a few seconds for tens of
+thousands of frames), so the file holds poses alone and the features can change without rebuilding it.
 
 A database holds segments, never whole takes: each take's first and last frames are left out (``trim``), and a
 build keeps within a byte budget (:mod:`model.data.database_build`).
@@ -46,7 +46,7 @@ def bytes_per_frame(joints: int) -> int:
 class MotionDatabase:
     """Segments of real motion on one rig (``skeleton``) at ``fps``: rows ``[N]`` of poses, grouped in segments.
 
-    ``rotations [N, J, 4]`` int16, ``roots_mm [N, 3]`` int16 (relative to the segment's first frame),
+    ``rotations [N, J, 4]`` int16, ``roots_mm [N, 3]`` int16 (x, z relative to the segment's first frame, y as is),
     ``starts [S]`` / ``lengths [S]`` int32, ``style [S]`` / ``content [S]`` int32 indexes into ``styles`` /
     ``contents``; ``source`` says what it was built from."""
 
@@ -75,7 +75,7 @@ class MotionDatabase:
             if rot.shape[1:] != (skeleton.num_joints, 4) or root.shape != (rot.shape[0], 3):
                 raise DatabaseError(f"a segment of shape {tuple(rot.shape)} / {tuple(root.shape)} is not on the "
                                     f"{skeleton.num_joints}-joint rig")
-            rel = torch.round((root - root[:1]).double() * 10.0)
+            rel = torch.round((root - root[:1] * torch.tensor([1.0, 0.0, 1.0])).double() * 10.0)
             if float(rel.abs().max()) > _MAX_MM:
                 raise DatabaseError(f"a segment travels {float(rel.abs().max()) / 1000:.1f} m: segments are at "
                                     "most 32 m long; cut it")
@@ -105,7 +105,7 @@ class MotionDatabase:
         return quat_normalize(self.rotations.float() / _Q)
 
     def root_positions(self) -> Tensor:
-        """Every row's root position ``[N, 3]`` in cm, relative to its segment's first frame."""
+        """Every row's root position ``[N, 3]`` in cm, on the ground relative to its segment's first frame."""
         return self.roots_mm.float() / 10.0
 
     def segment_of_rows(self) -> Tensor:

@@ -77,7 +77,8 @@ class ToyGru(nn.Module):
             return torch.zeros(1, self.config.width)
         return torch.randn(1, self.config.width, generator=generator) * self.config.noise_std
 
-    def target_fields(self, target: PoseState, velocity_known: Tensor) -> dict[str, Tensor]:
+    def target_fields(self, state: GruState, target: PoseState, velocity_known: Tensor,
+                      frames: Tensor) -> dict[str, Tensor]:
         return {"target_pos": target.positions(), "target_rot": target.rot, "target_emb": self.target(target.vector())}
 
     def reencoded(self, state: GruState) -> dict[str, Tensor]:

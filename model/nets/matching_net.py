@@ -1,0 +1,176 @@
+"""Motion matching as a transition network: the engine's matching-only source, behind the same seam as the RSMT
+sampler (:mod:`model.nets.transition_net`), so batching, streaming, retargets, steering, the speed cap and every
+output step apply to it unchanged.
+
+``begin`` finds, per character, the database window (:mod:`model.retrieval.windows`) that best starts at its last
+context pose and ends at its target ``frames`` later, among the rows of its style, and keeps that window played onto
+the pose and blended onto the target as its plan; ``step`` hands out the plan's next frame. A retarget or a new
+duration plans again from the pose the character stands in (:meth:`MatchingNet.target_fields`).
+
+Its style is the database's: a style clip's code is its frames' key-joint positions and velocities (from the style
+encoder's input), and its context is the rows of the database style whose frames lie nearest those (the mean over the
+clip's frames of the distance to that style's nearest frame), so a clip of a style the database lacks plays the
+nearest it has. A switch of style keeps the plan under way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from torch import nn
+
+from model.motion.features import local_frame_features
+from model.motion.kinematics import forward_kinematics
+from model.motion.rotations import quat_to_sixd, sixd_to_quat
+from model.nets.pose_state import GROUND_TO_3D, PoseState
+from model.nets.sampler import SamplerConfig
+from model.nets.tensor_record import TensorRecord
+from model.retrieval.database import MotionDatabase
+from model.retrieval.matching import key_joints
+from model.retrieval.windows import WindowSearch, play
+
+Tensor = torch.Tensor
+STYLE_ROW_STRIDE = 2  # every other database row is compared with a style clip's frames
+
+
+@dataclass
+class PlayState(TensorRecord):
+    """A character playing its plan: frames ``0..frames`` of ``plan_*`` (``[B, P, J, *]`` and ``[B, P, 2]``; the
+    frames after its last repeat it), frame 0 being the pose it started from."""
+
+    POSES: ClassVar[tuple[str, ...]] = ("pose",)
+    FIXED: ClassVar[tuple[str, ...]] = ("target_pos", "target_rot", "plan_rel", "plan_rot", "plan_root", "frames")
+
+    pose: PoseState
+    tta: Tensor  # [B] frames left, the next one included
+    target_pos: Tensor  # [B, J, 3]
+    target_rot: Tensor  # [B, J, 6]
+    plan_rel: Tensor  # [B, P, J, 3]
+    plan_rot: Tensor  # [B, P, J, 6]
+    plan_root: Tensor  # [B, P, 2]
+    frames: Tensor  # [B] the plan's length (its last frame's index)
+
+
+@dataclass
+class DatabaseStyle(TensorRecord):
+    """The database rows a style's characters are played from: ``rows [B, N]``."""
+
+    rows: Tensor
+
+
+class MatchingNet(nn.Module):
+    """Plays windows of a :class:`MotionDatabase` (the module's notes)."""
+
+    state_type = PlayState
+    style_type = DatabaseStyle
+
+    def __init__(self, config: SamplerConfig, database: MotionDatabase) -> None:
+        super().__init__()
+        self.config = config
+        self.db = database
+        sk = database.skeleton
+        self.positions, self.rotations = forward_kinematics(database.local_rotations(), database.root_positions(),
+                                                            sk.offsets_tensor(), sk.parents)
+        self.search = WindowSearch(self.positions, database.segment_of_rows(), sk, database.fps)
+        self.horizon = 2 * config.max_transition + 1  # a plan's frames: up to the engine's longest transition
+        # Each database row's pose and velocity features (of the key joints, as the style encoder's input has them),
+        # standardised: a style clip is matched to the database style whose frames lie nearest its frames.
+        self.keys = key_joints(sk)
+        features = torch.zeros(database.frames, sk.num_joints * 12)
+        for lo, n in zip(database.starts.tolist(), database.lengths.tolist()):
+            features[lo + 1:lo + n] = local_frame_features(self.positions[lo:lo + n], self.rotations[lo:lo + n], sk)
+            features[lo] = features[lo + 1]
+        every = torch.arange(0, database.frames, STYLE_ROW_STRIDE)
+        codes = self._codes(features[every])
+        self.code_mean, self.code_std = codes.mean(0), codes.std(0).clamp_min(1e-3)
+        self.row_codes = (codes - self.code_mean) / self.code_std
+        style_of_row = database.style.long()[database.segment_of_rows()]
+        self.row_styles = style_of_row[every]
+        self.style_rows = torch.stack([style_of_row == i for i in range(len(database.styles))])  # [S, N]
+
+    def _codes(self, features: Tensor) -> Tensor:
+        """The key joints' positions and velocities ``[..., K*6]`` of style encoder inputs ``[..., J*12]``."""
+        per_joint = features.unflatten(-1, (-1, 12))
+        return per_joint[..., self.keys, :6].flatten(-2)
+
+    # ------------------------------------------------------------------ style
+    def encode_style(self, features: Tensor) -> Tensor:
+        return (self._codes(features) - self.code_mean) / self.code_std
+
+    def style_context(self, code: Tensor) -> DatabaseStyle:
+        """The rows of the database style whose frames lie nearest the clip's: the mean over its frames of the
+        distance to the nearest frame of each style."""
+        rows = []
+        for clip in code:  # [T, D]
+            nearest = torch.cdist(clip, self.row_codes)  # [T, N']
+            per_style = torch.stack([nearest[:, self.row_styles == s].amin(1).mean()
+                                     for s in range(len(self.db.styles))])
+            rows.append(self.style_rows[per_style.argmin()])
+        return DatabaseStyle(torch.stack(rows))
+
+    def style_name(self, context: DatabaseStyle) -> list[str]:
+        """The database style each row of ``context`` plays."""
+        return [self.db.styles[int((self.style_rows == r).all(1).nonzero()[0])] for r in context.rows]
+
+    # ------------------------------------------------------------------ transitions
+    def noise(self, generator: torch.Generator | None) -> Tensor:
+        return torch.zeros(1, 1)  # plays capture: nothing to draw
+
+    def _plan(self, pose: PoseState, target: PoseState, frames: Tensor,
+              rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Plans ``(rel [B, P, J, 3], rot [B, P, J, 6], root [B, P, 2])`` from ``pose [B, J, *]`` to ``target`` in
+        ``frames [B]``, each from its allowed database ``rows [B, N]``."""
+        b, j = pose.rel.shape[0], pose.rel.shape[1]
+        now = pose.positions()
+        now_rot, target_rot = sixd_to_quat(pose.rot), sixd_to_quat(target.rot)
+        goal = target.positions()
+        rel = now.new_zeros(b, self.horizon, j, 3)
+        rot = now.new_zeros(b, self.horizon, j, 6)
+        root = now.new_zeros(b, self.horizon, 2)
+        r = self.db.skeleton.roles.root
+        for n in sorted({int(f) for f in frames.clamp(1, self.horizon - 1)}):
+            idx = torch.nonzero(frames.clamp(1, self.horizon - 1) == n).flatten()
+            first, _ = self.search.search(now[idx], now[idx] - pose.vel[idx], goal[idx], n, rows[idx])
+            pos, q = play(first, n, self.positions, self.rotations, self.db.skeleton, now[idx], now_rot[idx],
+                          goal[idx], target_rot[idx])
+            ground = pos[..., r, :] * torch.tensor([1.0, 0.0, 1.0])
+            tail = torch.arange(self.horizon).clamp(max=n)  # frames after the last repeat it
+            rel[idx] = (pos - ground.unsqueeze(-2))[:, tail]
+            rot[idx] = quat_to_sixd(q)[:, tail]
+            root[idx] = pos[:, tail, r][..., [0, 2]]
+        return rel, rot, root
+
+    def begin(self, context: PoseState, target: PoseState, frames: Tensor, noise: Tensor, style: DatabaseStyle, *,
+              velocity_known: Tensor | None = None) -> PlayState:
+        now = context.index((slice(None), -1))
+        plan = self._plan(now, target, frames.long(), style.rows)
+        return PlayState(now, frames.long(), target.positions(), target.rot, *plan, frames.long().clamp(1, self.horizon - 1))
+
+    def step(self, state: PlayState, style: DatabaseStyle) -> tuple[PlayState, dict[str, Tensor]]:
+        k = (state.frames - state.tta + 1).clamp(1, self.horizon - 1)  # the plan's frame for this step
+        j = state.plan_rel.shape[2]
+
+        def at(t: Tensor, frame: Tensor) -> Tensor:
+            index = frame.view(-1, *([1] * (t.dim() - 1))).expand(-1, 1, *t.shape[2:])
+            return t.gather(1, index).squeeze(1)
+
+        rel, rot, root = at(state.plan_rel, k), at(state.plan_rot, k), at(state.plan_root, k)
+        before = at(state.plan_rel, k - 1) + (at(state.plan_root, k - 1) @ GROUND_TO_3D).unsqueeze(1)
+        vel = rel + (root @ GROUND_TO_3D).unsqueeze(1) - before
+        pose = PoseState(rel, vel.reshape(-1, j, 3), rot, root)
+        return PlayState(pose, state.tta - 1, state.target_pos, state.target_rot, state.plan_rel, state.plan_rot,
+                         state.plan_root, state.frames), {}
+
+    def target_fields(self, state: PlayState, target: PoseState, velocity_known: Tensor,
+                      frames: Tensor) -> dict[str, Tensor]:
+        """A new plan from where the character stands to ``target`` in ``frames [B]``, from any database row (the
+        state does not keep its style's)."""
+        rows = torch.ones(state.pose.rel.shape[0], self.db.frames, dtype=torch.bool)
+        rel, rot, root = self._plan(state.pose, target, frames.long(), rows)
+        return {"target_pos": target.positions(), "target_rot": target.rot, "plan_rel": rel, "plan_rot": rot,
+                "plan_root": root, "frames": frames.long().clamp(1, self.horizon - 1)}
+
+    def reencoded(self, state: PlayState) -> dict[str, Tensor]:
+        return {}  # one set of weights: nothing to encode again
