@@ -17,7 +17,8 @@ from the last context frame: moved and turned onto it, with the **start offset**
 minus the window's first pose: root position, root and joint rotations) blended out and the **end
 offset** (target minus the window's last pose) blended in by ``w = smoothstep(k / N)``, so frame ``N``
 is the target exactly. It keeps the context's style (it ignores the style clip) and knows only the
-takes it was given: the training split's.
+takes it was given: the training split's. Its features and search are the product's matching source's
+(:mod:`model.retrieval.windows`), over every training take instead of a bundle's database.
 """
 
 from __future__ import annotations
@@ -32,56 +33,13 @@ from model.evaluation.methods import Method, Request
 from model.motion.features import facing_yaw
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_conjugate, quat_identity, quat_mul, quat_normalize, quat_rotate, quat_slerp, yaw_quat
-from model.motion.skeleton import Skeleton
+from model.retrieval.matching import key_joints
+from model.retrieval.windows import smoothstep, stack_groups
+from model.retrieval.windows import window_features as features
 
 Tensor = torch.Tensor
 
-GROUP_WEIGHTS = {"pose": 1.0, "velocity": 1.0, "place": 2.0, "facing": 1.0, "target_pose": 1.0}
 QUERY_CHUNK = 64
-
-
-def key_joints(skeleton: Skeleton) -> list[int]:
-    """Hips, head, the two hands (the arm chains' ends below the shoulders), the two ankles and toes."""
-    r = skeleton.roles
-
-    def chain_end(j: int) -> int:
-        while True:
-            children = [c for c, p in enumerate(skeleton.parents) if p == j]
-            if not children:
-                return j
-            j = children[0]
-
-    return [r.root, r.head, chain_end(r.left_shoulder), chain_end(r.right_shoulder), *r.left_foot, *r.right_foot]
-
-
-def smoothstep(x: Tensor) -> Tensor:
-    x = x.clamp(0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
-def _in_frame(p: Tensor, yaw: Tensor, origin: Tensor) -> Tensor:
-    """Positions ``[B, K, 3]`` into the frame facing +Z at ``yaw [B]`` over ``origin [B, 3]`` (y kept)."""
-    q = yaw_quat(-yaw).unsqueeze(1).expand(-1, p.shape[1], -1)
-    o = origin.clone()
-    o[:, 1] = 0.0
-    return quat_rotate(q, p - o.unsqueeze(1))
-
-
-def features(first: Tensor, before: Tensor, last: Tensor, skeleton: Skeleton, fps: float) -> dict[str, Tensor]:
-    """Feature groups of windows from global positions of their first frame ``[B, J, 3]``, the frame before it
-    and their last frame (see the module docstring)."""
-    keys = key_joints(skeleton)
-    root = skeleton.roles.root
-    yaw0 = facing_yaw(first, skeleton)
-    o0 = first[:, root]
-    pose = _in_frame(first[:, keys], yaw0, o0) - _in_frame(first[:, [root]], yaw0, o0)
-    vel = (_in_frame(first[:, keys], yaw0, o0) - _in_frame(before[:, keys], yaw0, o0)) * fps
-    end_root = _in_frame(last[:, [root]], yaw0, o0)[:, 0]
-    yaw1 = facing_yaw(last, skeleton)
-    turn = yaw1 - yaw0
-    target_pose = _in_frame(last[:, keys], yaw1, last[:, root]) - _in_frame(last[:, [root]], yaw1, last[:, root])
-    return {"pose": pose.flatten(1), "velocity": vel.flatten(1), "place": end_root,
-            "facing": torch.stack([torch.sin(turn), torch.cos(turn)], -1) * 100.0, "target_pose": target_pose.flatten(1)}
 
 
 class MotionMatchingMethod(Method):
@@ -138,8 +96,7 @@ class MotionMatchingMethod(Method):
 
     @staticmethod
     def _stack(groups: dict[str, Tensor]) -> Tensor:
-        parts = [g * (GROUP_WEIGHTS[k] / g.shape[1] ** 0.5) for k, g in groups.items()]
-        return torch.cat(parts, dim=1)
+        return stack_groups(groups)
 
     def generate(self, cases: CaseSet, request: Request, progress: bool = False) -> tuple[Tensor, Tensor]:
         v = request.variant

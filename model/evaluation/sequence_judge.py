@@ -40,9 +40,9 @@ from typing import Any
 import torch
 from torch import nn
 
-from model.evaluation.motion_matching import key_joints
 from model.evaluation.style_judge import WINDOW, window_starts  # the same windows as the first judge scores
 from model.motion.skeleton import Skeleton
+from model.retrieval.matching import key_joints
 
 Tensor = torch.Tensor
 
