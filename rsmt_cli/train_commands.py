@@ -18,6 +18,7 @@ from model.data.location import require_data_dir
 if TYPE_CHECKING:
     import torch
 
+    from model.inference.bundle import Bundle
     from model.train.pipeline import TrainConfig
     from model.train.recipe_chains import Recipe, StageReport
 
@@ -191,9 +192,24 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace, device: torch.device) -> int:
-    from model.train import distributed
     from model.train.pipeline import STAGES, run
 
+    cfg = _command_config(args)
+    data = require_data_dir(args.data)
+    run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / cfg.name
+    stages = STAGES if args.stage == "all" else (args.stage,)
+    if "sampler" in stages and args.out is None:
+        raise ValueError("training the sampler writes a bundle: pass --out BUNDLE")
+    if getattr(args, "from_bundle", None) is not None:
+        _seed_from_bundle(args, cfg, run_dir)
+    command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv else None
+    bundle = run(cfg, Path(data), run_dir, stages, args.out, progress=not args.quiet, command=command, device=device,
+                 compile=args.compile, manifest=args.manifest)
+    return _report_training(args, stages, bundle, run_dir, device)
+
+
+def _command_config(args: argparse.Namespace) -> TrainConfig:
+    """The training config with the command's data settings, --threads and --time-limit (every stage's) applied."""
     cfg = load_config(args)
     for key, value in data_settings(args).items():
         setattr(cfg, key, value)
@@ -202,34 +218,40 @@ def _train(args: argparse.Namespace, device: torch.device) -> int:
     if args.time_limit:
         for st in (cfg.phase_stage, cfg.manifold_stage, cfg.sampler_stage):
             st.loop.time_limit_s = args.time_limit
-    data = require_data_dir(args.data)
-    run_dir = args.run or Path.home() / ".cache" / "rsmt" / "runs" / cfg.name
-    stages = STAGES if args.stage == "all" else (args.stage,)
-    if "sampler" in stages and args.out is None:
-        raise ValueError("training the sampler writes a bundle: pass --out BUNDLE")
-    if getattr(args, "from_bundle", None) is not None:
-        from model.train.from_bundle import seed_run
+    return cfg
 
-        if args.at_step is None:
-            raise ValueError("--from-bundle needs --at-step N: the step of the preset's schedule the bundle stands for")
-        if distributed.is_main() and seed_run(args.from_bundle, cfg, run_dir, args.at_step):
-            print(f"seeded {run_dir} from {args.from_bundle} at step {args.at_step}")
-        distributed.barrier()  # the run folder is seeded before any rank reads it
-    command = "rsmt " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv else None
-    bundle = run(cfg, Path(data), run_dir, stages, args.out, progress=not args.quiet, command=command, device=device,
-                 compile=args.compile, manifest=args.manifest)
+
+def _seed_from_bundle(args: argparse.Namespace, cfg: TrainConfig, run_dir: Path) -> None:
+    """Seed the run folder from --from-bundle at --at-step (rank 0 writes; every rank waits for it)."""
+    from model.train import distributed
+    from model.train.from_bundle import seed_run
+
+    if args.at_step is None:
+        raise ValueError("--from-bundle needs --at-step N: the step of the preset's schedule the bundle stands for")
+    if distributed.is_main() and seed_run(args.from_bundle, cfg, run_dir, args.at_step):
+        print(f"seeded {run_dir} from {args.from_bundle} at step {args.at_step}")
+    distributed.barrier()  # the run folder is seeded before any rank reads it
+
+
+def _report_training(args: argparse.Namespace, stages: tuple[str, ...], bundle: Bundle | None, run_dir: Path,
+                     device: torch.device) -> int:
+    """Say how the run ended (each process on stderr under torchrun; rank 0 the summary) and give its exit
+    status: 3 when the sampler stopped at the time limit before writing its bundle, else 0."""
+    from model.train import distributed
+
+    stopped = "sampler" in stages and bundle is None
     if distributed.world_size() > 1:  # one line per process, on stderr: every rank trained to the end
         print(f"process {distributed.rank()} of {distributed.world_size()}: "
-              f"{'stopped (time limit)' if 'sampler' in stages and bundle is None else 'trained'} {', '.join(stages)}",
+              f"{'stopped (time limit)' if stopped else 'trained'} {', '.join(stages)}",
               file=sys.stderr, flush=True)
     if not distributed.is_main():
-        return 3 if "sampler" in stages and bundle is None else 0
-    if "sampler" in stages and bundle is None:
+        return 3 if stopped else 0
+    if stopped:
         print(f"stopped before the end (time limit); run the same command again to resume from {run_dir}")
         return 3
     timings = json.loads((run_dir / "timings.json").read_text()) if (run_dir / "timings.json").is_file() else {}
-    print(json.dumps({"run": str(run_dir), "bundle": str(args.out) if bundle else None, "device": str(device),
-                      "timings_s": timings}, indent=1))
+    print(json.dumps({"run": str(run_dir), "bundle": str(args.out) if bundle else None,
+                      "device": str(device), "timings_s": timings}, indent=1))
     return 0
 
 
