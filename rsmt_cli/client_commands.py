@@ -3,6 +3,7 @@
     rsmt client styles add clip.bvh [--name N] [--start S --frames N]
     rsmt client styles list                 (the models' built-in styles, then yours)
     rsmt client transition --context a.bvh --target b.bvh --frames 40 --style ID -o out.bvh [--seed S]
+    rsmt client transition --context a.bvh --target-at 120,300,90 --frames 40 --style ID   (a place and facing)
     rsmt client stream --context a.bvh --target b.bvh --frames 40 --style ID [--binary] [-o out.bvh]
     rsmt client demo [NAME --out walk.bvh]   (the viewer's demo takes: motion on the model's rig, as BVH)
 
@@ -37,8 +38,13 @@ def _motion_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--context", type=Path, required=True, metavar="BVH",
                         help="the character's recent motion (at least the model's context_frames frames; a whole take "
                              "is cut to the last of them)")
-    parser.add_argument("--target", type=Path, required=True, metavar="BVH",
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--target", type=Path, metavar="BVH",
                         help="the target: its last frame is the pose to arrive at (a whole take is cut to its last two)")
+    target.add_argument("--target-at", type=_place, metavar="X,Z,YAW",
+                        help="the target as a place and facing instead: the root arrives over X,Z (model units) facing "
+                             "YAW degrees about +Y (0: +Z, 90: +X), in the context's last pose, exactly (a negative X: "
+                             "--target-at=-50,300,90)")
     parser.add_argument("--frames", type=int, required=True, help="frames to generate (the last one arrives)")
     parser.add_argument("--style", required=True, metavar="ID|BVH",
                         help="a style_id from `rsmt client styles add` or builtin:NAME, or a style clip .bvh (sent "
@@ -49,6 +55,22 @@ def _motion_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exact-arrival", action="store_true",
                         help="bend the last frames so the arrival frame equals the target pose")
     parser.add_argument("-o", "--out", type=Path, metavar="BVH", help="write the generated frames as BVH")
+
+
+def _place(text: str) -> Any:
+    from rsmt_client import TargetAt
+
+    try:
+        return TargetAt.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _target(args: argparse.Namespace) -> Any:
+    """``--target-at``'s place, else ``--target``'s BVH as a Motion."""
+    from rsmt_client import read_bvh
+
+    return args.target_at if args.target_at is not None else {"bvh": read_bvh(args.target)}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -193,7 +215,7 @@ def _styles_list(args: argparse.Namespace) -> int:
 def _transition(args: argparse.Namespace) -> int:
     from rsmt_client import read_bvh
 
-    context, target = {"bvh": read_bvh(args.context)}, {"bvh": read_bvh(args.target)}
+    context, target = {"bvh": read_bvh(args.context)}, _target(args)
     with _client(args) as c:
         poses = c.transition(context, target, args.frames, seed=args.seed, deterministic=args.deterministic,
                              exact_arrival=args.exact_arrival, **_style_choice(args.style))
@@ -212,7 +234,7 @@ def _transition(args: argparse.Namespace) -> int:
 def _stream(args: argparse.Namespace) -> int:
     from rsmt_client import StreamClient, read_bvh
 
-    context, target = {"bvh": read_bvh(args.context)}, {"bvh": read_bvh(args.target)}
+    context, target = {"bvh": read_bvh(args.context)}, _target(args)
     style = _style_choice(args.style)
     if "style" in style:
         # A style clip of a few seconds is larger than a WebSocket message may be (64 KiB by default):

@@ -34,12 +34,15 @@ class MotionLimits:
     max_abs_position: float = 1e6
 
 
-def motion_to_clip(motion: BvhMotion | PoseMotion, engine: Engine, limits: MotionLimits, what: str) -> Clip:
-    """Convert a payload to a clip on ``engine``'s skeleton at its fps; errors name ``what`` and the fix.
+def motion_to_clip(motion: BvhMotion | PoseMotion | None, engine: Engine, limits: MotionLimits, what: str) -> Clip:
+    """Convert a payload to a clip on ``engine``'s skeleton at its fps; errors name ``what`` and the fix. None (a
+    target given as ``target_at`` that nothing placed: :mod:`service.placed_targets` does) is ``bad_motion``.
 
     Raises:
         ServiceError: ``bad_motion``, ``skeleton_mismatch``, ``too_few_frames`` or ``too_many_frames``.
     """
+    if motion is None:
+        raise ServiceError("bad_motion", f"{what}: no motion was given; send a Motion ({{\"bvh\": ...}} or JSON poses)")
     return conform_motion(parse_motion(motion, engine, limits, what), engine, what)
 
 

@@ -95,6 +95,37 @@ class _StyleChoice(BaseModel):
         return self
 
 
+PLACE_MAX = 1e6  # the largest |x| or |z| of a target_at, in model units
+
+
+class TargetAt(BaseModel):
+    """A target given as a place and a facing; the engine picks the pose (the context's last one, turned and moved)."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"x": 120.0, "z": 300.0, "yaw": 90.0}]})
+
+    x: StrictFloat = Field(ge=-PLACE_MAX, le=PLACE_MAX, allow_inf_nan=False,
+                           description="where the root arrives along +X, model units (the model's skeleton.units)")
+    z: StrictFloat = Field(ge=-PLACE_MAX, le=PLACE_MAX, allow_inf_nan=False,
+                           description="where the root arrives along +Z, model units")
+    yaw: StrictFloat = Field(ge=-360, le=360, allow_inf_nan=False,
+                             description="the facing to arrive with, degrees about +Y (up): 0 faces +Z, 90 faces +X")
+
+
+class _TargetChoice(BaseModel):
+    target: Motion | None = Field(
+        None, description="the last frame is the target pose; a frame before it gives its velocity (or give target_at)")
+    target_at: TargetAt | None = Field(
+        None, description="the place and facing to arrive at, the pose chosen by the engine (or give target); "
+                          "the arrival is exact unless exact_arrival is false")
+
+    @model_validator(mode="after")
+    def _one_target(self) -> Any:
+        if (self.target is None) == (self.target_at is None):
+            raise ValueError('give exactly one of target (a pose: a Motion) or target_at (a place and facing: '
+                             '{"x": cm, "z": cm, "yaw": degrees})')
+        return self
+
+
 # ---------------------------------------------------------------------- model description
 class FrameRange(BaseModel):
     min: int
@@ -204,7 +235,7 @@ class Timing(BaseModel):
     parse: float = Field(description="ms converting the Motion payloads")
 
 
-class TransitionRequest(_StyleChoice):
+class TransitionRequest(_TargetChoice, _StyleChoice):
     """``POST /v1/transition``."""
 
     model_config = ConfigDict(
@@ -215,7 +246,6 @@ class TransitionRequest(_StyleChoice):
     )
 
     context: Motion = Field(description=">= context_frames frames; the last one is the current pose")
-    target: Motion = Field(description="the last frame is the target pose; a frame before it gives its velocity")
     frames: FrameCount = Field(description="frames to generate; the last is the arrival frame")
     seed: Seed | None = None
     deterministic: StrictBool = Field(False, description="no sampling noise")
@@ -286,11 +316,10 @@ class _WsMessage(BaseModel):
     request_id: RequestId = None
 
 
-class StartMessage(_WsMessage, _StyleChoice):
+class StartMessage(_WsMessage, _TargetChoice, _StyleChoice):
     type: Literal["start"]
     character: CharacterId | None = None
     context: Motion
-    target: Motion
     frames: FrameCount
     seed: Seed | None = None
     deterministic: StrictBool = False

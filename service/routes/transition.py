@@ -7,9 +7,9 @@ import time
 from fastapi import APIRouter, Depends, Request, Response
 
 from service.deps import RegistryDep, StateDep
-from service.engine_jobs import run_transition
 from service.http.auth import CallerDep, require_access
 from service.motion import dumps
+from service.placed_targets import run_transition_at
 from service.schemas import (
     ERROR_RESPONSES,
     TransitionBvh,
@@ -35,7 +35,7 @@ async def transition(body: TransitionRequest, request: Request, registry: Regist
     arrived = time.perf_counter()
     model = registry.get(body.model)
     registered = await registered_style(state, model, caller, body.style_id)  # on the store's lane, not the work thread
-    result = await model.run(run_transition, model, caller, body, arrived, registered, owner=caller.owner,
+    result = await model.run(run_transition_at, model, caller, body, arrived, registered, owner=caller.owner,
                              gone=disconnect_of(request.receive))
     result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)
     state.metrics.transition_frames.labels(model.name).inc(body.frames)

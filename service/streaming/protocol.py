@@ -16,9 +16,10 @@ from typing import Any
 import orjson
 from pydantic import ValidationError
 
-from service.engine_jobs import lookup_style, prepare_character, reach_body, resolve_style
+from service.engine_jobs import lookup_style, reach_body, resolve_style
 from service.errors import ServiceError, describe_validation
 from service.motion import motion_to_clip
+from service.placed_targets import prepare_character_at
 from service.registry import LoadedModel
 from service.schemas import (
     CLIENT_MESSAGE,
@@ -197,7 +198,7 @@ class Session:
         began = time.perf_counter()
         try:
             registered = await registered_style(self.state, model, self.caller, msg.style_id)  # the store's lane
-            character, style, seed = await model.run_stream(prepare_character, model, self.caller, msg, cid,
+            character, style, seed = await model.run_stream(prepare_character_at, model, self.caller, msg, cid,
                                                               registered, owner=self.caller.owner)
             self.state.metrics.prepare_seconds.labels(model.name).observe(time.perf_counter() - began)
         finally:

@@ -26,18 +26,19 @@ STREAM_ONLY = "transitions go through the stream: a start with pace asap gives a
 # Where each client builds each request shape: (file, function); a string: the shape is not built, and why.
 CLIENTS: dict[str, dict[str, Builders | str]] = {
     "Python": {
-        "POST /v1/transition": [(PY / "http_protocol.py", "transition_body")],
+        "POST /v1/transition": [(PY / "http_protocol.py", "transition_body"), (PY / "placement.py", "target_field")],
         "POST /v1/styles": [(PY / "http_protocol.py", "register_style"), (PY / "http_protocol.py", "register_style_clips"),
                             (PY / "stream_failover.py", "style_body")],
         "POST /v1/viewer/clip": VIEWER_ONLY,
         "stream start": [(PY / "stream_protocol.py", "StreamSession.start_message"),
-                         (PY / "stream_failover.py", "Failover.resume_messages")],
+                         (PY / "stream_failover.py", "Failover.resume_messages"), (PY / "placement.py", "target_field")],
         "stream retarget": [(PY / "stream_protocol.py", "StreamSession.retarget_message")],
         "stream style": [(PY / "stream_protocol.py", "StreamSession.style_message")],
         "stream cancel": [(PY / "stream_protocol.py", "StreamSession.cancel_message")],
         "stream ping": [(PY / "stream_protocol.py", "StreamSession.ping_message")],
         "BvhMotion": [(PY / "motion.py", "motion_payload")],
         "PoseMotion": [(PY / "motion.py", "Poses.to_payload")],
+        "TargetAt": [(PY / "placement.py", "TargetAt.payload")],
     },
     "Unity": {
         "POST /v1/transition": STREAM_ONLY,
@@ -51,6 +52,7 @@ CLIENTS: dict[str, dict[str, Builders | str]] = {
         "stream ping": [(CS / "RsmtProtocol.cs", "Ping")],
         "BvhMotion": [(CS / "RsmtProtocol.cs", "BvhMotion")],
         "PoseMotion": [(CS / "RsmtProtocol.cs", "PoseMotion")],
+        "TargetAt": [(CS / "RsmtProtocol.cs", "TargetAt")],
     },
     "Unreal": {
         "POST /v1/transition": STREAM_ONLY,
@@ -63,6 +65,7 @@ CLIENTS: dict[str, dict[str, Builders | str]] = {
         "stream ping": [(CPP / "RsmtProtocol.cpp", "BuildPing")],
         "BvhMotion": [(CPP / "RsmtProtocol.cpp", "BvhMotionJson")],
         "PoseMotion": [(CPP / "RsmtProtocol.cpp", "PoseMotionJson"), (CPP / "RsmtPoseCapture.cpp", "PoseHistory::MotionJson")],
+        "TargetAt": [(CPP / "RsmtProtocol.cpp", "TargetAtJson")],
     },
 }
 
@@ -104,7 +107,8 @@ def test_the_contract_is_read_whole(contract):
     assert {"POST /v1/transition", "POST /v1/styles", "stream start", "stream retarget", "stream style",
             "stream cancel", "stream ping", "BvhMotion", "PoseMotion"} <= set(contract)
     assert {"context", "target", "frames", "style_strength", "exact_arrival"} <= contract["POST /v1/transition"]
-    assert {"type", "pace", "style_strength", "retargeted"} <= contract["stream start"]
+    assert {"type", "pace", "style_strength", "retargeted", "target_at"} <= contract["stream start"]
+    assert contract["TargetAt"] == {"x", "z", "yaw"}
 
 
 def test_every_client_names_every_shape(contract):

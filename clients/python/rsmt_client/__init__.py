@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from rsmt_client.http import AsyncClient, Client
     from rsmt_client.http_protocol import DEFAULT_URL
     from rsmt_client.motion import Poses, load_bvh_poses, motion_payload, poses_to_bvh, read_bvh
+    from rsmt_client.placement import TargetAt
     from rsmt_client.reach import Reach
     from rsmt_client.stream import AsyncStreamClient, StreamClient
     from rsmt_client.stream_protocol import StreamResult, stream_url
@@ -44,6 +45,7 @@ _MODULES = {
     "rsmt_client.http": ("AsyncClient", "Client"),
     "rsmt_client.http_protocol": ("DEFAULT_URL",),
     "rsmt_client.motion": ("Poses", "load_bvh_poses", "motion_payload", "poses_to_bvh", "read_bvh"),
+    "rsmt_client.placement": ("TargetAt",),
     "rsmt_client.reach": ("Reach",),
     "rsmt_client.stream": ("AsyncStreamClient", "StreamClient"),
     "rsmt_client.stream_protocol": ("StreamResult", "stream_url"),
@@ -52,7 +54,7 @@ _WHERE = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = [
     "DEFAULT_URL", "NO_RETRY", "AsyncClient", "AsyncStreamClient", "BvhError", "Client", "Frame", "FrameLayout", "Poses",
-    "Reach", "RetryPolicy", "RsmtError", "StreamClient", "StreamResult", "load_bvh_poses", "motion_payload",
+    "Reach", "RetryPolicy", "RsmtError", "StreamClient", "StreamResult", "TargetAt", "load_bvh_poses", "motion_payload",
     "parse_retry_after", "poses_to_bvh", "read_bvh", "stream_url",
 ]
 __version__ = "0.1.0"

@@ -23,6 +23,7 @@ import httpx
 
 from rsmt_client._retry import RetryHook, Retrying, RetryPolicy, parse_retry_after
 from rsmt_client.errors import RsmtError
+from rsmt_client.placement import target_field
 
 if TYPE_CHECKING:  # numpy loads with the first motion payload, not with the client (`rsmt client styles list`)
     from rsmt_client.motion import Poses
@@ -275,8 +276,9 @@ def transition_body(context: Any, target: Any, frames: int, style_id: str | None
     from rsmt_client.motion_cuts import Cutter
 
     cuts = cuts or Cutter(None)
-    body: dict[str, Any] = {"context": cuts.context(motion_payload(context)), "target": cuts.target(motion_payload(target)),
-                            "frames": int(frames), "deterministic": bool(deterministic), "output": output}
+    body: dict[str, Any] = {"context": cuts.context(motion_payload(context)), "frames": int(frames),
+                            "deterministic": bool(deterministic), "output": output}
+    body.update(target_field(target, cuts.target))
     if style_id is not None:
         body["style_id"] = style_id
     else:

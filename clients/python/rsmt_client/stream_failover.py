@@ -110,6 +110,7 @@ class Failover:
         if kind == "retarget":
             if "target" in message:
                 ch.start["target"] = copy.deepcopy(message["target"])
+                ch.start.pop("target_at", None)  # a pose now: a start names one target or the other
                 ch.retargeted = True
             if "frames" in message:
                 ch.retarget_frames, ch.retarget_from = int(message["frames"]), None

@@ -23,6 +23,7 @@ from rsmt_client.errors import RsmtError
 from rsmt_client.frames import Frame, FrameLayout, Message, frame_from_json
 from rsmt_client.motion import Poses, motion_payload
 from rsmt_client.motion_cuts import Cutter
+from rsmt_client.placement import target_field
 from rsmt_client.reach import Reach
 
 # The largest message both clients accept from the server (a binary frame of a very large rig is far less).
@@ -216,8 +217,8 @@ class StreamSession:
         if (style_id is None) == (style is None):
             raise ValueError("give exactly one of style_id or style")
         msg: Message = {"type": "start", "character": character, "context": motion_payload(context),
-                        "target": motion_payload(target), "frames": int(frames), "deterministic": bool(deterministic),
-                        "pace": pace}
+                        "frames": int(frames), "deterministic": bool(deterministic), "pace": pace}
+        msg.update(target_field(target, lambda payload: payload))
         if style_id is not None:
             msg["style_id"] = style_id
         else:

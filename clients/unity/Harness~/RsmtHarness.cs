@@ -167,6 +167,15 @@ static class RsmtHarness
         early.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);
         var nj = Json.Parse(early.ResumeMessages()[0]);
         Check(nj.Get("target").GetString("bvh", "") == "T2" && !nj.GetBool("retargeted", false), "failover: retarget before any frame is a start");
+        var placedStart = opts("a", 10);
+        placedStart.TargetAtJson = RsmtMessages.TargetAt(50, 60, 90);
+        var at = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // a start to a place: resumed to it
+        at.SentStart(placedStart, "sa");
+        var atj = Json.Parse(at.ResumeMessages()[0]);
+        Check(atj.Get("target") == null && Near(atj.Get("target_at").GetNumber("yaw", 0), 90), "failover: a start to a place resumes to it");
+        at.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);
+        atj = Json.Parse(at.ResumeMessages()[0]);
+        Check(atj.Get("target_at") == null && atj.Get("target").GetString("bvh", "") == "T2", "failover: a pose retarget replaces the place");
 
         var u = new RsmtFailover { ContextFrames = 4, Fps = 30, Joints = 1 };  // unknown_style: register again and resend
         u.RememberStyle("sty_a", "BVH", "walk");
@@ -284,6 +293,14 @@ static class RsmtHarness
             StyleId = "sty", StyleStrength = 1.25,
         }));
         Check(Near(strong.GetNumber("style_strength", 0), 1.25), "start style_strength");
+        var placed = Json.Parse(RsmtMessages.Start(new RsmtStartOptions
+        {
+            Character = "hero", ContextJson = RsmtMessages.BvhMotion("C"), TargetAtJson = RsmtMessages.TargetAt(120, -30.5, 90),
+            Frames = 40, StyleId = "sty",
+        }));
+        var placedAt = placed.Get("target_at");
+        Check(placed.Get("target") == null && placedAt != null && Near(placedAt.GetNumber("x", 0), 120)
+              && Near(placedAt.GetNumber("z", 0), -30.5) && Near(placedAt.GetNumber("yaw", 0), 90), "start target_at");
         Check(start.GetString("type", "") == "start" && start.Get("context").GetString("bvh", "") == "HIERARCHY\n\"x\"\t", "start context");
         Check(Near(start.GetNumber("seed", 0), 12345678901234.0) && start.GetBool("deterministic", false) && start.GetString("pace", "") == "asap", "start options");
         Check(Near(start.Get("target").Get("rotations").Array[0].Array[1].Array[3].Number, 1), "pose motion");

@@ -99,6 +99,7 @@ namespace Rsmt.Link
             if (targetJson != null)
             {
                 c.Start.TargetJson = targetJson;
+                c.Start.TargetAtJson = null;  // a pose now: a start names one target or the other
                 c.Retargeted = true;
             }
             if (frames > 0)
@@ -283,7 +284,8 @@ namespace Rsmt.Link
         {
             return new RsmtStartOptions
             {
-                Character = o.Character, ContextJson = o.ContextJson, TargetJson = o.TargetJson, Frames = o.Frames,
+                Character = o.Character, ContextJson = o.ContextJson, TargetJson = o.TargetJson, TargetAtJson = o.TargetAtJson,
+                Frames = o.Frames,
                 StyleId = o.StyleId, StyleJson = o.StyleJson, Seed = o.Seed, Deterministic = o.Deterministic,
                 ExactArrival = o.ExactArrival, Retargeted = o.Retargeted, StyleStrength = o.StyleStrength, Pace = o.Pace,
                 RequestId = o.RequestId, Model = o.Model,

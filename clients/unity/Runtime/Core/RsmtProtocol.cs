@@ -380,7 +380,8 @@ namespace Rsmt.Link
     {
         public string Character;
         public string ContextJson;
-        public string TargetJson;
+        public string TargetJson;    // one of TargetJson / TargetAtJson
+        public string TargetAtJson;  // a place and facing (RsmtMessages.TargetAt): the server picks the pose, arrives exactly
         public int Frames = 30;
         public string StyleId;       // one of StyleId / StyleJson
         public string StyleJson;
@@ -400,6 +401,16 @@ namespace Rsmt.Link
         public static string BvhMotion(string bvhText)
         {
             return "{\"bvh\":" + Json.Quote(bvhText) + "}";
+        }
+
+        /// <summary>
+        /// A target given as a place and a facing (the start's `target_at`), in the model's units and axes: the root
+        /// arrives over (x, z) facing yaw degrees about +Y (0: +Z, 90: +X). From Unity: x = -position.x / s,
+        /// z = position.z / s (s = metres per model unit), yaw = -eulerAngles.y.
+        /// </summary>
+        public static string TargetAt(double x, double z, double yaw)
+        {
+            return "{\"x\":" + Json.Number(x) + ",\"z\":" + Json.Number(z) + ",\"yaw\":" + Json.Number(yaw) + "}";
         }
 
         /// <summary>Root positions and local rotations in model units and axes (convert Unity poses back first).</summary>
@@ -435,7 +446,9 @@ namespace Rsmt.Link
         {
             var sb = new StringBuilder("{\"type\":\"start\"");
             if (!string.IsNullOrEmpty(o.Character)) sb.Append(",\"character\":").Append(Json.Quote(o.Character));
-            sb.Append(",\"context\":").Append(o.ContextJson).Append(",\"target\":").Append(o.TargetJson);
+            sb.Append(",\"context\":").Append(o.ContextJson);
+            if (!string.IsNullOrEmpty(o.TargetAtJson)) sb.Append(",\"target_at\":").Append(o.TargetAtJson);
+            else sb.Append(",\"target\":").Append(o.TargetJson);
             sb.Append(",\"frames\":").Append(o.Frames.ToString(CultureInfo.InvariantCulture));
             if (!string.IsNullOrEmpty(o.StyleId)) sb.Append(",\"style_id\":").Append(Json.Quote(o.StyleId));
             else sb.Append(",\"style\":").Append(o.StyleJson);

@@ -199,6 +199,12 @@ static void TestProtocol() {
     o.styleStrength = 1.25;
     CHECK(ParseJson(BuildStart(o), v, &err) && Near(v.NumberOr("style_strength", 0), 1.25));
     o.hasStyleStrength = false;
+    o.targetAtJson = TargetAtJson(120.0, -30.5, 90.0);  // a place and facing instead of a pose
+    CHECK(ParseJson(BuildStart(o), v, &err) && v.Find("target") == nullptr && v.Find("target_at") != nullptr);
+    CHECK(Near(v.Find("target_at")->NumberOr("x", 0), 120.0) && Near(v.Find("target_at")->NumberOr("z", 0), -30.5));
+    CHECK(Near(v.Find("target_at")->NumberOr("yaw", 0), 90.0));
+    o.targetAtJson.clear();
+    CHECK(ParseJson(BuildStart(o), v, &err));  // the pose target again, for the checks below
     CHECK(Near(v.Find("target")->Find("rotations")->array[0].array[0].array[3].number, 1.0));
     CHECK(ParseJson(BuildRetarget("hero", "", 20), v, &err) && v.Find("target") == nullptr && Near(v.NumberOr("frames", 0), 20));
     CHECK(ParseJson(BuildCancel("hero"), v, &err) && v.StringOr("type", "") == "cancel");
@@ -424,6 +430,14 @@ static void TestFailover() {
     JsonValue nj;
     CHECK(ParseJson(n.ResumeMessages()[0], nj) && nj.Find("target")->StringOr("bvh", "") == "T2" &&
           nj.Find("retargeted") == nullptr);
+    Failover at = MakeFailover();  // a start to a place resumes to it; a pose retarget replaces the place
+    StartOptions placed = opts("a", 10);
+    placed.targetAtJson = TargetAtJson(50.0, 60.0, 90.0);
+    at.SentStart(placed);
+    JsonValue aj;
+    CHECK(ParseJson(at.ResumeMessages()[0], aj) && aj.Find("target") == nullptr && Near(aj.Find("target_at")->NumberOr("yaw", 0), 90.0));
+    at.SentRetarget("a", "{\"bvh\":\"T2\"}", 0);
+    CHECK(ParseJson(at.ResumeMessages()[0], aj) && aj.Find("target_at") == nullptr && aj.Find("target")->StringOr("bvh", "") == "T2");
 
     Failover u = MakeFailover();  // unknown_style: register again, resend the start
     u.RememberStyle("sty_a", "{\"name\":\"walk\"}");

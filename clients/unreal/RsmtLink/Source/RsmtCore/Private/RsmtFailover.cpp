@@ -40,6 +40,7 @@ void Failover::SentRetarget(const std::string& character, const std::string& tar
     if (it == characters_.end()) return;
     if (!targetJson.empty()) {
         it->second.start.targetJson = targetJson;
+        it->second.start.targetAtJson.clear();  // a pose now: a start names one target or the other
         it->second.retargeted = true;
     }
     if (frames > 0) {

@@ -302,10 +302,16 @@ std::string PoseMotionJson(const std::vector<Vec3>& roots, const std::vector<std
     return s + "]}";
 }
 
+std::string TargetAtJson(double x, double z, double yaw) {
+    return "{\"x\":" + JsonNumber(x) + ",\"z\":" + JsonNumber(z) + ",\"yaw\":" + JsonNumber(yaw) + "}";
+}
+
 std::string BuildStart(const StartOptions& o) {
     std::string s = "{\"type\":\"start\"";
     if (!o.character.empty()) s += ",\"character\":" + JsonQuote(o.character);
-    s += ",\"context\":" + o.contextJson + ",\"target\":" + o.targetJson;
+    s += ",\"context\":" + o.contextJson;
+    if (!o.targetAtJson.empty()) s += ",\"target_at\":" + o.targetAtJson;
+    else s += ",\"target\":" + o.targetJson;
     s += ",\"frames\":" + std::to_string(o.frames);
     if (!o.styleId.empty()) s += ",\"style_id\":" + JsonQuote(o.styleId);
     else s += ",\"style\":" + o.styleJson;

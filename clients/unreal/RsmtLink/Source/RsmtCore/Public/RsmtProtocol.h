@@ -130,11 +130,16 @@ private:
 // A Motion payload: BVH text, or root positions + local rotations (model units and axes).
 RSMTCORE_API std::string BvhMotionJson(const std::string& bvhText);
 RSMTCORE_API std::string PoseMotionJson(const std::vector<Vec3>& roots, const std::vector<std::vector<Quat>>& rotations);
+// A target given as a place and a facing (a start's "target_at"), in the model's units and axes: the root arrives
+// over (x, z) facing yaw degrees about +Y (0: +Z, 90: +X). From Unreal component space (the mesh facing +Y):
+// x = X / s, z = Y / s (s = centimetres per model unit), yaw = 90 - Yaw.
+RSMTCORE_API std::string TargetAtJson(double x, double z, double yaw);
 
 struct StartOptions {
     std::string character;    // optional
     std::string contextJson;  // a Motion payload (BvhMotionJson / PoseMotionJson)
-    std::string targetJson;
+    std::string targetJson;         // one of targetJson / targetAtJson
+    std::string targetAtJson;       // a place and facing (TargetAtJson): the server picks the pose, arrives exactly
     int frames = 30;
     std::string styleId;      // one of styleId / styleJson
     std::string styleJson;
