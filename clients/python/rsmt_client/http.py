@@ -164,8 +164,9 @@ class Client(_Settings):
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, model: str | None = None,
                    exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
-        """``POST /v1/transition``: the ``frames`` generated poses as float32 arrays (``style_strength``: the style
-        moved from the model's neutral style by this factor; None: the server's setting)."""
+        """``POST /v1/transition``: the ``frames`` generated poses as float32 arrays (``target``: a Motion, or a
+        :class:`rsmt_client.placement.TargetAt` place and facing; ``style_strength``: the style moved from the
+        model's neutral style by this factor; None: the server's setting)."""
         return self._run(ops.transition(self._state, context, target, frames, style_id, style, seed, deterministic, model,
                                         exact_arrival, style_strength))
 

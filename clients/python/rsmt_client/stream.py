@@ -223,7 +223,8 @@ class StreamClient(_SessionView):
               seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
               character: str | None = None, model: str | None = None, request_id: Any = None,
               exact_arrival: bool = False, style_strength: float | None = None) -> str:
-        """Send ``start``; returns the character id (``character`` or a new one). Frames follow ``started``."""
+        """Send ``start``; returns the character id (``character`` or a new one). Frames follow ``started``.
+        ``target``: a Motion, or a :class:`rsmt_client.placement.TargetAt` place and facing."""
         character = character or StreamSession.new_id()
         message = self._fit(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic,
                                                         pace, character, model, request_id, exact_arrival,
