@@ -34,7 +34,10 @@ from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 from rsmt_cli.renamed_flags import add_renamed
 
 if TYPE_CHECKING:
+    from model.inference.bundle import Bundle
+    from model.inference.bundle_styles import BuiltinStyle, StyleClip
     from model.inference.output.steering import SteeringConfig
+    from model.inference.overrides import Overrides
 
 # The parts of steering rsmt package sets, by their names in the bundle (steering.NAME; the flag: dashes).
 STEERING_PARTS = ("turn_window", "height_window", "retarget_turn_window", "max_step_cm", "retarget_max_turn_deg")
@@ -111,8 +114,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from model.inference.bundle import Bundle
-    from model.inference.bundle_styles import save_styles
-    from model.inference.style_packing import write_builtin_styles
 
     if args.out.resolve() == args.model.resolve():
         raise ValueError("--out must not be the --model folder")
@@ -124,18 +125,8 @@ def _run(args: argparse.Namespace) -> int:
     # Adapters (fine-tuned styles) keep their own codes; they fit the copy only if its weights are the same.
     kept = {n: s for n, s in bundle.styles.items() if not s.weights}
     bundle.styles = {n: s for n, s in bundle.styles.items() if s.weights}
-    bundle.output = overrides.output(bundle.output)
-    bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
-    bundle.inference = overrides.inference(bundle.inference)
-    if args.name:
-        bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
-    if args.gait_data is not None:
-        from model.data.gait_capture import gait_limits_from_data
-
-        bundle.gait_limits = gait_limits_from_data(args.gait_data, bundle.config.fps)
-    elif bundle.gait_limits is None:
-        print(f"rsmt package: {args.model} has no gait limits: the copy's root speed is not capped and no request "
-              "is told its target is out of reach; give --gait-data DATA (the training data)", file=sys.stderr)
+    _apply_settings(args, bundle, overrides)
+    _set_gait_limits(args, bundle)
     if (args.out / "styles").is_dir():  # never leave a copy with the codes of some earlier weights
         shutil.rmtree(args.out / "styles")
     bundle.save(args.out, weights_dtype="float16" if args.float16 else "float32")
@@ -143,6 +134,44 @@ def _run(args: argparse.Namespace) -> int:
         print(f"rsmt package: the style adapters of {args.model} ({', '.join(sorted(bundle.adapters))}) were tuned from "
               f"its weights, not the copy's (version {bundle.version}); they are not copied: fine-tune them again "
               "from the copy", file=sys.stderr)
+    _copy_styles(args, bundle, clips, kept)
+    train_config = args.model / "train_config.json"
+    if train_config.is_file():
+        shutil.copyfile(train_config, args.out / "train_config.json")
+    print(json.dumps({"bundle": str(args.out), "version": bundle.version, "name": bundle.meta.name,
+                      "output": bundle.output.to_dict(), "inference": bundle.inference.to_dict(),
+                      "styles": sorted(Bundle.load(args.out).styles),
+                      "gait_limits": bundle.gait_limits.to_dict() if bundle.gait_limits else None}, indent=1))
+    return 0
+
+
+def _apply_settings(args: argparse.Namespace, bundle: Bundle, overrides: Overrides) -> None:
+    """The copy's output settings (steering parts included), inference settings and name, from the flags."""
+    bundle.output = overrides.output(bundle.output)
+    bundle.output = dataclasses.replace(bundle.output, steering=_finishing_steering(args, bundle.output.steering))
+    bundle.inference = overrides.inference(bundle.inference)
+    if args.name:
+        bundle.meta = dataclasses.replace(bundle.meta, name=args.name)
+
+
+def _set_gait_limits(args: argparse.Namespace, bundle: Bundle) -> None:
+    """The copy's gait limits measured on --gait-data; without it the bundle's own, and a warning when it has none."""
+    if args.gait_data is not None:
+        from model.data.gait_capture import gait_limits_from_data
+
+        bundle.gait_limits = gait_limits_from_data(args.gait_data, bundle.config.fps)
+    elif bundle.gait_limits is None:
+        print(f"rsmt package: {args.model} has no gait limits: the copy's root speed is not capped and no request "
+              "is told its target is out of reach; give --gait-data DATA (the training data)", file=sys.stderr)
+
+
+def _copy_styles(args: argparse.Namespace, bundle: Bundle, clips: list[StyleClip] | None,
+                 kept: dict[str, BuiltinStyle]) -> None:
+    """The copy's built-in styles: the --styles clips encoded by its weights, else the bundle's own codes where
+    the copy's weights made them (else a warning saying how to re-encode them)."""
+    from model.inference.bundle_styles import save_styles
+    from model.inference.style_packing import write_builtin_styles
+
     if clips is not None:
         write_builtin_styles(args.out, clips)
     elif kept and all(s.version == bundle.version for s in kept.values()):
@@ -152,14 +181,6 @@ def _run(args: argparse.Namespace) -> int:
               f"{next(iter(kept.values())).version}), not by the copy's (version {bundle.version}); they are not "
               f"copied: re-encode them with `rsmt bundle add-styles {args.out} --from DIR` (or --from-data DATA), "
               "or package with --styles DIR", file=sys.stderr)
-    train_config = args.model / "train_config.json"
-    if train_config.is_file():
-        shutil.copyfile(train_config, args.out / "train_config.json")
-    print(json.dumps({"bundle": str(args.out), "version": bundle.version, "name": bundle.meta.name,
-                      "output": bundle.output.to_dict(), "inference": bundle.inference.to_dict(),
-                      "styles": sorted(Bundle.load(args.out).styles),
-                      "gait_limits": bundle.gait_limits.to_dict() if bundle.gait_limits else None}, indent=1))
-    return 0
 
 
 def _gait_limits(args: argparse.Namespace) -> int:
