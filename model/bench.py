@@ -20,6 +20,7 @@ from model.inference.engine import CharacterBatch, EncodedStyle, Engine
 from model.motion.clip import Clip
 from model.nets.manifold import ManifoldConfig
 from model.nets.sampler import SamplerConfig
+from model.retrieval.database import MotionDatabase
 
 PAPER_SAMPLER: dict[str, int] = {"width": 512, "rnn": 1024, "head": 1024, "style_channels": 512, "phases": 10, "latent": 32}
 # What the bench times with: the wall clock (what a caller waits), or this process's CPU time (every thread of
@@ -122,6 +123,35 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
         res.throughput[n] = _throughput(engine, style, request, n, per_point, clock)
     res.rss_mb = round(_rss_mb(), 1)
     return res
+
+
+def database_search_ms(database: MotionDatabase, runs: int = 200, frames: int = 40,
+                       clock: Callable[[], float] = time.perf_counter) -> dict[str, float]:
+    """Median times (ms) of one search at batch 1 over ``database``: the window a ``frames``-frame transition
+    starts from (what the matching source does once per transition and per retarget) and the nearest row by pose
+    and trajectory (:class:`model.retrieval.matching.MatchIndex`)."""
+    from model.retrieval.matching import MatchIndex
+    from model.retrieval.windows import WindowSearch
+
+    index = MatchIndex(database)
+    row = torch.nonzero(index.valid).flatten()[len(index.db.starts)]  # some row inside a segment
+    query = index.row_groups(row.view(1))
+    p = index.positions
+    index.search(query)
+    index_windows = WindowSearch(p, database.segment_of_rows(), database.skeleton, database.fps)
+    window = (p[row].unsqueeze(0), p[row - 1].unsqueeze(0), p[row + frames].unsqueeze(0))
+    index_windows.search(*window, frames)  # builds the windows of that length once, as the first request does
+
+    def median(fn: Callable[[], object]) -> float:
+        times = []
+        for _ in range(runs):
+            t0 = clock()
+            fn()
+            times.append((clock() - t0) * 1000)
+        return round(statistics.median(times), 3)
+
+    return {"rows": float(database.frames), "window_search_ms": median(lambda: index_windows.search(*window, frames)),
+            "pose_search_ms": median(lambda: index.search(query))}
 
 
 def _throughput(engine: Engine, style: EncodedStyle, request: WalkRequest, n: int, budget_s: float,

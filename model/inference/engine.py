@@ -43,13 +43,14 @@ from model.motion.features import CanonicalFrame, FacingChains, local_frame_feat
 from model.motion.kinematics import forward_kinematics, global_to_local_rotations
 from model.motion.rotations import quat_normalize, quat_to_sixd
 from model.motion.skeleton import Skeleton
+from model.nets.hybrid_net import MATCH_COST_LIMIT, HybridNet
 from model.nets.matching_net import MatchingNet
 from model.nets.pose_state import PoseState, state_from_positions
 from model.nets.transition_net import NetState, TransitionNet
 
 Tensor = torch.Tensor
 log = logging.getLogger(__name__)
-SOURCES = ("network", "matching")
+SOURCES = ("network", "matching", "hybrid")
 __all__ = ["Character", "CharacterBatch", "EncodedStyle", "Engine", "StepOutput", "WeightSet"]
 
 
@@ -64,7 +65,8 @@ class Engine:
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging.
         ``source``: what makes the motion, one of :data:`SOURCES`: ``network`` (the bundle's network, and its style
-        adapters) or ``matching`` (windows of the bundle's motion database, :mod:`model.nets.matching_net`)."""
+        adapters), ``matching`` (windows of the bundle's motion database, :mod:`model.nets.matching_net`) or
+        ``hybrid`` (those windows where they match the request, the network elsewhere: :mod:`model.nets.hybrid_net`)."""
         overrides = overrides or Overrides()
         self.output = overrides.output(bundle.output)
         self.inference = overrides.inference(bundle.inference)
@@ -106,12 +108,15 @@ class Engine:
     def _source_net(bundle: Bundle, source: str) -> TransitionNet:
         if source == "network":
             return bundle.net.eval()
-        if source != "matching":
+        if source not in SOURCES:
             raise EngineError(f"unknown motion source {source!r}; one of {', '.join(SOURCES)}")
         if bundle.database is None:
-            raise EngineError(f"model {bundle.meta.name!r} has no motion database for the matching source: build one "
+            raise EngineError(f"model {bundle.meta.name!r} has no motion database for the {source} source: build one "
                               "with `rsmt bundle database BUNDLE --from-data DATA`")
-        return MatchingNet(bundle.config, bundle.database).eval()
+        matching = MatchingNet(bundle.config, bundle.database)
+        if source == "matching":
+            return matching.eval()
+        return HybridNet(bundle.sampler, matching, MATCH_COST_LIMIT).eval()
 
     def _weight_set(self, name: str, net: TransitionNet, version: str) -> WeightSet:
         """The per-frame step: traced (measured twice as fast at batch 1) unless asked for eager, with int8

@@ -118,10 +118,10 @@ class MatchingNet(nn.Module):
     def noise(self, generator: torch.Generator | None) -> Tensor:
         return torch.zeros(1, 1)  # plays capture: nothing to draw
 
-    def _plan(self, pose: PoseState, target: PoseState, frames: Tensor,
-              rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def plan(self, pose: PoseState, target: PoseState, frames: Tensor,
+             rows: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Plans ``(rel [B, P, J, 3], rot [B, P, J, 6], root [B, P, 2])`` from ``pose [B, J, *]`` to ``target`` in
-        ``frames [B]``, each from its allowed database ``rows [B, N]``."""
+        ``frames [B]``, each from its allowed database ``rows [B, N]``, and their match costs ``[B]``."""
         b, j = pose.rel.shape[0], pose.rel.shape[1]
         now = pose.positions()
         now_rot, target_rot = sixd_to_quat(pose.rot), sixd_to_quat(target.rot)
@@ -129,10 +129,11 @@ class MatchingNet(nn.Module):
         rel = now.new_zeros(b, self.horizon, j, 3)
         rot = now.new_zeros(b, self.horizon, j, 6)
         root = now.new_zeros(b, self.horizon, 2)
+        costs = now.new_zeros(b)
         r = self.db.skeleton.roles.root
         for n in sorted({int(f) for f in frames.clamp(1, self.horizon - 1)}):
             idx = torch.nonzero(frames.clamp(1, self.horizon - 1) == n).flatten()
-            first, _ = self.search.search(now[idx], now[idx] - pose.vel[idx], goal[idx], n, rows[idx])
+            first, costs[idx] = self.search.search(now[idx], now[idx] - pose.vel[idx], goal[idx], n, rows[idx])
             pos, q = play(first, n, self.positions, self.rotations, self.db.skeleton, now[idx], now_rot[idx],
                           goal[idx], target_rot[idx])
             ground = pos[..., r, :] * torch.tensor([1.0, 0.0, 1.0])
@@ -140,13 +141,14 @@ class MatchingNet(nn.Module):
             rel[idx] = (pos - ground.unsqueeze(-2))[:, tail]
             rot[idx] = quat_to_sixd(q)[:, tail]
             root[idx] = pos[:, tail, r][..., [0, 2]]
-        return rel, rot, root
+        return rel, rot, root, costs
 
     def begin(self, context: PoseState, target: PoseState, frames: Tensor, noise: Tensor, style: DatabaseStyle, *,
               velocity_known: Tensor | None = None) -> PlayState:
         now = context.index((slice(None), -1))
-        plan = self._plan(now, target, frames.long(), style.rows)
-        return PlayState(now, frames.long(), target.positions(), target.rot, *plan, frames.long().clamp(1, self.horizon - 1))
+        rel, rot, root, _ = self.plan(now, target, frames.long(), style.rows)
+        return PlayState(now, frames.long(), target.positions(), target.rot, rel, rot, root,
+                         frames.long().clamp(1, self.horizon - 1))
 
     def step(self, state: PlayState, style: DatabaseStyle) -> tuple[PlayState, dict[str, Tensor]]:
         k = (state.frames - state.tta + 1).clamp(1, self.horizon - 1)  # the plan's frame for this step
@@ -168,7 +170,7 @@ class MatchingNet(nn.Module):
         """A new plan from where the character stands to ``target`` in ``frames [B]``, from any database row (the
         state does not keep its style's)."""
         rows = torch.ones(state.pose.rel.shape[0], self.db.frames, dtype=torch.bool)
-        rel, rot, root = self._plan(state.pose, target, frames.long(), rows)
+        rel, rot, root, _ = self.plan(state.pose, target, frames.long(), rows)
         return {"target_pos": target.positions(), "target_rot": target.rot, "plan_rel": rel, "plan_rot": rot,
                 "plan_root": root, "frames": frames.long().clamp(1, self.horizon - 1)}
 

@@ -62,11 +62,11 @@ class WindowSearch:
 
     def __init__(self, positions: Tensor, segment: Tensor, skeleton: Skeleton, fps: float) -> None:
         self.positions, self.segment, self.skeleton, self.fps = positions, segment, skeleton, fps
-        self._lengths: OrderedDict[int, tuple[Tensor, Tensor, Tensor, Tensor]] = OrderedDict()
+        self._lengths: OrderedDict[int, tuple[Tensor, Tensor, Tensor, Tensor, Tensor]] = OrderedDict()
 
-    def windows(self, n: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """``(first rows [W], standardised features [W, D], mean [D], spread [D])`` of the windows of ``n + 1``
-        frames that have a frame before them, all in one segment."""
+    def windows(self, n: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """``(first rows [W], standardised features [W, D], their squared norms [W], mean [D], spread [D])`` of the
+        windows of ``n + 1`` frames that have a frame before them, all in one segment."""
         if n in self._lengths:
             self._lengths.move_to_end(n)
             return self._lengths[n]
@@ -78,7 +78,8 @@ class WindowSearch:
         p = self.positions
         raw = stack_groups(window_features(p[start], p[start - 1], p[start + n], self.skeleton, self.fps))
         mean, std = raw.mean(0), raw.std(0).clamp_min(1e-3)
-        self._lengths[n] = (start, ((raw - mean) / std).contiguous(), mean, std)
+        features = ((raw - mean) / std).contiguous()
+        self._lengths[n] = (start, features, features.square().sum(1), mean, std)
         if len(self._lengths) > CACHED_LENGTHS:
             self._lengths.popitem(last=False)
         return self._lengths[n]
@@ -88,9 +89,9 @@ class WindowSearch:
         """The first rows ``[B]`` of the windows of ``n + 1`` frames nearest each request (global positions of its
         current pose ``now [B, J, 3]``, the one ``before`` it and its ``target``), among windows starting at rows
         ``allowed [B, N]`` (None: all; a request with none allowed searches all), and their costs ``[B]``."""
-        start, db, mean, std = self.windows(n)
+        start, db, norms, mean, std = self.windows(n)
         q = (stack_groups(window_features(now, before, target, self.skeleton, self.fps)) - mean) / std
-        dist = db.square().sum(1) - 2.0 * (q @ db.T) + q.square().sum(1, keepdim=True)  # [B, W]
+        dist = torch.addmm(norms + q.square().sum(1, keepdim=True), q, db.T, alpha=-2.0)  # [B, W]
         if allowed is not None:
             ok = allowed[:, start]
             ok = ok | ~ok.any(1, keepdim=True)  # a style with no window of this length: every window
