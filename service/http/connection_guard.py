@@ -27,13 +27,12 @@ as many connections as the file-descriptor limit allows. :class:`GuardedHttpTool
   (``RSMT_FORWARDED_ALLOW_IPS``) are not capped, and must enforce their own per-client limits.
 * **head size** (``max_header_bytes``, ``max_header_line_bytes``): a request line and headers past either
   bound are answered ``431`` and nothing more of the connection is read (:mod:`service.http.header_cap`).
-  A chunked body's trailers count against the same bounds (head and trailers together) and must be complete
-  within ``header_timeout_s`` of their first byte (and within the body's time); past either the request gets
-  ``431`` / ``408``, or, when it was already answered (a refused key), the connection is closed.
-* **pipelining** (``pipelined_requests_per_s``): a request sent before the answer to the previous one (one
-  that waits in uvicorn's pipeline) is started at most this often per connection, and nothing more of the
-  connection is parsed while one waits, so a client that pipelines requests and never reads holds neither a
-  core nor memory (its answers then fill its socket and the write timeout ends it).
+  A chunked body's trailers count with the head and get ``header_timeout_s`` from their first byte (``431``
+  / ``408``, or a close when the request was already answered).
+* **pipelining** (``pipelined_requests_per_s``): a request sent before the previous answer is started at
+  most this often per connection, and nothing more is parsed while one waits: a client that pipelines and
+  never reads holds neither a core nor memory. A WebSocket decodes no more once ``ws_max_queued_messages``
+  wait (:mod:`service.http.ws_read_budget`).
 * **writes** (``write_timeout_s``): a client that stops reading its answers (e.g. pipelines requests and
   never reads) is cut off once the server's writes have been blocked on it this long.
 
@@ -59,6 +58,7 @@ from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 from service.http.addresses import address_key
 from service.http.header_cap import HEADERS_TOO_LARGE_RESPONSE, BodyMeter, HeadMeter, body_meter
 from service.http.ratelimit import TokenBucket
+from service.http.ws_read_budget import feed_within_queue
 
 if TYPE_CHECKING:
     from uvicorn.config import Config
@@ -89,6 +89,7 @@ class ConnectionLimits:
     max_header_line_bytes: int = 8 << 10
     write_timeout_s: float = 30.0
     pipelined_requests_per_s: float = 100.0
+    ws_max_queued_messages: int = 0
     #: Peers the cap leaves alone: the trusted proxies (``forwarded_allow_ips``: addresses, networks or ``*``),
     #: whose connections carry many clients and which must enforce their own per-client limits.
     uncapped: tuple[str, ...] = ()
@@ -133,6 +134,7 @@ class ConnectionLimits:
                            max_header_line_bytes=settings.max_header_line_bytes,
                            write_timeout_s=settings.write_timeout_s,
                            pipelined_requests_per_s=settings.pipelined_requests_per_s,
+                           ws_max_queued_messages=settings.ws_max_queued_messages,
                            uncapped=tuple(settings.forwarded_allow_ips))
             app = getattr(app, "app", None)
             if app is None:
@@ -269,8 +271,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
             self.flow.pause_reading()
 
     def _feed_held(self) -> None:
-        """Parse the bytes received and not parsed yet, until a pipelined request waits (the rest is held until
-        it has started, and reading pauses) or all are parsed."""
+        """Parse the bytes received and not parsed yet, until a pipelined request waits (reading pauses)."""
         held = self._held
         while held:
             data, pos = held[0]
@@ -320,11 +321,9 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self.loop.call_later(_ABORT_AFTER_S, transport.abort)
 
     def _refuse_trailers(self) -> None:
-        """Trailers past a bound: 431 when the request has no answer yet, else the connection is closed (after
-        what was already written); either way its request is over and nothing more is read."""
+        """Trailers past a bound: 431 if the request has no answer yet, else a close; nothing more is read."""
         self._head_refused = True
         self._disarm()
-        log.debug("refusing %s: request trailers over the head's bounds", self.client)
         cycle = self.cycle
         answer = cycle is not None and not cycle.response_started
         if cycle is not None:
@@ -338,7 +337,6 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     # ------------------------------------------------------------------ pipelining
     def on_response_complete(self) -> None:
         if self.pipeline and not self.transport.is_closing() and (wait := self._pipelined.take(self.loop.time())) > 0:
-            # As uvicorn's, but the next pipelined request starts once the connection's budget allows it.
             self.server_state.total_requests += 1
             self._unset_keepalive_if_required()
             self._pipeline_timer = self.loop.call_later(wait, self._start_pipelined)
@@ -442,11 +440,13 @@ class _WebSocketGuard(asyncio.Protocol):
     _guard_server_state: ServerState | None = None
     _guard_address: str | None = None
     _guard_timer: asyncio.TimerHandle | None = None
+    _guard_queue_limit = 0
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)
         upgraded_from = transport.get_protocol()  # still the HTTP protocol while it hands the connection over
         if isinstance(upgraded_from, GuardedHttpToolsProtocol):
+            self._guard_queue_limit = upgraded_from.limits.ws_max_queued_messages
             self._guard_server_state = upgraded_from.server_state
             self._guard_address = upgraded_from._address
             if upgraded_from.handshake_deadline is not None:
@@ -461,6 +461,9 @@ class _WebSocketGuard(asyncio.Protocol):
             _release(self._guard_server_state, self._guard_address)
         self._guard_address = None
         super().connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        feed_within_queue(self, data, self._guard_queue_limit, super().data_received)
 
     def _handshake_timed_out(self, transport: asyncio.BaseTransport, loop: asyncio.AbstractEventLoop) -> None:
         self._guard_timer = None

@@ -66,7 +66,7 @@ class MessageBudget:
         if self.own.take(self._loop.time()) > 0:
             return (f"over {settings.ws_messages_per_s:g} messages/s on this connection (bursts of "
                     f"{2 * settings.ws_messages_per_s:g}; RSMT_WS_MESSAGES_PER_S): send fewer messages")
-        waiting = _queued(self.conn)
+        waiting = _queued(self.conn) + 1  # this one too
         if waiting > settings.ws_max_queued_messages:
             return (f"{waiting} messages waiting to be handled, over {settings.ws_max_queued_messages} "
                     "(RSMT_WS_MAX_QUEUED_MESSAGES): wait for answers before sending more")
