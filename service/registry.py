@@ -22,6 +22,7 @@ import torch
 from model.export.backends import with_backend
 from model.inference.bundle import Bundle, BundleError
 from model.inference.engine import Engine
+from model.inference.errors import EngineError
 from service.builtin_styles import builtin_list
 from service.errors import ServiceError
 from service.metrics import Metrics
@@ -97,6 +98,7 @@ class LoadedModel:
             "training_data": engine.bundle.meta.training_data,
             "license": engine.bundle.meta.license,
             "builtin_styles": builtin_list(engine),
+            "source": engine.source,
         }
 
     async def run(self, fn: Callable[..., T | Continue[T]], *args: Any, owner: str = ANONYMOUS,
@@ -106,7 +108,7 @@ class LoadedModel:
         closed; ``gone``: see :meth:`WorkQueue.run`; a :class:`Continue` it returns runs on the key's next turn)."""
         return await self.queue.run(fn, *args, owner=owner, gone=gone)
 
-    async def run_stream(self, fn: Callable[..., T], *args: Any, owner: str = ANONYMOUS) -> T:
+    async def run_stream(self, fn: Callable[..., T | Continue[T]], *args: Any, owner: str = ANONYMOUS) -> T:
         """Run ``fn(*args)`` for a stream's message of ``owner`` on this model's stream-setup threads, in turn
         with the other keys' (``shutting_down`` once closed)."""
         return await self.setup_queue.run(fn, *args, owner=owner)
@@ -188,9 +190,15 @@ def load_registry(settings: Settings) -> Registry:
             bundle = Bundle.load(path)
         except BundleError as exc:
             raise NoModelError(f"cannot load the model bundle {path}: {exc}") from exc
-        engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
-                        cache_bytes=settings.style_cache_bytes, overrides=settings.overrides(),
-                        compiled=not settings.eager)
+        if settings.source != "network" and settings.backend != "torch":
+            raise NoModelError(f"RSMT_SOURCE={settings.source} runs on the torch backend only (the ONNX graphs hold the "
+                               "network alone); unset RSMT_BACKEND")
+        try:
+            engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
+                            cache_bytes=settings.style_cache_bytes, overrides=settings.overrides(),
+                            compiled=not settings.eager, source=settings.source)
+        except EngineError as exc:
+            raise NoModelError(f"cannot serve {path} with RSMT_SOURCE={settings.source}: {exc}") from exc
         engine = with_backend(engine, settings.backend)
         name = engine.name if engine.name not in names else path.name
         if name in names:

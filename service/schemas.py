@@ -168,6 +168,8 @@ class ModelInfo(BaseModel):
     license: str
     builtin_styles: list[BuiltinStyleInfo] = Field(
         default_factory=list, description="style codes shipped with the model: usable by every key as style_id")
+    source: str = Field(default="network", description="what makes the motion (the server's RSMT_SOURCE): network, "
+                                                       "matching (the model's motion database) or hybrid")
 
 
 class ModelList(BaseModel):

@@ -48,6 +48,11 @@ class Settings(BaseSettings):
     backend: Literal["torch", "onnxruntime"] = Field(
         default="torch", description="what runs the per-frame step and output steps: torch (traced graphs, the int8 "
         "LSTM where a bundle asks for it) or onnxruntime (the same graphs as ONNX, float32; needs the onnx extra)")
+    source: Literal["network", "matching", "hybrid"] = Field(
+        default="network", description="what makes the motion: network (the bundle's network), matching (windows of "
+        "its motion database played onto each request) or hybrid (those windows where they match the request, the "
+        "network elsewhere); matching and hybrid need a bundle with a motion database (rsmt bundle database) and the "
+        "torch backend")
     request_threads: int = Field(
         default=1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
     warmup_max_batch: int = Field(
