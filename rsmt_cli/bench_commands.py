@@ -5,10 +5,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
+
+if TYPE_CHECKING:
+    from model.bench import BenchResult, PairedLatency
+    from model.inference.bundle import Bundle
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -33,18 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _run(args: argparse.Namespace) -> int:
     import torch
 
-    from model.bench import (
-        CLOCKS,
-        bench_engine,
-        format_table,
-        machine_description,
-        machine_probe,
-        paired_latency,
-        paper_size_engine,
-    )
-    from model.export.backends import with_backend
+    from model.bench import CLOCKS, machine_description, machine_probe
     from model.inference.bundle import DEFAULT_BUNDLE, Bundle
-    from model.inference.engine import Engine
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -54,30 +49,8 @@ def _run(args: argparse.Namespace) -> int:
     bundle = Bundle.load(path)
     clock = CLOCKS[args.clock]
     probe = machine_probe(clock=clock)
-    backends = ["torch", "onnxruntime"] if args.backend == "both" else [args.backend]
-    engines = [with_backend(Engine(bundle, overrides=output_overrides(args)), b) for b in backends]
-    results = [bench_engine(engine, engine_label(engine, path), sizes, budget_s=args.budget, clock=clock)
-               for engine in engines]
-    paired: dict[str, Any] = {}
-    if not args.no_paper:
-        paper = paper_size_engine(bundle)
-        results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget, clock=clock))
-        for backend, engine in zip(backends, engines):
-            paired[f"{backend}_vs_paper"] = paired_latency(engine, paper, clock=clock)
-    if len(engines) == 2:
-        paired["torch_vs_onnxruntime"] = paired_latency(engines[0], engines[1], clock=clock)
-    if args.clock == "cpu":
-        print("Times are this process's CPU time (--clock cpu), not the wall clock.")
-    print(format_table(results, probe))
-    for key, pair in paired.items():
-        first, second = key.split("_vs_")
-        print(f"Batch 1, {first} and {second} taking turns ({pair.blocks} blocks of {pair.frames} frames each): "
-              f"{pair.first_ms:.3f} ms against {pair.second_ms:.3f} ms, {pair.ratio:.3f}x {second}'s time.")
-    for r in results[: len(engines)]:
-        one = r.throughput.get(1)
-        if one:
-            rates = ", ".join(f"{n} characters {v / one:.1f}x" for n, v in sorted(r.throughput.items()) if n > 1)
-            print(f"{r.name}: {rates} one character's rate.")
+    results, paired, engines = _measure(args, bundle, path, sizes, clock)
+    _print_figures(args, results, probe, paired, engines)
     report = {"machine": machine_description(), "clock": args.clock, "probe": probe, "results": [r.to_dict() for r in results],
               "paired_batch1": {k: v.to_dict() for k, v in paired.items()} or None,
               "seconds": round(time.monotonic() - began, 1)}
@@ -85,6 +58,48 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         args.json.write_text(json.dumps(report, indent=1))
     return 0
+
+
+def _measure(args: argparse.Namespace, bundle: Bundle, path: Path, sizes: tuple[int, ...],
+             clock: Callable[[], float]) -> tuple[list[BenchResult], dict[str, PairedLatency], int]:
+    """The bundle's figures on each backend asked for (then the paper-size network's, unless skipped), the
+    batch-1 times measured taking turns, and how many of the figures are the bundle's."""
+    from model.bench import bench_engine, paired_latency, paper_size_engine
+    from model.export.backends import with_backend
+    from model.inference.engine import Engine
+
+    backends = ["torch", "onnxruntime"] if args.backend == "both" else [args.backend]
+    engines = [with_backend(Engine(bundle, overrides=output_overrides(args)), b) for b in backends]
+    results = [bench_engine(engine, engine_label(engine, path), sizes, budget_s=args.budget, clock=clock)
+               for engine in engines]
+    paired: dict[str, PairedLatency] = {}
+    if not args.no_paper:
+        paper = paper_size_engine(bundle)
+        results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget, clock=clock))
+        for backend, engine in zip(backends, engines):
+            paired[f"{backend}_vs_paper"] = paired_latency(engine, paper, clock=clock)
+    if len(engines) == 2:
+        paired["torch_vs_onnxruntime"] = paired_latency(engines[0], engines[1], clock=clock)
+    return results, paired, len(engines)
+
+
+def _print_figures(args: argparse.Namespace, results: list[BenchResult], probe: dict[str, float],
+                   paired: dict[str, PairedLatency], engines: int) -> None:
+    """The table, each pair's turn-taking batch-1 times and how the first ``engines`` results scale with characters."""
+    from model.bench import format_table
+
+    if args.clock == "cpu":
+        print("Times are this process's CPU time (--clock cpu), not the wall clock.")
+    print(format_table(results, probe))
+    for key, pair in paired.items():
+        first, second = key.split("_vs_")
+        print(f"Batch 1, {first} and {second} taking turns ({pair.blocks} blocks of {pair.frames} frames each): "
+              f"{pair.first_ms:.3f} ms against {pair.second_ms:.3f} ms, {pair.ratio:.3f}x {second}'s time.")
+    for r in results[:engines]:
+        one = r.throughput.get(1)
+        if one:
+            rates = ", ".join(f"{n} characters {v / one:.1f}x" for n, v in sorted(r.throughput.items()) if n > 1)
+            print(f"{r.name}: {rates} one character's rate.")
 
 
 def engine_label(engine: Any, path: Path) -> str:
