@@ -173,20 +173,36 @@ def reach_body(ch: Character) -> dict[str, Any] | None:
     return None if ch.reach is None else ch.reach.to_dict()
 
 
+#: A prepared streamed character: the engine's character, its style and its seed.
+Prepared = tuple[Character, EncodedStyle, int]
+
+
 def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,
-                      registered: Registered = None) -> tuple[Character, EncodedStyle, int]:
+                      registered: Registered = None) -> Prepared | Continue[Prepared]:
     """Build a streamed character's initial state (the scheduler steps it from then on); ``registered``: as
-    for :func:`run_transition`."""
-    engine = model.engine
+    for :func:`run_transition`. In three slices (:class:`Continue`: the motions read, the style resolved (an
+    inline clip read and encoded), the character prepared), so that another key's start waits for one of them
+    at most, not for this whole start."""
     model.check_frames(msg.frames)
-    context = motion_to_clip(msg.context, engine, model.limits, "context")
-    target = motion_to_clip(msg.target, engine, model.limits, "target")
+    context = motion_to_clip(msg.context, model.engine, model.limits, "context")
+    target = motion_to_clip(msg.target, model.engine, model.limits, "target")
+    return Continue(_styled_character, (model, caller, msg, character_id, registered, context, target))
+
+
+def _styled_character(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,
+                      registered: Registered, context: Clip,
+                      target: Clip) -> Prepared | Continue[Prepared]:
     style = resolve_style(model, caller, msg.style_id, msg.style, registered)
+    return Continue(_prepared_character, (model, msg, character_id, context, target, style))
+
+
+def _prepared_character(model: LoadedModel, msg: StartMessage, character_id: str, context: Clip, target: Clip,
+                        style: EncodedStyle) -> Prepared:
     seed = msg.seed if msg.seed is not None else new_seed()
     try:
-        ch = engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
-                            character_id=character_id, exact_arrival=msg.exact_arrival, retargeted=msg.retargeted,
-                            style_strength=msg.style_strength)
+        ch = model.engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
+                                  character_id=character_id, exact_arrival=msg.exact_arrival,
+                                  retargeted=msg.retargeted, style_strength=msg.style_strength)
     except EngineError as exc:
         raise from_engine(exc) from exc
     return ch, style, seed

@@ -44,11 +44,14 @@ class KeyTurns:
             self.used[k] = max(self.used.get(k, floor), floor)
         return min(owners, key=lambda k: self.used[k])  # min keeps the first of equals
 
-    def keep(self, owners: Iterable[str]) -> None:
-        """Forget every key but ``owners`` (those with jobs waiting or running): one that comes back starts afresh,
-        at the floor, and the ledger holds no more keys than the queue does."""
-        wanted = set(owners)
-        for gone in [k for k in self.used if k not in wanted]:
+    def tidy(self, active: Iterable[str]) -> None:
+        """Forget the keys not in ``active`` (those with jobs waiting or running) that hold no more than the floor:
+        one that comes back joins at the floor anyway. A key that was busy a moment ago is remembered, so that one
+        sending a job at a time, each as the last ends, cannot take the threads on a fresh credit each time; and the
+        ledger holds only the keys busy within the last ``credit_s`` of the others' thread time."""
+        wanted = set(active)
+        floor = self._floor()
+        for gone in [k for k, used in self.used.items() if k not in wanted and used <= floor]:
             del self.used[gone]
 
     def _floor(self) -> float:

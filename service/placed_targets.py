@@ -10,9 +10,8 @@ from __future__ import annotations
 
 from typing import Any, TypeVar
 
-from model.inference.engine import Character, EncodedStyle
 from model.inference.placed_target import Placement, placed_target
-from service.engine_jobs import Registered, prepare_character, run_transition
+from service.engine_jobs import Prepared, Registered, prepare_character, run_transition
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
 from service.schemas import PoseMotion, StartMessage, TransitionRequest
@@ -43,6 +42,6 @@ def run_transition_at(model: LoadedModel, caller: Caller, req: TransitionRequest
 
 
 def prepare_character_at(model: LoadedModel, caller: Caller, msg: StartMessage, character_id: str,
-                         registered: Registered = None) -> tuple[Character, EncodedStyle, int]:
+                         registered: Registered = None) -> Prepared | Continue[Prepared]:
     """:func:`service.engine_jobs.prepare_character` of a start that may give ``target_at``."""
     return prepare_character(model, caller, with_placed_target(model, msg), character_id, registered)

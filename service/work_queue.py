@@ -9,8 +9,9 @@ to a quiet one; :mod:`service.http.queue_gate` asks :meth:`WorkQueue.refusal` be
 read. With API keys off every job has the one owner ``""``: one first-come queue of at most ``limit``.
 
 A long job may give the thread back between slices of its work: a job function that returns :class:`Continue`
-has its next slice queued first in its key's turn, and the thread goes to whichever key's turn it is meanwhile, so
-another key's job waits for one slice, not a whole long job (a 120-frame transition, say).
+goes on at once on its thread while no other key's job waits; when one does, its next slice is queued first in its
+key's turn and the thread goes to whichever key's turn it is meanwhile, so another key's job waits for one slice,
+not a whole long job (a 120-frame transition, say).
 
 A waiting job whose HTTP client has gone (its connection closed before the job started) is dropped, not run.
 At shutdown :meth:`WorkQueue.close` answers every waiting job 503 ``shutting_down`` at once and refuses new
@@ -76,6 +77,7 @@ class WorkQueue:
         self._waiting: dict[str, deque[asyncio.Future[None]]] = {}  # per owner, oldest first; no empty deque
         self._resuming: dict[str, deque[asyncio.Future[None]]] = {}  # per owner: next slices of started jobs
         self._continuations: dict[asyncio.Future[Any], asyncio.Future[None]] = {}  # a slice -> its next one's ticket
+        self._queued_keys: frozenset[str] = frozenset()  # owners with a ticket queued: read by the threads
         self._arrived: dict[asyncio.Future[None], int] = {}  # each waiting ticket's place in the order of arrival
         self._arrivals = 0
         self._running_of: Counter[str] = Counter()  # jobs running per owner
@@ -141,7 +143,8 @@ class WorkQueue:
         self._running_of[owner] += 1
         started = time.perf_counter()
         try:
-            future = asyncio.get_running_loop().run_in_executor(self.executor, fn, *args)
+            future: asyncio.Future[T | Continue[T]] = asyncio.get_running_loop().run_in_executor(
+                self.executor, lambda: self._slices(fn, args, owner))
         except BaseException:
             self._done(owner, 0.0)
             raise
@@ -152,6 +155,15 @@ class WorkQueue:
             future.add_done_callback(lambda f: self._drop_continuation(owner, f))  # after _finished
             raise
         return result, self._continuations.pop(future, None), time.perf_counter() - started
+
+    def _slices(self, fn: Callable[..., T | Continue[T]], args: tuple[Any, ...], owner: str) -> T | Continue[T]:
+        """On a thread: ``fn(*args)``, and the slices it returns while no other key's job is queued (a hop through
+        the event loop would only hand the thread back to this job); the first :class:`Continue` that finds one
+        queued goes back to the queue."""
+        result = fn(*args)
+        while isinstance(result, Continue) and not (self._queued_keys - {owner}):
+            result = result.fn(*result.args)
+        return result
 
     def _has_free_thread(self) -> bool:
         return self.running < self.threads and not self._waiting and not self._resuming
@@ -206,7 +218,7 @@ class WorkQueue:
         self._running_of[owner] -= 1
         if self._running_of[owner] <= 0:
             del self._running_of[owner]
-        self._turns.keep([*self._waiting, *self._resuming, *self._running_of])
+        self._turns.tidy([*self._waiting, *self._resuming, *self._running_of])
         self._release()
 
     def _enqueue(self, queues: dict[str, deque[asyncio.Future[None]]], owner: str) -> asyncio.Future[None]:
@@ -215,7 +227,7 @@ class WorkQueue:
         queues.setdefault(owner, deque()).append(ticket)
         self._arrived[ticket] = self._arrivals
         self._arrivals += 1
-        self._gauge()
+        self._changed()
         return ticket
 
     async def _wait(self, owner: str, ticket: asyncio.Future[None], gone: Callable[[], Awaitable[None]] | None) -> None:
@@ -253,7 +265,7 @@ class WorkQueue:
                 if not queue:
                     del queues[owner]
         self._arrived.pop(ticket, None)
-        self._gauge()
+        self._changed()
 
     def _release(self) -> None:
         """A running job is done: hand its slot to the first waiting job of the key whose turn it is, or free it."""
@@ -269,10 +281,10 @@ class WorkQueue:
             self._arrived.pop(ticket, None)
             if not ticket.done():
                 ticket.set_result(None)  # the slot passes on; ``running`` is unchanged
-                self._gauge()
+                self._changed()
                 return
         self.running -= 1
-        self._gauge()
+        self._changed()
 
     def close(self) -> int:
         """Refuse new jobs and answer every waiting one ``shutting_down`` (started ones go on to their end);
@@ -288,14 +300,16 @@ class WorkQueue:
                 dropped += 1
         if dropped:
             self._count(SHUT_DOWN, dropped)
-        self._gauge()
+        self._changed()
         return dropped
 
     def _count(self, outcome: str, n: int = 1) -> None:
         if self.metrics is not None:
             self.metrics.work_jobs.labels(self.name, outcome).inc(n)
 
-    def _gauge(self) -> None:
+    def _changed(self) -> None:
+        """The tickets queued changed: the threads' view of which keys wait, and the gauge."""
+        self._queued_keys = frozenset(self._waiting) | frozenset(self._resuming)
         if self.metrics is not None:
             self.metrics.work_waiting.labels(self.name).set(self.waiting)
 

@@ -111,8 +111,9 @@ class Flood:
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self.stop.wait(), a.seconds)
         self.stop.set()
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(asyncio.gather(*tasks, return_exceptions=True), 30)
+        for task in tasks:  # requests still waiting are abandoned: the server drops them unrun
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
         if client is not None:
             await client.aclose()
         print(json.dumps({"done": self.done, "statuses": dict(self.statuses)}), flush=True)

@@ -110,11 +110,11 @@ def test_key_turns_least_used_first_a_returning_key_within_the_credit():
     assert turns.first([]) is None
     turns.charge("b", 2.0)
     assert turns.first(["b", "a"]) == "a" and turns.used["a"] == pytest.approx(1.75)  # joins at the floor
-    turns.charge("a", 0.5)
+    turns.charge("a", 0.3)  # a: 2.05, b: 2.0
     assert turns.first(["b", "a"]) == "b"
-    assert turns.first(["a", "c"]) == "c"  # ties go to the earlier of equals; a new key at the floor
-    turns.keep(["a"])
-    assert set(turns.used) == {"a"}
+    assert turns.first(["a", "c"]) == "c" and turns.used["c"] == pytest.approx(1.8)  # a new key at the floor
+    turns.tidy(["a"])  # c holds the floor: forgotten; b, busy a moment ago, is kept with what it used
+    assert set(turns.used) == {"a", "b"} and turns.first(["a", "b"]) == "b"
     with pytest.raises(ValueError):
         turns.charge("a", -1.0)
 
