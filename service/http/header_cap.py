@@ -80,7 +80,10 @@ def _head_end(last: bytes, data: bytes, start: int) -> int:
         at = joined.find(marker)
         if at >= 0 and at + len(marker) > len(last):
             return start + at + len(marker) - len(last)
-    ends = [at + len(marker) for marker in (b"\n\n", b"\n\r\n") if (at := data.find(marker, start)) >= 0]
+    crlf = data.find(b"\n\r\n", start)
+    stop = len(data) if crlf < 0 else crlf + 2  # a bare blank line counts only before it: no scan to the end
+    lf = data.find(b"\n\n", start, stop)
+    ends = [at + skip for at, skip in ((lf, 2), (crlf, 3)) if at >= 0]
     return min(ends) if ends else -1
 
 

@@ -70,7 +70,7 @@ def _drain(sock: socket.socket, data: bytes) -> bytes:
 
 
 def flood(port: int, key: str, seconds: float, batch_size: int) -> dict:
-    batch = frame(b'{"type":"ping","id":1}') * batch_size
+    batch = memoryview(frame(b'{"type":"ping","id":1}') * batch_size)
     sent = opened = refused = 0
     codes: list[int | None] = []
     deadline = time.monotonic() + seconds
@@ -82,13 +82,15 @@ def flood(port: int, key: str, seconds: float, batch_size: int) -> dict:
             continue
         opened += 1
         sock.settimeout(0.2)
+        pos = 0
         try:
             while time.monotonic() < deadline:
                 try:
-                    sock.sendall(batch)
-                    sent += batch_size
+                    pos += sock.send(batch[pos:])  # what a timeout leaves unsent goes next: frames stay whole
                 except TimeoutError:  # the server reads no more for now
                     continue
+                if pos == len(batch):
+                    sent, pos = sent + batch_size, 0
         except OSError:  # the server ended the connection
             pass
         codes.append(close_code(_drain(sock, rest)))

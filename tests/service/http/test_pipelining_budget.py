@@ -1,14 +1,18 @@
 """One connection pipelining requests and never reading its answers (issue 64, item 2) against a real
 `rsmt serve` with keys on, beside another key's real-time stream: its requests are started at most
 ``RSMT_PIPELINED_REQUESTS_PER_S`` a second, so it holds neither a core (it held one: 300k answers in 12 s)
-nor the other key's frames; pipelined requests are still all answered, in order."""
+nor the other key's frames (tests/service/pipeline_flood.py floods from a process of its own); pipelined
+requests are still all answered, in order."""
 
 from __future__ import annotations
 
+import json
 import socket
-import threading
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -19,7 +23,6 @@ pytestmark = pytest.mark.slow  # a 5 s flood beside a stream
 
 KEY = "pipelining-key-0123456789abcdef"
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]
-REQUEST = b"GET /v1/health/live HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
 FLOOD_S = 5.0
 
 
@@ -30,24 +33,6 @@ def server(bundle_dir) -> Iterator[Server]:
     srv.stop()
 
 
-def _flood(port: int, seconds: float, out: dict) -> None:
-    """Pipeline requests in batches of 1,000 for ``seconds``, reading nothing; how many were sent."""
-    sent = 0
-    batch = REQUEST * 1000
-    deadline = time.monotonic() + seconds
-    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
-        sock.settimeout(0.2)
-        while time.monotonic() < deadline:
-            try:
-                sock.sendall(batch)
-                sent += 1000
-            except TimeoutError:  # the server reads no more for now
-                continue
-            except OSError:
-                break
-        out["sent"] = sent
-
-
 def test_a_pipelining_connection_that_never_reads_holds_no_core(server):
     assert server.proc is not None
     pid = server.proc.pid
@@ -55,21 +40,25 @@ def test_a_pipelining_connection_that_never_reads_holds_no_core(server):
         time.sleep(1.0)  # the stream settles
         quiet_from, quiet_cpu = time.monotonic(), cpu_seconds(pid)
         time.sleep(3.0)
-        since, flood_cpu = time.monotonic(), cpu_seconds(pid)
-        quiet_rate = (flood_cpu - quiet_cpu) / (since - quiet_from)
-        out: dict = {}
-        flood = threading.Thread(target=_flood, args=(server.port, FLOOD_S, out))
-        flood.start()
-        flood.join(FLOOD_S + 15)
+        quiet_until = time.monotonic()
+        quiet_rate = (cpu_seconds(pid) - quiet_cpu) / (quiet_until - quiet_from)
+        flood = subprocess.Popen([sys.executable, "-m", "tests.service.pipeline_flood", "--port", str(server.port),
+                                  "--seconds", str(FLOOD_S)], stdout=subprocess.PIPE, text=True,
+                                 cwd=Path(__file__).resolve().parents[3])
+        assert flood.stdout is not None and flood.stdout.readline().strip() == "ready"
+        since, flood_cpu = time.monotonic(), cpu_seconds(pid)  # from the flood's start
+        out = json.loads(flood.stdout.readline())
+        flood.wait(10)
         until = time.monotonic()
         extra = cpu_seconds(pid) - flood_cpu - quiet_rate * (until - since)
-        quiet_fps = probe.frames_in(quiet_from, since) / (since - quiet_from)
-        flood_fps = probe.frames_in(since, until) / (until - since)
-        gaps = probe.gaps_ms(since, until)
+        quiet_fps = probe.frames_in(quiet_from, quiet_until) / (quiet_until - quiet_from)
+        flood_fps = probe.frames_in(since, since + FLOOD_S) / FLOOD_S
+        gaps = probe.gaps_ms(since, since + FLOOD_S)
     print(f"pipelining {out.get('sent', 0)} requests in {FLOOD_S:g} s, never reading: {extra:.2f} s of extra server "
           f"CPU in {until - since:.2f} s; the other stream {flood_fps:.0f} frames/s (before: {quiet_fps:.0f}), p99 gap "
           f"{p99(gaps):.1f} ms")
     assert not probe.errors, probe.errors
+    assert "error" not in out, out  # the connection stayed open all along: the flood lasted
     assert extra < 0.25 * (until - since), f"the pipelining connection took {extra:.2f} s of CPU"
     assert flood_fps >= 0.8 * quiet_fps
 
