@@ -1,8 +1,8 @@
 """A motion database: the compressed poses of locomotion segments, per style and content, that a bundle carries
 for motion matching (``BUNDLE/database.safetensors`` beside ``database.json``).
 
-What it stores, per frame: local rotations as int16 quaternion components (``round(q * 32767)``; decoded and
-normalised, a component is off by at most 1.6e-5, about 0.002 degrees) and the root position in whole millimetres,
+What it stores, per frame: local rotations packed in 32 bits each (:mod:`model.retrieval.quat_packing`: within
+0.3 degree) and the root position in whole millimetres,
 on the ground relative to its segment's first frame and in height as captured (int16: segments up to 32 m). Per
 segment: its first row, its length, its style and its content. The matching features are not stored:
 :mod:`model.retrieval.matching` computes them from the poses when the database is loaded (a few seconds for tens of
@@ -22,14 +22,13 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
-from model.motion.rotations import quat_normalize
 from model.motion.skeleton import Skeleton
+from model.retrieval.quat_packing import pack_quaternions, unpack_quaternions
 
 Tensor = torch.Tensor
 DATABASE_FILE = "database.safetensors"
 DATABASE_META = "database.json"
 DATABASE_FORMAT = "rsmt-motion-database/1"
-_Q = 32767.0
 _MAX_MM = 32767
 
 
@@ -38,15 +37,15 @@ class DatabaseError(ValueError):
 
 
 def bytes_per_frame(joints: int) -> int:
-    """What one frame costs in the file: int16 quaternions and an int16 root, plus its share of nothing else."""
-    return joints * 4 * 2 + 3 * 2
+    """What one frame costs in the file: a 32-bit rotation a joint and an int16 root."""
+    return joints * 4 + 3 * 2
 
 
 @dataclass
 class MotionDatabase:
     """Segments of real motion on one rig (``skeleton``) at ``fps``: rows ``[N]`` of poses, grouped in segments.
 
-    ``rotations [N, J, 4]`` int16, ``roots_mm [N, 3]`` int16 (x, z relative to the segment's first frame, y as is),
+    ``rotations [N, J]`` int32 (packed), ``roots_mm [N, 3]`` int16 (x, z relative to the segment's first frame, y as is),
     ``starts [S]`` / ``lengths [S]`` int32, ``style [S]`` / ``content [S]`` int32 indexes into ``styles`` /
     ``contents``; ``source`` says what it was built from."""
 
@@ -79,9 +78,7 @@ class MotionDatabase:
             if float(rel.abs().max()) > _MAX_MM:
                 raise DatabaseError(f"a segment travels {float(rel.abs().max()) / 1000:.1f} m: segments are at "
                                     "most 32 m long; cut it")
-            q = quat_normalize(rot.double())
-            q = torch.where(q[..., 3:] < 0, -q, q)  # one hemisphere: w >= 0
-            rots.append(torch.round(q * _Q).to(torch.int16))
+            rots.append(pack_quaternions(rot))
             roots.append(rel.to(torch.int16))
             lengths.append(rot.shape[0])
         lens = torch.tensor(lengths, dtype=torch.int32)
@@ -102,7 +99,7 @@ class MotionDatabase:
 
     def local_rotations(self) -> Tensor:
         """Every row's local rotations ``[N, J, 4]`` (float32, unit)."""
-        return quat_normalize(self.rotations.float() / _Q)
+        return unpack_quaternions(self.rotations)
 
     def root_positions(self) -> Tensor:
         """Every row's root position ``[N, 3]`` in cm, on the ground relative to its segment's first frame."""
@@ -161,6 +158,6 @@ class MotionDatabase:
             raise DatabaseError(f"{folder}: {DATABASE_FILE} lacks {', '.join(missing)}")
         db = cls(skeleton, float(meta["fps"]), t["rotations"], t["roots_mm"], t["starts"], t["lengths"], t["style"],
                  t["content"], list(meta["styles"]), list(meta["contents"]), str(meta.get("source", "")))
-        if int(db.lengths.sum()) != db.frames or db.rotations.shape[1:] != (skeleton.num_joints, 4):
+        if int(db.lengths.sum()) != db.frames or db.rotations.shape[1:] != (skeleton.num_joints,):
             raise DatabaseError(f"{folder}: the database's segments do not add up to its {db.frames} frames")
         return db

@@ -41,9 +41,11 @@ def test_the_hybrid_plays_capture_where_it_matches_and_the_network_elsewhere(bun
 
 def test_a_played_character_keeps_the_network_warm(bundle: Bundle) -> None:
     engine = Engine(bundle, source="hybrid")
+    assert isinstance(engine.net, HybridNet)
+    engine.net.limit = float("inf")  # every request played
     walk = _walk("slow", frames=120)
     style, _ = engine.encode_style(walk.window(10, 100))
     ch = engine.prepare(walk.window(0, 10), walk.window(38, 40), 30, style, deterministic=True)
     state = engine.begin([ch])
-    assert isinstance(state, HybridState) and bool(state.played.all())  # a request the walks cover
+    assert isinstance(state, HybridState) and bool(state.played.all())
     assert float(state.h.abs().sum()) > 0.0  # the sampler warmed up on the context beside the plan

@@ -4,6 +4,7 @@ another rig, and the build from a data set's train split that keeps to its byte 
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import pytest
@@ -27,13 +28,13 @@ def _db() -> MotionDatabase:
 
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lambda q: sum(x * x for x in q) > 1e-3))
-def test_a_quaternion_decodes_to_itself_within_two_hundred_thousandths(q: list[float]) -> None:
+def test_a_quaternion_decodes_to_the_same_rotation_within_three_tenths_of_a_degree(q: list[float]) -> None:
     sk = synthetic_skeleton()
     rot = quat_normalize(torch.tensor(q, dtype=torch.float64)).expand(2, sk.num_joints, 4).float()
     db = MotionDatabase.from_segments(sk, 30.0, [(rot, torch.zeros(2, 3), "s", "walk")])
     back = db.local_rotations()
-    same_sign = torch.where((back * rot).sum(-1, keepdim=True) < 0, -back, back)
-    assert float((same_sign - rot).abs().max()) < 2e-5
+    angle = 2 * torch.acos((back * rot).sum(-1).abs().clamp(max=1.0))
+    assert float(angle.max()) < math.radians(0.3)
 
 
 def test_roots_are_kept_to_the_millimetre_relative_to_their_segment() -> None:
