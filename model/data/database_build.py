@@ -17,7 +17,7 @@ from model.motion.gait_limits import gait_of
 from model.retrieval.database import MotionDatabase, bytes_per_frame
 
 TRIM = 15
-MIN_SEGMENT = 60
+MIN_SEGMENT = 45  # a 40-frame window and the frame before it, with room to move
 BUDGET_BYTES = 10_000_000
 
 
