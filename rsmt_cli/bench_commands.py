@@ -27,6 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=["torch", "onnxruntime", "both"], default="torch",
                    help="what runs the bundle's per-frame graphs (default torch); both: each, side by side, with "
                         "their batch-1 times measured taking turns")
+    p.add_argument("--source", choices=["network", "matching", "hybrid", "all"], default="network",
+                   help="what makes the motion (as the service's RSMT_SOURCE; default network); all: each, side by side "
+                        "(matching and hybrid need a bundle with a motion database, and run on torch)")
     p.add_argument("--clock", choices=["wall", "cpu"], default="wall",
                    help="time by the wall clock (default) or by this process's CPU time, which leaves out the "
                         "time a loaded machine keeps it waiting for a core")
@@ -51,9 +54,10 @@ def _run(args: argparse.Namespace) -> int:
     probe = machine_probe(clock=clock)
     results, paired, engines = _measure(args, bundle, path, sizes, clock)
     _print_figures(args, results, probe, paired, engines)
+    search = _database_search(bundle, clock)
     report = {"machine": machine_description(), "clock": args.clock, "probe": probe, "results": [r.to_dict() for r in results],
               "paired_batch1": {k: v.to_dict() for k, v in paired.items()} or None,
-              "seconds": round(time.monotonic() - began, 1)}
+              "database_search": search, "seconds": round(time.monotonic() - began, 1)}
     print(f"\nfinished in {report['seconds']} s")
     if args.json:
         args.json.write_text(json.dumps(report, indent=1))
@@ -69,16 +73,19 @@ def _measure(args: argparse.Namespace, bundle: Bundle, path: Path, sizes: tuple[
     from model.inference.engine import Engine
 
     backends = ["torch", "onnxruntime"] if args.backend == "both" else [args.backend]
-    engines = [with_backend(Engine(bundle, overrides=output_overrides(args)), b) for b in backends]
+    sources = ["network", "matching", "hybrid"] if args.source == "all" else [args.source]
+    engines = [with_backend(Engine(bundle, overrides=output_overrides(args), source=s), b)
+               for s in sources for b in (backends if s == "network" else ["torch"])]
     results = [bench_engine(engine, engine_label(engine, path), sizes, budget_s=args.budget, clock=clock)
                for engine in engines]
     paired: dict[str, PairedLatency] = {}
     if not args.no_paper:
         paper = paper_size_engine(bundle)
         results.append(bench_engine(paper, "paper-size, random weights", sizes, budget_s=args.budget, clock=clock))
-        for backend, engine in zip(backends, engines):
-            paired[f"{backend}_vs_paper"] = paired_latency(engine, paper, clock=clock)
-    if len(engines) == 2:
+        for engine in engines:
+            name = engine.source if engine.source != "network" else ("onnxruntime" if _on_onnxruntime(engine) else "torch")
+            paired[f"{name}_vs_paper"] = paired_latency(engine, paper, clock=clock)
+    if len(backends) == 2 and "network" in sources:
         paired["torch_vs_onnxruntime"] = paired_latency(engines[0], engines[1], clock=clock)
     return results, paired, len(engines)
 
@@ -102,10 +109,25 @@ def _print_figures(args: argparse.Namespace, results: list[BenchResult], probe: 
             print(f"{r.name}: {rates} one character's rate.")
 
 
+def _database_search(bundle: Bundle, clock: Callable[[], float]) -> dict[str, float] | None:
+    """The bundle's database search times at batch 1, printed (None where it has no database)."""
+    from model.bench import database_search_ms
+
+    if bundle.database is None:
+        return None
+    search = database_search_ms(bundle.database, clock=clock)
+    print(f"Database search at batch 1 over {int(search['rows']):,} rows: the window a 40-frame transition starts from "
+          f"{search['window_search_ms']:.3f} ms (once per transition and retarget), the nearest pose and trajectory "
+          f"{search['pose_search_ms']:.3f} ms.")
+    return search
+
+
 def engine_label(engine: Any, path: Path) -> str:
     """The bench table's name for ``engine`` (loaded from ``path``): its model and the settings it runs with."""
     strength = engine.inference.style_strength
-    return (f"{engine.name} ({path.name}; {engine.output.in_words()}{', int8 LSTM' if engine.inference.int8_lstm else ''}"
+    source = f"{engine.source} source; " if engine.source != "network" else ""
+    return (f"{engine.name} ({path.name}; {source}{engine.output.in_words()}"
+            f"{', int8 LSTM' if engine.inference.int8_lstm else ''}"
             f"{f', style strength {strength:g}' if strength != 1.0 else ''}{', onnxruntime' if _on_onnxruntime(engine) else ''})")
 
 
