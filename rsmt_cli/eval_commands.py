@@ -13,8 +13,11 @@ from rsmt_cli.output_arguments import add_output_arguments, output_flags, output
 
 if TYPE_CHECKING:
     from model.evaluation.methods import Method
-    from model.evaluation.runner import EvalRun
+    from model.evaluation.runner import EvalRun, EvalSettings
+    from model.evaluation.sequence_judge import SequenceJudge
+    from model.evaluation.style_judge import StyleJudge
     from model.inference.overrides import Overrides
+    from model.nets.style_classifier import StyleClassifier
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -91,42 +94,25 @@ def eval_command(args: argparse.Namespace) -> int:
     import torch
 
     from model.data.preprocessed import load_motion_cache
-    from model.evaluation import EvalSettings, evaluate, resolve_method
-    from model.evaluation.methods import BundleMethod
+    from model.evaluation import evaluate
     from model.evaluation.motion_matching import MotionMatchingMethod
     from model.evaluation.report import markdown
     from model.evaluation.runner import eval_split
-    from model.evaluation.sequence_judge import SequenceJudge
-    from model.evaluation.style_judge import StyleJudge
-    from model.export.backends import with_backend
-    from model.nets.style_classifier import StyleClassifier
 
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.limit is not None and args.limit < 1:
         raise ValueError("--limit must be at least 1")
     data = require_data_dir(args.data)
-    overrides = output_overrides(args)
-    methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
-    if args.network_alone:
-        methods = _with_network_alone(methods, overrides, args.batch, args.exact_arrival)
-    for method in methods:
-        if isinstance(method, BundleMethod):
-            with_backend(method.engine, args.backend)
-    classifier = StyleClassifier.load(args.classifier) if args.classifier else None
-    judge = StyleJudge.load(args.judge) if args.judge else None
-    judge2 = SequenceJudge.load(args.judge2) if args.judge2 else None
+    methods = _methods(args, output_overrides(args))
+    classifier, judge, judge2 = _scorers(args)
     cache = load_motion_cache(Path(data), progress=not args.quiet)
-    settings = EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
-                            diversity_samples=args.diversity_samples, render_cases=args.render_cases,
-                            styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise,
-                            holdout_styles=tuple(sorted(set(args.holdout_style))), clips_only=tuple(args.clips_only),
-                            style_sets=tuple(tuple(t for t in s.split(",") if t) for s in args.style_set))
+    settings = _settings(args)
     if not args.no_motion_matching:
         methods.append(MotionMatchingMethod(cache, eval_split(cache, settings).train))
-    run = evaluate(cache, methods, settings, classifier, str(args.classifier) if args.classifier else None,
-                   progress=not args.quiet, judge=judge, judge_path=str(args.judge) if args.judge else None,
-                   judge2=judge2, judge2_path=str(args.judge2) if args.judge2 else None)
+    run = evaluate(cache, methods, settings, classifier, _path_text(args.classifier),
+                   progress=not args.quiet, judge=judge, judge_path=_path_text(args.judge),
+                   judge2=judge2, judge2_path=_path_text(args.judge2))
     command = _command(args)
     run.report["command"] = command
     text = markdown(run.report, command)
@@ -136,6 +122,49 @@ def eval_command(args: argparse.Namespace) -> int:
         write_outputs(run, args.out, text)
     print(json.dumps(run.report, indent=1) if args.json else text)
     return 0
+
+
+def _methods(args: argparse.Namespace, overrides: Overrides) -> list[Method]:
+    """The --model methods (each bundle followed by its steering-0 twin with --network-alone), bundles on --backend."""
+    from model.evaluation import resolve_method
+    from model.evaluation.methods import BundleMethod
+    from model.export.backends import with_backend
+
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
+    if args.network_alone:
+        methods = _with_network_alone(methods, overrides, args.batch, args.exact_arrival)
+    for method in methods:
+        if isinstance(method, BundleMethod):
+            with_backend(method.engine, args.backend)
+    return methods
+
+
+def _scorers(args: argparse.Namespace) -> tuple[StyleClassifier | None, StyleJudge | None, SequenceJudge | None]:
+    """The style classifier and the two judges given (None for each one that is not)."""
+    from model.evaluation.sequence_judge import SequenceJudge
+    from model.evaluation.style_judge import StyleJudge
+    from model.nets.style_classifier import StyleClassifier
+
+    classifier = StyleClassifier.load(args.classifier) if args.classifier else None
+    judge = StyleJudge.load(args.judge) if args.judge else None
+    judge2 = SequenceJudge.load(args.judge2) if args.judge2 else None
+    return classifier, judge, judge2
+
+
+def _settings(args: argparse.Namespace) -> EvalSettings:
+    """What to evaluate, from the command's arguments."""
+    from model.evaluation import EvalSettings
+
+    return EvalSettings(split=args.split, limit=args.limit, seed=args.seed, diversity_cases=args.diversity_cases,
+                        diversity_samples=args.diversity_samples, render_cases=args.render_cases,
+                        styles=tuple(args.styles), target_frames=args.target_frames, noise=args.noise,
+                        holdout_styles=tuple(sorted(set(args.holdout_style))), clips_only=tuple(args.clips_only),
+                        style_sets=tuple(tuple(t for t in s.split(",") if t) for s in args.style_set))
+
+
+def _path_text(path: Path | None) -> str | None:
+    """A scorer's folder as the report names it (None when not given)."""
+    return str(path) if path else None
 
 
 def _with_network_alone(methods: list[Method], overrides: Overrides, batch: int, exact_arrival: bool) -> list[Method]:
