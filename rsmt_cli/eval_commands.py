@@ -57,6 +57,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--network-alone", action="store_true",
                    help="also run each bundle with steering off (--steering 0: the network alone carries the body), "
                         "reported as NAME (steering 0) beside its own settings")
+    p.add_argument("--source", default="network", metavar="SOURCE[,SOURCE...]",
+                   help="what makes each bundle's motion, as the service's RSMT_SOURCE: network (default), matching "
+                        "(its motion database) or hybrid; several, comma-separated, run side by side in one report "
+                        "(NAME (matching), ...)")
     p.add_argument("--no-motion-matching", action="store_true",
                    help="leave out the motion-matching baseline (built from the training split; run by default)")
     p.add_argument("--target-frames", type=int, default=1, choices=[1, 2],
@@ -130,9 +134,16 @@ def _methods(args: argparse.Namespace, overrides: Overrides) -> list[Method]:
     from model.evaluation.methods import BundleMethod
     from model.export.backends import with_backend
 
-    methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides) for spec in args.model]
+    sources = [s.strip() for s in args.source.split(",") if s.strip()]
+    unknown = sorted(set(sources) - {"network", "matching", "hybrid"})
+    if unknown or not sources:
+        raise ValueError(f"--source takes network, matching or hybrid, comma-separated; not {args.source!r}")
+    methods = [resolve_method(spec, args.batch, args.exact_arrival, overrides, source)
+               for spec in args.model for source in (sources if Path(spec).is_dir() else sources[:1])]
     if args.network_alone:
         methods = _with_network_alone(methods, overrides, args.batch, args.exact_arrival)
+    if args.backend != "torch" and sources != ["network"]:
+        raise ValueError("--source matching or hybrid runs on the torch backend only (the ONNX graphs hold the network)")
     for method in methods:
         if isinstance(method, BundleMethod):
             with_backend(method.engine, args.backend)
@@ -178,6 +189,7 @@ def _with_network_alone(methods: list[Method], overrides: Overrides, batch: int,
         out.append(method)
         if isinstance(method, BundleMethod):
             out.append(BundleMethod(method.path, batch, name=f"{method.name} (steering 0)", exact_arrival=exact_arrival,
+                                    source=method.source,
                                     overrides=replace(overrides, steering=0)))
     return out
 

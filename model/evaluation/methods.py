@@ -160,11 +160,12 @@ class BundleMethod(Method):
 
 
 def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False,
-                   overrides: Overrides | None = None) -> Method:
+                   overrides: Overrides | None = None, source: str = "network") -> Method:
     """``interp``, ``zerovel``, ``gt`` or the path of a model bundle.
 
-    ``exact_arrival`` and ``overrides`` (:class:`model.inference.overrides.Overrides`; None: the bundle's own
-    settings) are the engine's options for bundles.
+    ``exact_arrival``, ``overrides`` (:class:`model.inference.overrides.Overrides`; None: the bundle's own
+    settings) and ``source`` (what makes the motion: :data:`model.inference.engine.SOURCES`) are the engine's options
+    for bundles.
     """
     if spec in BASELINES:
         return BaselineMethod(spec)
@@ -173,4 +174,4 @@ def resolve_method(spec: str, batch: int = 128, exact_arrival: bool = False,
     path = Path(spec)
     if not path.is_dir():
         raise FileNotFoundError(f"--model {spec!r} is neither {', '.join([*BASELINES, GROUND_TRUTH])} nor a bundle folder")
-    return BundleMethod(path, batch, exact_arrival=exact_arrival, overrides=overrides)
+    return BundleMethod(path, batch, exact_arrival=exact_arrival, overrides=overrides, source=source)

@@ -23,7 +23,7 @@ from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
 from model.nets.tensor_record import TensorRecord
 
 Tensor = torch.Tensor
-MATCH_COST_LIMIT = 8.0  # the highest window match cost that plays (standardised feature distance; chosen on val)
+MATCH_COST_LIMIT = 40.0  # the highest window match cost that plays (standardised feature distance; chosen on val)
 
 
 @dataclass

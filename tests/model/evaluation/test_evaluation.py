@@ -478,3 +478,24 @@ def test_a_style_set_changes_its_styles_cases_only(cache: MotionCache, bundle_di
                          ([["nosuch"]], "no take nosuch"), ([train * 3], "1 to 5 clips")):
         with pytest.raises(ValueError, match=message):
             style_set_takes(cache, bad)
+
+
+def test_eval_runs_every_source_of_a_database_bundle_side_by_side(dataset: tuple[Path, Path], cache: MotionCache,
+                                                                  tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    from model.data.database_build import build_database
+
+    data, root = dataset
+    monkeypatch.setenv("RSMT_CACHE", str(root))
+    bundle = Bundle.create(synthetic_skeleton())
+    bundle.database = build_database(cache)
+    folder = bundle.save(tmp_path / "db")
+    assert main(["eval", "--model", str(folder), "--data", str(data), "--source", "network,matching,hybrid",
+                 "--limit", "3", "--diversity-cases", "0", "--render-cases", "0", "--json", "--quiet"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert {"db", "db (matching)", "db (hybrid)", "motion matching"} <= set(report["methods"])
+    assert report["methods"]["db (matching)"]["source"] == "matching"
+    matching = report["methods"]["db (matching)"]["variants"]["gap40"]
+    assert matching["last_frame_cm"] < 1.0  # a played window is blended onto the target
+    assert main(["eval", "--model", str(folder), "--data", str(data), "--source", "capture", "--quiet"]) == 2
+    assert "--source" in capsys.readouterr().err
