@@ -61,28 +61,47 @@ def _check_paths(args: argparse.Namespace) -> None:
         raise ValueError(f"--model {args.model} is not a model bundle: it has no config.json")
 
 
-def _run(args: argparse.Namespace) -> int:
+def _check_arguments(args: argparse.Namespace) -> bool:
+    """The command line's own checks, before torch is imported; whether --out is the --model folder itself."""
     from model.inference.bundle_styles import check_name
 
     if not MIN_CLIPS <= len(args.clips) <= MAX_CLIPS:
         raise ValueError(f"--clips takes {MIN_CLIPS} to {MAX_CLIPS} clips of the new style; got {len(args.clips)}")
     check_name(args.name)
+    if args.iterations is not None and args.iterations < 1:
+        raise ValueError(f"--iterations must be at least 1; got {args.iterations}")
+    if args.blend is not None and not 0.0 < args.blend <= 1.0:
+        raise ValueError(f"--blend must be in (0, 1]; got {args.blend}")
+    in_place: bool = args.out.resolve() == args.model.resolve()
+    if not in_place and args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
+        raise ValueError(f"--out {args.out} is not empty: give a new folder, or --out {args.model} to add the style to "
+                         "the bundle in place")
+    return in_place
+
+
+def _config(args: argparse.Namespace) -> Any:
+    """The fine-tuning settings of --scope, with --iterations and --blend where given."""
+    from model.train.finetune import FinetuneConfig
+
+    cfg = FinetuneConfig.for_scope(args.scope)
+    if args.iterations is not None:
+        cfg.loop.iterations = args.iterations
+    if args.blend is not None:  # applied to the trained weights: the run folder's checkpoints do not depend on it
+        cfg.blend = args.blend
+    cfg.loop.epoch_iterations = cfg.loop.iterations  # one validation, at the end (it never changes the steps)
+    return cfg
+
+
+def _run(args: argparse.Namespace) -> int:
+    in_place = _check_arguments(args)
     import torch
 
     from model.inference.bundle import Bundle
     from model.inference.engine import Engine
     from model.inference.style_packing import write_adapter
     from model.motion.bvh_clip import load_clip
-    from model.train.finetune import FinetuneConfig, check_clips, finetune_style
+    from model.train.finetune import check_clips, finetune_style
 
-    if args.iterations is not None and args.iterations < 1:
-        raise ValueError(f"--iterations must be at least 1; got {args.iterations}")
-    if args.blend is not None and not 0.0 < args.blend <= 1.0:
-        raise ValueError(f"--blend must be in (0, 1]; got {args.blend}")
-    in_place = args.out.resolve() == args.model.resolve()
-    if not in_place and args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
-        raise ValueError(f"--out {args.out} is not empty: give a new folder, or --out {args.model} to add the style to "
-                         "the bundle in place")
     device = resolve_cli_device(args.device)  # first, so a missing GPU fails before anything is loaded
     _check_paths(args)
     if args.threads:
@@ -92,12 +111,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.model} already has a built-in style {args.name!r}: pick another --name")
     engine = Engine(bundle)
     clips = [engine.conform(load_clip(path), str(path)) for path in args.clips]
-    cfg = FinetuneConfig.for_scope(args.scope)
-    if args.iterations is not None:
-        cfg.loop.iterations = args.iterations
-    if args.blend is not None:  # applied to the trained weights: the run folder's checkpoints do not depend on it
-        cfg.blend = args.blend
-    cfg.loop.epoch_iterations = cfg.loop.iterations  # one validation, at the end (it never changes the steps)
+    cfg = _config(args)
     check_clips(bundle, clips, cfg)  # before the long part, and before a run folder is made
     style_clip = _new_style(clips, args.clips, args.name, bundle)
     loaded = time.perf_counter()

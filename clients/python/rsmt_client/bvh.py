@@ -345,15 +345,20 @@ def _header(lines: Sequence[str], at: int, pattern: re.Pattern[str], what: str, 
     return found.group(1), at + 1
 
 
-def _parse_motion(lines: Sequence[str], at: int, width: int, source: str) -> tuple[float, np.ndarray]:
+def _frame_count(lines: Sequence[str], at: int, source: str) -> tuple[int, int]:
+    """The ``Frames:`` line's count from ``at``, and the index after that line (also its 1-based line number)."""
     value, at = _header(lines, at, _FRAMES, "Frames", source)
-    frames_line = at  # the index after the Frames line is its 1-based number
     if not (value.isascii() and value.isdigit()):
-        raise BvhError(f"Frames: expected a whole number, found {_short(value)!r}", frames_line, source)
+        raise BvhError(f"Frames: expected a whole number, found {_short(value)!r}", at, source)
     frames = _whole_number(value)
     if frames is None or frames > MAX_FRAMES:
         raise BvhError(f"Frames: {_short(value.lstrip('0'))} is more than the {MAX_FRAMES} frames a file may declare",
-                       frames_line, source)
+                       at, source)
+    return frames, at
+
+
+def _frame_time(lines: Sequence[str], at: int, source: str) -> tuple[float, int]:
+    """The ``Frame Time:`` line's seconds from ``at``, within the accepted frame rates, and the index after it."""
     value, at = _header(lines, at, _FRAME_TIME, "Frame Time", source)
     if not _NUMBER.fullmatch(value) or not (math.isfinite(float(value)) and float(value) > 0):
         raise BvhError(f"Frame Time: expected a positive number of seconds, found {value!r}", at, source)
@@ -362,12 +367,11 @@ def _parse_motion(lines: Sequence[str], at: int, width: int, source: str) -> tup
             rate = float(np.divide(1.0, np.float64(value)))
         raise BvhError(f"Frame Time {float(value):g} s gives {rate:g} fps; accepted: {MIN_FPS:g} to {MAX_FPS:g} fps "
                        f"(Frame Time {1 / MAX_FPS:g} to {1 / MIN_FPS:g} s)", at, source)
-    rows = [(n, line) for n, line in enumerate(lines[at:], at + 1) if line.strip()]
-    if width == 0 and not rows:  # frames without channels are empty lines, as blank as the end of a file
-        return float(value), np.zeros((frames, 0))
-    if len(rows) != frames:
-        where = rows[frames][0] if len(rows) > frames else frames_line  # the first extra line, or the count
-        raise BvhError(f"Frames says {frames} but {len(rows)} frame lines follow", where, source)
+    return float(value), at
+
+
+def _frame_values(rows: Sequence[tuple[int, str]], frames: int, width: int, source: str) -> np.ndarray:
+    """The frame lines ``(line number, text)`` as a frames x width array of finite numbers."""
     flat: list[str] = []
     for n, line in rows:
         values = line.split()
@@ -385,4 +389,16 @@ def _parse_motion(lines: Sequence[str], at: int, width: int, source: str) -> tup
     if not np.isfinite(motion).all():
         row = int(np.argwhere(~np.isfinite(motion))[0][0])
         raise BvhError("a value is too large for a float", rows[row][0], source)
-    return float(value), motion
+    return motion
+
+
+def _parse_motion(lines: Sequence[str], at: int, width: int, source: str) -> tuple[float, np.ndarray]:
+    frames, frames_line = _frame_count(lines, at, source)
+    seconds, at = _frame_time(lines, frames_line, source)
+    rows = [(n, line) for n, line in enumerate(lines[at:], at + 1) if line.strip()]
+    if width == 0 and not rows:  # frames without channels are empty lines, as blank as the end of a file
+        return seconds, np.zeros((frames, 0))
+    if len(rows) != frames:
+        where = rows[frames][0] if len(rows) > frames else frames_line  # the first extra line, or the count
+        raise BvhError(f"Frames says {frames} but {len(rows)} frame lines follow", where, source)
+    return seconds, _frame_values(rows, frames, width, source)
