@@ -9,9 +9,10 @@ to a quiet one; :mod:`service.http.queue_gate` asks :meth:`WorkQueue.refusal` be
 read. With API keys off every job has the one owner ``""``: one first-come queue of at most ``limit``.
 
 A long job may give the thread back between slices of its work: a job function that returns :class:`Continue`
-goes on at once on its thread while no other key's job waits; when one does, its next slice is queued first in its
-key's turn and the thread goes to whichever key's turn it is meanwhile, so another key's job waits for one slice,
-not a whole long job (a 120-frame transition, say).
+goes on at once on its thread while no other key's job waits, or while its key is still behind the least served
+of those that wait (its turn); past that, its next slice is queued first in its key's turn and the thread goes to
+whichever key's turn it is meanwhile, so another key's job waits for one slice, not a whole long job (a 120-frame
+transition, say).
 
 A waiting job whose HTTP client has gone (its connection closed before the job started) is dropped, not run.
 At shutdown :meth:`WorkQueue.close` answers every waiting job 503 ``shutting_down`` at once and refuses new
@@ -141,10 +142,11 @@ class WorkQueue:
         """Run one slice on a thread (the caller holds a slot); its result, the ticket of the next slice when it
         returned :class:`Continue`, and its seconds on the thread."""
         self._running_of[owner] += 1
+        turn_s = self._turn_s(owner)
         started = time.perf_counter()
         try:
             future: asyncio.Future[T | Continue[T]] = asyncio.get_running_loop().run_in_executor(
-                self.executor, lambda: self._slices(fn, args, owner))
+                self.executor, lambda: self._slices(fn, args, owner, turn_s))
         except BaseException:
             self._done(owner, 0.0)
             raise
@@ -156,12 +158,24 @@ class WorkQueue:
             raise
         return result, self._continuations.pop(future, None), time.perf_counter() - started
 
-    def _slices(self, fn: Callable[..., T | Continue[T]], args: tuple[Any, ...], owner: str) -> T | Continue[T]:
-        """On a thread: ``fn(*args)``, and the slices it returns while no other key's job is queued (a hop through
-        the event loop would only hand the thread back to this job); the first :class:`Continue` that finds one
-        queued goes back to the queue."""
+    def _turn_s(self, owner: str) -> float:
+        """How long ``owner``'s job may go on before another key's queued job would have the turn: the thread time
+        by which it is behind the least served of them (0 when none is queued: then it yields as soon as one is)."""
+        others = self._queued_keys - {owner}
+        if not others:
+            return 0.0
+        self._turns.first([owner, *others])  # each at least at the floor
+        return max(0.0, min(self._turns.used[k] for k in others) - self._turns.used[owner])
+
+    def _slices(self, fn: Callable[..., T | Continue[T]], args: tuple[Any, ...], owner: str,
+                turn_s: float) -> T | Continue[T]:
+        """On a thread: ``fn(*args)``, and the slices it returns while no other key's job is queued or this key's
+        turn lasts (``turn_s``): a hop through the event loop would only hand the thread back to this job. The
+        first :class:`Continue` past that goes back to the queue."""
+        began = time.perf_counter()
         result = fn(*args)
-        while isinstance(result, Continue) and not (self._queued_keys - {owner}):
+        while isinstance(result, Continue) and (not (self._queued_keys - {owner})
+                                                 or time.perf_counter() - began < turn_s):
             result = result.fn(*result.args)
         return result
 
