@@ -42,16 +42,10 @@ def test_the_output_flags_are_the_overrides_and_repeat_as_given():
 
 
 def test_every_source_of_a_database_bundle_is_benched_with_its_search(tmp_path, capsys) -> None:
-    from model.data.synthetic import synthetic_skeleton
-    from model.inference.bundle import Bundle
-    from model.retrieval.database import MotionDatabase
     from rsmt_cli.main import main
-    from tests.model.nets.test_matching_net import _walk
+    from tests.model.nets.walk_database import walk_bundle
 
-    bundle = Bundle.create(synthetic_skeleton(), seed=0)
-    segments = [(w.rotations, w.root_positions, style, "walk") for style in ("brisk", "slow") for w in (_walk(style),)]
-    bundle.database = MotionDatabase.from_segments(bundle.skeleton, 30.0, segments, "synthetic walks")
-    folder = bundle.save(tmp_path / "db")
+    folder = walk_bundle(turns=(0.0,)).save(tmp_path / "db")
     assert main(["bench", "--model", str(folder), "--source", "all", "--batch-sizes", "1", "--budget", "0.3",
                  "--no-paper", "--threads", "1"]) == 0
     out = capsys.readouterr().out

@@ -8,21 +8,14 @@ from pathlib import Path
 import httpx
 import pytest
 
-from model.data.synthetic import synthetic_skeleton
-from model.inference.bundle import Bundle
-from model.retrieval.database import MotionDatabase
-from tests.model.nets.test_matching_net import _walk
+from tests.model.nets.walk_database import walk_bundle
 from tests.service.conftest import transition_body
 from tests.service.server import Server
 
 
 @pytest.fixture(scope="module")
 def database_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    bundle = Bundle.create(synthetic_skeleton(), seed=0)
-    segments = [(w.rotations, w.root_positions, style, "walk") for style in ("brisk", "slow")
-                for w in (_walk(style), _walk(style, turn=25.0), _walk(style, turn=-25.0))]
-    bundle.database = MotionDatabase.from_segments(bundle.skeleton, 30.0, segments, "synthetic walks")
-    return bundle.save(tmp_path_factory.mktemp("db") / "rsmt")
+    return walk_bundle().save(tmp_path_factory.mktemp("db") / "rsmt")
 
 
 @pytest.mark.parametrize("source", ["matching", "hybrid"])

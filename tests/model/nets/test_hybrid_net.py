@@ -6,25 +6,19 @@ from __future__ import annotations
 import pytest
 import torch
 
-from model.data.synthetic import synthetic_skeleton
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
 from model.nets.hybrid_net import HybridNet, HybridState
-from model.retrieval.database import MotionDatabase
-from tests.model.nets.test_matching_net import _walk
+from tests.model.nets.walk_database import style_walk, walk_bundle
 
 
 @pytest.fixture(scope="module")
 def bundle() -> Bundle:
-    segments = [(w.rotations, w.root_positions, style, "walk") for style in ("brisk", "slow")
-                for w in (_walk(style), _walk(style, turn=25.0), _walk(style, turn=-25.0))]
-    made = Bundle.create(synthetic_skeleton(), seed=0)
-    made.database = MotionDatabase.from_segments(made.skeleton, 30.0, segments, "synthetic walks")
-    return made
+    return walk_bundle()
 
 
 def _run(engine: Engine) -> tuple[torch.Tensor, torch.Tensor]:
-    walk = _walk("slow", frames=120)
+    walk = style_walk("slow", frames=120)
     style, _ = engine.encode_style(walk.window(10, 100))
     return engine.generate([engine.prepare(walk.window(0, 10), walk.window(38, 40), 30, style, deterministic=True)])[0]
 
@@ -43,7 +37,7 @@ def test_a_played_character_keeps_the_network_warm(bundle: Bundle) -> None:
     engine = Engine(bundle, source="hybrid")
     assert isinstance(engine.net, HybridNet)
     engine.net.limit = float("inf")  # every request played
-    walk = _walk("slow", frames=120)
+    walk = style_walk("slow", frames=120)
     style, _ = engine.encode_style(walk.window(10, 100))
     ch = engine.prepare(walk.window(0, 10), walk.window(38, 40), 30, style, deterministic=True)
     state = engine.begin([ch])

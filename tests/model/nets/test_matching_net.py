@@ -6,28 +6,18 @@ from __future__ import annotations
 import pytest
 import torch
 
-from model.data.synthetic import SYNTHETIC_STYLES, synthetic_skeleton, synthetic_walk
+from model.data.synthetic import SYNTHETIC_STYLES, synthetic_skeleton
 from model.inference.bundle import Bundle
 from model.inference.character_batch import CharacterBatch
 from model.inference.engine import Engine
 from model.inference.errors import EngineError
-from model.motion.clip import Clip
 from model.nets.matching_net import MatchingNet
-from model.retrieval.database import MotionDatabase
-
-
-def _walk(style: str, frames: int = 200, turn: float = 0.0) -> Clip:
-    speed, cadence, stride = SYNTHETIC_STYLES[style]
-    return synthetic_walk(frames=frames, speed_cm_s=speed, cadence_hz=cadence, stride_deg=stride, turn_deg_s=turn)
+from tests.model.nets.walk_database import style_walk, walk_bundle
 
 
 @pytest.fixture(scope="module")
 def bundle() -> Bundle:
-    segments = [(w.rotations, w.root_positions, style, "walk") for style in ("brisk", "slow")
-                for w in (_walk(style), _walk(style, turn=25.0), _walk(style, turn=-25.0))]
-    made = Bundle.create(synthetic_skeleton(), seed=0)
-    made.database = MotionDatabase.from_segments(made.skeleton, 30.0, segments, "synthetic walks")
-    return made
+    return walk_bundle()
 
 
 @pytest.fixture(scope="module")
@@ -38,14 +28,14 @@ def engine(bundle: Bundle) -> Engine:
 def test_a_clip_plays_the_database_style_it_looks_like(engine: Engine) -> None:
     assert isinstance(engine.net, MatchingNet)
     for style in ("brisk", "slow"):
-        encoded, _ = engine.encode_style(_walk(style, frames=120).window(10, 100))
+        encoded, _ = engine.encode_style(style_walk(style, frames=120).window(10, 100))
         assert engine.net.style_name(encoded.context) == [style]
 
 
 @pytest.mark.parametrize("gap", [10, 40])
 def test_a_transition_plays_its_style_s_capture_and_arrives(engine: Engine, gap: int) -> None:
-    walk = _walk("slow", frames=120)
-    style, _ = engine.encode_style(_walk("slow", frames=120).window(10, 100))
+    walk = style_walk("slow", frames=120)
+    style, _ = engine.encode_style(style_walk("slow", frames=120).window(10, 100))
     target = walk.window(10 + gap - 2, 10 + gap)
     rot, root = engine.generate([engine.prepare(walk.window(0, 10), target, gap, style, deterministic=True)])[0]
     assert rot.shape == (gap, engine.skeleton.num_joints, 4)
@@ -57,7 +47,7 @@ def test_a_transition_plays_its_style_s_capture_and_arrives(engine: Engine, gap:
 
 def test_the_traced_step_gives_the_eager_frames(bundle: Bundle, engine: Engine) -> None:
     eager = Engine(bundle, source="matching", compiled=False)
-    walk = _walk("brisk", frames=120)
+    walk = style_walk("brisk", frames=120)
     outs = []
     for e in (engine, eager):
         style, _ = e.encode_style(walk.window(10, 100))
@@ -66,7 +56,7 @@ def test_the_traced_step_gives_the_eager_frames(bundle: Bundle, engine: Engine) 
 
 
 def test_a_retarget_plans_again_from_where_it_stands(engine: Engine) -> None:
-    walk = _walk("brisk", frames=160)
+    walk = style_walk("brisk", frames=160)
     style, _ = engine.encode_style(walk.window(10, 100))
     ch = engine.prepare(walk.window(0, 10), walk.window(48, 50), 40, style, deterministic=True)
     batch = CharacterBatch(engine)
