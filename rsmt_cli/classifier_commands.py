@@ -7,7 +7,8 @@ import json
 import shlex
 from pathlib import Path
 
-from model.data.location import find_data_dir, require_data_dir
+from model.data.location import find_data_dir
+from rsmt_cli.judge_training import load_training_cache
 
 # model.nets.style_classifier.INPUTS, repeated here so that building the parser does not import torch
 # (tests/cli/test_startup.py checks that the two agree).
@@ -42,17 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def classifier_command(args: argparse.Namespace) -> int:
-    import torch
-
-    from model.data.preprocessed import load_motion_cache
     from model.nets.style_classifier import StyleClassifierConfig
     from model.train.classifier_stage import TrainSettings, build_windows, check_classifier, format_check, train_classifier
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    data = require_data_dir(args.data)
+    data, cache = load_training_cache(args)
     progress = not args.quiet
-    cache = load_motion_cache(Path(data), progress=progress)
     unknown = [s for s in args.holdout_style if s not in cache.styles]
     if unknown:
         raise ValueError(f"unknown style(s) {', '.join(unknown)}; the data has {', '.join(cache.styles)}")

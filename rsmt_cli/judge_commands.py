@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 from pathlib import Path
 
-from model.data.location import require_data_dir
+from rsmt_cli.judge_training import load_training_cache, print_groups, save_judge, style_labels
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,39 +30,29 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def judge_command(args: argparse.Namespace) -> int:
-    import torch
-
-    from model.data.preprocessed import load_motion_cache
     from model.evaluation.cases import LOCOMOTION
     from model.evaluation.style_judge import accuracy_report, fit_judge, take_windows
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     if args.step < 1:
         raise ValueError("--step must be at least 1")
-    data = require_data_dir(args.data)
-    cache = load_motion_cache(Path(data), progress=not args.quiet)
+    data, cache = load_training_cache(args)
     split = cache.split
     feats, styles, contents = take_windows(cache, split.train, args.step, progress=not args.quiet)
-    index = {s: k for k, s in enumerate(cache.styles)}
     skeleton = cache.skeleton(split.train[0])
-    judge = fit_judge(feats, torch.tensor([index[s] for s in styles]), cache.styles, list(skeleton.names), cache.fps,
+    judge = fit_judge(feats, style_labels(cache, styles), cache.styles, list(skeleton.names), cache.fps,
                       skeleton.roles.root, l2=args.l2)
     train = accuracy_report(judge, feats, styles, contents, LOCOMOTION)
     vf, vs, vc = take_windows(cache, split.val, args.step, progress=not args.quiet)
     val = accuracy_report(judge, vf, vs, vc, LOCOMOTION)
     command = "rsmt train judge " + " ".join(shlex.quote(a) for a in _argv(args, data))
-    judge.info.update({"command": command, "data": str(data), "train_accuracy": train["accuracy"],
-                       "val_accuracy": val["accuracy"], "val_locomotion_accuracy": val["locomotion_accuracy"],
-                       "val_windows": val["windows"]})
-    judge.save(args.out)
-    (Path(args.out) / "training.json").write_text(json.dumps({"command": command, "train": train, "val": val}, indent=1))
+    save_judge(judge, args.out, command, {"data": str(data), "train_accuracy": train["accuracy"],
+                                         "val_accuracy": val["accuracy"],
+                                         "val_locomotion_accuracy": val["locomotion_accuracy"],
+                                         "val_windows": val["windows"]}, {"train": train, "val": val})
     print(f"train windows {train['windows']}: accuracy {train['accuracy']:.4f}")
     print(f"val windows {val['windows']}: accuracy {val['accuracy']:.4f}, locomotion {val['locomotion_accuracy']:.4f} "
           f"(chance {val['chance']:.3f})")
-    for group in ("per_style", "per_content"):
-        print(f"val {group.replace('_', ' ')}: " + ", ".join(
-            f"{k} {'–' if a is None else f'{a:.3f}'}" for k, a in val[group].items()))
+    print_groups("val", val)
     print(f"wrote {args.out}")
     return 0
 

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 from pathlib import Path
 
-from model.data.location import require_data_dir
+from rsmt_cli.judge_training import load_training_cache, print_groups, save_judge, style_labels
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -45,24 +44,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def sequence_judge_command(args: argparse.Namespace) -> int:
-    import torch
-
-    from model.data.preprocessed import load_motion_cache
     from model.evaluation.judge_windows import judge_report, real_windows
     from model.evaluation.sequence_judge import JudgeTraining, train_sequence_judge
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     if args.step < 1 or args.steps < 1:
         raise ValueError("--step and --steps must be at least 1")
-    data = require_data_dir(args.data)
-    cache = load_motion_cache(Path(data), progress=not args.quiet)
+    data, cache = load_training_cache(args)
     split = cache.split
     windows, styles, contents = real_windows(cache, split.train, args.step)
     interpolated = real_windows(cache, split.train, args.step * 2, interpolated=True)[0] if args.interpolated_share else None
-    index = {s: k for k, s in enumerate(cache.styles)}
     skeleton = cache.skeleton(split.train[0])
-    judge = train_sequence_judge(windows, torch.tensor([index[s] for s in styles]), cache.styles, skeleton, cache.fps,
+    judge = train_sequence_judge(windows, style_labels(cache, styles), cache.styles, skeleton, cache.fps,
                                  JudgeTraining(steps=args.steps, batch=args.batch, seed=args.seed,
                                                interpolated_share=args.interpolated_share,
                                                reversed_share=args.reversed_share),
@@ -73,16 +65,14 @@ def sequence_judge_command(args: argparse.Namespace) -> int:
         "--batch", str(args.batch), "--interpolated-share", str(args.interpolated_share),
         "--reversed-share", str(args.reversed_share),
         *(["--style-only"] if args.style_only else []), "--report-split", args.report_split, "--seed", str(args.seed)])
-    judge.info.update({"command": command, "data": str(data), "report_split": args.report_split,
-                       "accuracy": report["accuracy"], "interpolated_accuracy": report["interpolated_accuracy"],
-                       "backward_accuracy": report["per_content"].get("walk-back")})
-    judge.save(args.out)
-    (Path(args.out) / "training.json").write_text(json.dumps({"command": command, args.report_split: report}, indent=1))
+    save_judge(judge, args.out, command, {"data": str(data), "report_split": args.report_split,
+                                         "accuracy": report["accuracy"],
+                                         "interpolated_accuracy": report["interpolated_accuracy"],
+                                         "backward_accuracy": report["per_content"].get("walk-back")},
+               {args.report_split: report})
     print(f"trained on {judge.info['train_windows']} windows in {judge.info['train_seconds']} s")
     print(f"{args.report_split} windows {report['windows']}: real {report['accuracy']:.4f}, interpolated "
           f"{report['interpolated_accuracy']:.4f} (chance {report['chance']:.3f})")
-    for group in ("per_style", "per_content"):
-        print(f"{args.report_split} {group.replace('_', ' ')}: " + ", ".join(
-            f"{k} {'–' if a is None else f'{a:.3f}'}" for k, a in report[group].items()))
+    print_groups(args.report_split, report)
     print(f"wrote {args.out}")
     return 0
