@@ -6,10 +6,12 @@ import os
 import warnings
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, create_model, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from model.inference.declared_settings import SETTINGS, Setting
 
 if TYPE_CHECKING:
     from model.inference.overrides import Overrides
@@ -25,7 +27,26 @@ def _default_models() -> Path:
     return DEFAULT_BUNDLE
 
 
-class Settings(BaseSettings):
+def _declared_field(setting: Setting) -> tuple[Any, Any]:
+    """The settings field of an engine setting: ``<kind> | None`` (None: each bundle's own), its declared range."""
+    number = setting.kind != "switch"
+    high = setting.high if number else None
+    description = f"{setting.help}, {setting.range_words('true or false')} (default: each bundle's own)"
+    return setting.python_type | None, Field(default=None, description=description, ge=setting.low if number else None,
+                                             lt=high if setting.high_open else None,
+                                             le=None if setting.high_open else high)
+
+
+# The engine settings a caller may override (model.inference.declared_settings), one field each: RSMT_SMOOTHING, ...
+# Read them through Settings.overrides(); type checkers see only the plain base.
+if TYPE_CHECKING:
+    _DeclaredSettings = BaseSettings
+else:
+    _DeclaredSettings = create_model("_DeclaredSettings", __base__=BaseSettings,
+                                     **{s.name: _declared_field(s) for s in SETTINGS})
+
+
+class Settings(_DeclaredSettings):
     """Every knob of the service. Environment: ``RSMT_<FIELD>`` (e.g. ``RSMT_PORT=9000``).
 
     List settings (``RSMT_API_KEYS``) take a comma-separated string or a JSON list.
@@ -57,34 +78,7 @@ class Settings(BaseSettings):
         default=1, ge=1, le=64, description="worker threads per model for HTTP requests and stream setup")
     warmup_max_batch: int = Field(
         default=64, ge=1, description="warm the batched step at 1, 2, 4, ... up to this many characters")
-    # The output steps and the int8 LSTM: one name each, as in a bundle's config and the CLI flags (Overrides).
-    smoothing: float | None = Field(
-        default=None, ge=0, lt=1, description="causal output filter strength for every model (default: each bundle's own)")
-    root_smoothing: float | None = Field(
-        default=None, ge=0, lt=1,
-        description="output filter strength for the root (default: as smoothing if set, else the bundle's)")
-    foot_lock: bool | None = Field(
-        default=None, description="hold planted feet by leg IK for every model (default: each bundle's own)")
-    floor: bool | None = Field(
-        default=None, description="lift a body whose feet sink under its context's floor, for every model (default: "
-        "each bundle's own)")
-    stride_warp: float | None = Field(
-        default=None, ge=0, le=4,
-        description="stretch the strides where steering carries the body, up to 1 + this times the network's, for "
-        "every model (0: off; default: each bundle's own)")
-    steering: int | None = Field(
-        default=None, ge=0, le=240,
-        description="steer each character's root toward its target over the last this many frames (0: off; default: "
-        "each bundle's own)")
-    foot_plant: bool | None = Field(
-        default=None, description="bring a still foot that stands higher than its style's capture allows down to the "
-        "floor, for every model (acts only where a bundle's gait limits give the style its planted rise; default: "
-        "each bundle's own)")
-    int8_lstm: bool | None = Field(
-        default=None, description="run each model's per-frame LSTM cell with int8 weights (default: each bundle's own)")
-    style_strength: float | None = Field(
-        default=None, ge=0, le=4, description="move every style away from each model's neutral style (the mean of "
-        "its built-in styles) by this factor (1: as encoded; default: each bundle's own)")
+    # The output steps and the int8 LSTM (smoothing, foot_lock, ...): the fields of _DeclaredSettings.
     eager: bool = Field(
         default=False, description="run each model's per-frame step and output steps in eager PyTorch instead of their "
         "traced graphs (slower; for debugging)")
@@ -279,9 +273,7 @@ class Settings(BaseSettings):
         """What these settings change of every bundle's output steps and inference settings."""
         from model.inference.overrides import Overrides
 
-        return Overrides(smoothing=self.smoothing, root_smoothing=self.root_smoothing, foot_lock=self.foot_lock,
-                         steering=self.steering, floor=self.floor, stride_warp=self.stride_warp,
-                         foot_plant=self.foot_plant, int8_lstm=self.int8_lstm, style_strength=self.style_strength)
+        return Overrides(**{s.name: getattr(self, s.name) for s in SETTINGS})
 
     @model_validator(mode="after")
     def _resolve_models(self) -> Settings:

@@ -1,28 +1,24 @@
 """A caller's overrides of a bundle's engine settings: its output steps and how it runs its network.
 
-One object, keyword-only, with one name per setting (the name the bundle's ``output`` / ``inference``
-section, the CLI flag and the ``RSMT_*`` variable use); None keeps the bundle's own setting. Every
-caller that lets a user change these (``rsmt eval``, ``rsmt bench``, ``rsmt package``, the service's
-settings) builds one of these and hands it on whole.
+One object, keyword-only, with one field per setting of :data:`model.inference.declared_settings.SETTINGS` (its
+name, kind, range and help, from which the CLI flags and the ``RSMT_*`` variables are built too); None keeps the
+bundle's own setting. Every caller that lets a user change these (``rsmt eval``, ``rsmt bench``, ``rsmt package``,
+the service's settings) builds one of these and hands it on whole.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from model.inference.declared_settings import SETTINGS
 from model.inference.output.settings import OutputConfig
 from model.inference.settings import InferenceConfig
-from model.inference.style_strength import check_strength
 
 
 @dataclass(frozen=True, kw_only=True)
 class Overrides:
-    """``smoothing`` / ``root_smoothing``: the output filter's strengths, in [0, 1) (a ``smoothing`` given
-    alone applies to the root too); ``foot_lock``, ``floor``: those steps on or off; ``steering``: the
-    steering window in frames (0: every part of steering off); ``stride_warp``: the stride warp's reach,
-    in [0, 4] (0: off); ``foot_plant``: the foot plant on or off (it acts only where the bundle's gait limits
-    give a style its planted rise); ``int8_lstm``: the LSTM cell of the per-frame step with int8 weights;
-    ``style_strength``: every style moved away from the bundle's neutral style by this factor, in [0, 4]."""
+    """One field per declared setting, in the order of :data:`~model.inference.declared_settings.SETTINGS`
+    (what each does and its range are declared there; each value given is checked against its range)."""
 
     smoothing: float | None = None
     root_smoothing: float | None = None
@@ -35,16 +31,9 @@ class Overrides:
     style_strength: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("smoothing", "root_smoothing"):
-            value = getattr(self, name)
-            if value is not None and not 0.0 <= value < 1.0:
-                raise ValueError(f"{name} must be in [0, 1), got {value}")
-        if self.steering is not None and self.steering < 0:
-            raise ValueError(f"steering must be 0 (off) or more frames, got {self.steering}")
-        if self.style_strength is not None:
-            check_strength(self.style_strength)
-        if self.stride_warp is not None and not 0.0 <= self.stride_warp <= 4.0:
-            raise ValueError(f"stride_warp must be in [0, 4], got {self.stride_warp}")
+        for setting in SETTINGS:
+            if (value := getattr(self, setting.name)) is not None:
+                setting.check(value)
 
     def given(self) -> dict[str, float | int | bool]:
         """The settings this object changes, by name."""
@@ -60,3 +49,8 @@ class Overrides:
     def inference(self, settings: InferenceConfig) -> InferenceConfig:
         """A bundle's inference settings with these overrides."""
         return settings.with_overrides(int8_lstm=self.int8_lstm, style_strength=self.style_strength)
+
+
+# A field per declaration, in its order, of its kind's type (the annotations are strings here).
+if [(f.name, f.type) for f in fields(Overrides)] != [(s.name, f"{s.python_type.__name__} | None") for s in SETTINGS]:
+    raise TypeError("Overrides' fields must be the settings of model.inference.declared_settings.SETTINGS")

@@ -15,15 +15,15 @@ from typing import Any
 
 import torch
 
+from model.inference.declared_settings import BY_NAME
+
 Tensor = torch.Tensor
-MAX_STRENGTH = 4.0
 
 
 def check_strength(strength: float) -> float:
-    """``strength`` as a float in [0, :data:`MAX_STRENGTH`], else a ValueError."""
+    """``strength`` as a float in the declared range of ``style_strength`` ([0, 4]), else a ValueError."""
     value = float(strength)
-    if not 0.0 <= value <= MAX_STRENGTH:
-        raise ValueError(f"style_strength must be in [0, {MAX_STRENGTH:g}], got {strength}")
+    BY_NAME["style_strength"].check(value)
     return value
 
 

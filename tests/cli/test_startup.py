@@ -16,6 +16,9 @@ import sys
 import pytest
 
 HEAVY = ("torch", "model.nets", "model.inference", "model.train", "service", "fastapi", "uvicorn", "matplotlib")
+# The engine settings' declarations, which the output flags are built from, import nothing (their package's
+# __init__ is a docstring).
+LIGHT = ("model.inference", "model.inference.declared_settings")
 
 PROBE = """
 import json, sys
@@ -24,8 +27,8 @@ try:
     code = main(sys.argv[1:])
 except SystemExit as exc:
     code = exc.code
-heavy = sorted(name for name, module in sys.modules.items()
-               if module is not None and any(name == h or name.startswith(h + ".") for h in HEAVY))
+heavy = sorted(name for name, module in sys.modules.items() if module is not None and name not in LIGHT
+               and any(name == h or name.startswith(h + ".") for h in HEAVY))
 print(json.dumps({"code": code, "heavy": heavy}), file=sys.stderr)
 """
 
@@ -38,7 +41,7 @@ CLIENT_HEAVY = (*HEAVY, "model", "numpy", "websockets", "asyncio", "click", "ric
 
 
 def _loaded(*argv: str, heavy: tuple[str, ...] = HEAVY) -> dict:
-    result = subprocess.run([sys.executable, "-c", f"HEAVY = {heavy!r}\n{PROBE}", *argv],
+    result = subprocess.run([sys.executable, "-c", f"HEAVY = {heavy!r}\nLIGHT = {LIGHT!r}\n{PROBE}", *argv],
                             capture_output=True, text=True, timeout=120)
     return json.loads(result.stderr.strip().splitlines()[-1])
 

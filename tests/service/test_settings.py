@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from typing import Any
 
 import pytest
 from pydantic import ValidationError
@@ -63,7 +64,7 @@ def test_the_old_smoothing_names_still_work_with_a_warning(monkeypatch):
     said = [str(w.message) for w in caught]
     assert any("RSMT_OUTPUT_SMOOTHING" in m and "use smoothing (RSMT_SMOOTHING)" in m for m in said), said
     assert any("output_root_smoothing" in m and "use root_smoothing" in m for m in said), said
-    assert (s.smoothing, s.root_smoothing) == (0.2, 0.1)
+    assert (s.overrides().smoothing, s.overrides().root_smoothing) == (0.2, 0.1)
     assert s.overrides().given() == {"smoothing": 0.2, "root_smoothing": 0.1}
 
 
@@ -73,7 +74,7 @@ def test_output_settings_reach_the_engines(monkeypatch, tmp_path):
     monkeypatch.setenv("RSMT_SMOOTHING", "0.25")
     monkeypatch.setenv("RSMT_FOOT_LOCK", "true")
     s = Settings(models=DEFAULT_BUNDLE)
-    assert (s.smoothing, s.foot_lock) == (0.25, True)
+    assert (s.overrides().smoothing, s.overrides().foot_lock) == (0.25, True)
     engine = _engine_of(load_registry(s))
     assert engine.output.smoothing == 0.25 and engine.pipeline.step("foot_lock") is not None
     monkeypatch.setenv("RSMT_SMOOTHING", "1")
@@ -119,3 +120,23 @@ def _engine_of(registry):
     model.work.shutdown()
     model.step.shutdown()
     return model.engine
+
+
+def test_the_settings_table_lists_every_declared_engine_setting():
+    """docs/service.md's table has a row per declared setting (model.inference.declared_settings), its description
+    opening with the declaration's help and range, and Settings has its RSMT_<NAME> field with that range."""
+    from pathlib import Path
+
+    from model.inference.declared_settings import SETTINGS
+
+    doc = (Path(__file__).parents[2] / "docs" / "service.md").read_text()
+    rows = {line.split(" | ")[0][3:-1]: line.split(" | ") for line in doc.splitlines() if line.startswith("| `RSMT_")}
+    for s in SETTINGS:
+        assert s.env in rows, f"docs/service.md's settings table has no row for {s.env}"
+        opening = f"{s.help}, {s.range_words('`true` / `false`')}"
+        assert rows[s.env][2].startswith(opening), f"{s.env}'s row should open with: {opening}"
+        assert str(Settings.model_fields[s.name].description).startswith(s.help)
+        if s.kind != "switch":
+            below: dict[str, Any] = {s.name: s.low - 1}
+            with pytest.raises(ValidationError):
+                Settings(**below)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+from model.inference.declared_settings import BY_NAME
 from model.inference.output.steering import SteeringConfig
 
 
@@ -34,11 +35,9 @@ class OutputConfig:
     foot_plant: bool = False
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.stride_warp <= 4.0:
-            raise ValueError(f"stride warp must be in [0, 4], got {self.stride_warp}")
-        for name, value in (("output smoothing", self.smoothing), ("root smoothing", self.root_strength)):
-            if not 0.0 <= value < 1.0:
-                raise ValueError(f"{name} must be in [0, 1), got {value}")
+        for name, value in (("stride_warp", self.stride_warp), ("smoothing", self.smoothing),
+                            ("root_smoothing", self.root_strength)):
+            BY_NAME[name].check(value)  # the ranges the overrides, flags and RSMT_* variables check
 
     @property
     def root_strength(self) -> float:

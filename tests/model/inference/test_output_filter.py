@@ -60,7 +60,7 @@ def test_weight_fades_to_zero_on_the_arrival_frame():
 
 
 def test_strength_is_validated(bundle):
-    with pytest.raises(ValueError, match="output smoothing"):
+    with pytest.raises(ValueError, match=r"smoothing must be in \[0, 1\)"):
         OutputConfig(smoothing=1.0)
     with pytest.raises(ValueError, match="smoothing"):
         Engine(bundle, overrides=Overrides(smoothing=-0.1))
@@ -153,7 +153,7 @@ def test_root_has_its_own_strength_and_overrides_combine(bundle):
     r, p = smooth_frame(rot, root, prev, proot, torch.full((2,), 0.5), torch.full((2,), 0.2))
     assert torch.allclose(p, torch.full((2, 3), 0.2))
     assert torch.allclose(r, smooth_frame(rot, root, prev, proot, torch.full((2,), 0.5))[0])
-    with pytest.raises(ValueError, match="root smoothing"):
+    with pytest.raises(ValueError, match=r"root_smoothing must be in \[0, 1\)"):
         OutputConfig(smoothing=0.3, root_smoothing=1.0)
     from dataclasses import replace
 
