@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.data.preprocessed import MotionCache, load_motion_cache
-from model.data.synthetic import synthetic_skeleton, write_synthetic_dataset
+from model.data.preprocessed import MotionCache
+from model.data.synthetic import synthetic_skeleton
 from model.evaluation import VARIANTS, CaseSet, EvalSettings, build_cases, evaluate, resolve_method
 from model.evaluation.cases import CONTEXT, LAST_CONTEXT, SPAN, variant
 from model.evaluation.methods import BundleMethod, Request
@@ -29,19 +29,6 @@ CONTROLS = ("gap40-dt2", "gap40-dt0.5", "gap40-d2", "gap40-d-1")
 LOCOMOTION_CONTROLS = ("gap40-turn+90", "gap40-turn-90", "gap40-side1m")  # asked of locomotion cases only
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    root = tmp_path_factory.mktemp("evaldata")
-    write_synthetic_dataset(root / "data", takes_per_pair=3, frames=150)
-    return root / "data", root / "cache"
-
-
-@pytest.fixture(scope="module")
-def cache(dataset: tuple[Path, Path]) -> MotionCache:
-    data, root = dataset
-    return load_motion_cache(data, root=root, workers=1, progress=False)
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.data.preprocessed import MotionCache, load_motion_cache
-from model.data.synthetic import write_synthetic_dataset
+from model.data.preprocessed import MotionCache
 from model.evaluation import CaseSet, build_cases
 from model.evaluation.cases import CONTEXT, LAST_CONTEXT, variant
 from model.evaluation.methods import Request
@@ -18,13 +17,6 @@ from model.evaluation.scoring import to_canonical
 from tests.model.motion.rotation_angle import quat_angle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-@pytest.fixture(scope="module")
-def cache(tmp_path_factory: pytest.TempPathFactory) -> MotionCache:
-    root = tmp_path_factory.mktemp("mmdata")
-    write_synthetic_dataset(root / "data", takes_per_pair=3, frames=150)
-    return load_motion_cache(root / "data", root=root / "cache", workers=1, progress=False)
 
 
 @pytest.fixture(scope="module")

@@ -9,26 +9,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.data.preprocessed import MotionCache, load_motion_cache
-from model.data.synthetic import write_synthetic_dataset
+from model.data.preprocessed import MotionCache
 from model.evaluation.judge_windows import judge_report, real_windows
 from model.evaluation.sequence_judge import WINDOW, JudgeTraining, SequenceJudge, step_features, train_sequence_judge
 from model.motion.rotations import quat_rotate, yaw_quat
 from rsmt_cli.main import main
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    root = tmp_path_factory.mktemp("sjdata")
-    write_synthetic_dataset(root / "data", takes_per_pair=3, frames=150)
-    return root / "data", root / "cache"
-
-
-@pytest.fixture(scope="module")
-def cache(data: tuple[Path, Path]) -> MotionCache:
-    return load_motion_cache(data[0], root=data[1], workers=1, progress=False)
 
 
 def test_inputs_ignore_a_turn_and_a_move_and_a_held_posture(cache: MotionCache) -> None:
@@ -118,11 +105,11 @@ def test_windows_played_backwards_are_read_better_when_trained_on(cache: MotionC
     assert nll(0.5) < nll(0.0)
 
 
-def test_cli_command_writes_the_judge(data: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+def test_cli_command_writes_the_judge(dataset: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                       capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setenv("RSMT_CACHE", str(data[1]))
+    monkeypatch.setenv("RSMT_CACHE", str(dataset[1]))
     out = tmp_path / "judge2"
-    assert main(["train", "sequence-judge", "--data", str(data[0]), "--out", str(out), "--steps", "20", "--batch", "16",
+    assert main(["train", "sequence-judge", "--data", str(dataset[0]), "--out", str(out), "--steps", "20", "--batch", "16",
                  "--quiet"]) == 0
     record = json.loads((out / "training.json").read_text())
     assert record["val"]["windows"] > 0 and 0.0 <= record["val"]["interpolated_accuracy"] <= 1.0

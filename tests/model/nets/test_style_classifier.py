@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from model.data.preprocessed import MotionCache, load_motion_cache
-from model.data.synthetic import write_synthetic_dataset
+from model.data.preprocessed import MotionCache
 from model.nets.style_classifier import (
     INPUTS,
     ClassifierError,
@@ -21,13 +20,6 @@ from model.nets.style_classifier import (
 from model.train.classifier_stage import TrainSettings, baseline_windows, build_windows, check_classifier, train_classifier
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-@pytest.fixture(scope="module")
-def synthetic_cache(tmp_path_factory: pytest.TempPathFactory) -> MotionCache:
-    root = tmp_path_factory.mktemp("synthetic")
-    write_synthetic_dataset(root / "data", takes_per_pair=3, frames=150)
-    return load_motion_cache(root / "data", root=root / "cache", workers=1, progress=False)
 
 
 @pytest.mark.parametrize("inputs", INPUTS)
@@ -61,8 +53,8 @@ def test_config_checks() -> None:
         model(torch.randn(1, 5, 30))
 
 
-def test_train_save_load_round_trip(synthetic_cache: MotionCache, tmp_path: Path) -> None:
-    cache = synthetic_cache
+def test_train_save_load_round_trip(cache: MotionCache, tmp_path: Path) -> None:
+    cache = cache
     split = cache.split
     train = build_windows(cache, split.train, window=40, step=20, mirror=True)
     val = build_windows(cache, split.val, window=40, step=20)
@@ -96,8 +88,8 @@ def test_train_save_load_round_trip(synthetic_cache: MotionCache, tmp_path: Path
     assert sum(map(sum, check["confusion"]["counts"])) == check["windows"]
 
 
-def test_baseline_windows_end_on_the_real_pose(synthetic_cache: MotionCache) -> None:
-    cache = synthetic_cache
+def test_baseline_windows_end_on_the_real_pose(cache: MotionCache) -> None:
+    cache = cache
     take = cache.split.test[0]
     real = build_windows(cache, [take], window=40, step=20)
     interp, styles, _ = baseline_windows(cache, [take], window=40, step=20)
@@ -121,13 +113,13 @@ def test_load_errors(tmp_path: Path) -> None:
         StyleClassifier.load(folder)
 
 
-def test_train_classifier_command(synthetic_cache: MotionCache, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+def test_train_classifier_command(cache: MotionCache, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                   capsys: pytest.CaptureFixture[str]) -> None:
     from rsmt_cli.main import main
 
-    monkeypatch.setenv("RSMT_CACHE", str(synthetic_cache.folder.parent))
+    monkeypatch.setenv("RSMT_CACHE", str(cache.folder.parent))
     out = tmp_path / "clf"
-    code = main(["train", "classifier", "--data", str(synthetic_cache.data_root), "--out", str(out), "--epochs", "1",
+    code = main(["train", "classifier", "--data", str(cache.data_root), "--out", str(out), "--epochs", "1",
                  "--iterations", "2", "--holdout-style", "slow", "--quiet"])
     assert code == 0
     stdout = capsys.readouterr().out
