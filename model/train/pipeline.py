@@ -6,16 +6,19 @@ Each stage writes its weights into the run folder, so ``rsmt train manifold`` ca
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import json
 import logging
 import os
 import sys
 import time
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from safetensors.torch import load_file, save_file
@@ -30,7 +33,7 @@ from model.nets.style_classifier import StyleClassifier, StyleClassifierConfig
 from model.train import distributed
 from model.train.classifier_stage import TrainSettings, build_windows, train_classifier
 from model.train.empty_split import empty_split_message
-from model.train.loop import LoopConfig, resolve_device
+from model.train.loop import resolve_device
 from model.train.manifold_stage import ManifoldStageConfig, train_manifold
 from model.train.motion_tensors import MotionTensors, mean_skeleton
 from model.train.phase_stage import PhaseStageConfig, label_tensors, phase_summary, train_phase
@@ -39,25 +42,26 @@ from model.train.sampler_stage import train_sampler
 from model.train.velocity_flag import widen_checkpoint
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 STAGES = ("phase", "manifold", "sampler")
 
 
-# A run's defaults are the default preset's, every value of recipes/base.json (tests/model/train/test_presets.py
-# holds the two equal): networks of the compact size, and the sampler schedule the shipped model's recipe builds
-# on. The stage and network classes keep their own defaults (every extra loss off) for what builds them alone.
-def _compact_sampler() -> SamplerConfig:
-    return SamplerConfig(style_channels=192, width=192, rnn=256, head=192)
+# A run's defaults are the default preset's, every value of recipes/base.json: its sections (networks of the
+# compact size, the sampler schedule the shipped model's recipe builds on, every stage's settings) are read from
+# there, their one place; the run's plain settings below are held equal to it by tests/model/train/test_presets.py.
+# The stage and network classes keep their own defaults (the paper-size sampler, every extra loss off) for what
+# builds them alone.
+BASE_CONFIG = Path(__file__).resolve().parent / "recipes" / "base.json"
 
 
-def _compact_manifold() -> ManifoldConfig:
-    return ManifoldConfig(hidden=192)
+@functools.lru_cache(maxsize=1)
+def _base_config() -> dict[str, Any]:
+    return json.loads(BASE_CONFIG.read_text())
 
 
-def _default_sampler_stage() -> SamplerStageConfig:
-    loop = LoopConfig(iterations=15000, epoch_iterations=400, lr=1e-3, weight_decay=1e-4, restart_at=(8000, 12000),
-                      restart_lr=(3e-4, 2e-4))
-    return SamplerStageConfig(loop=loop, w_vel=1.0, w_acc=2.0, w_spectrum=0.2, w_foot_height=0.3, w_style=0.1,
-                              cross_batch=16, extra_losses_from=12000)
+def _from_base(section: str, cls: type[T]) -> Callable[[], T]:
+    """The default factory of a section of :class:`TrainConfig`: that section of recipes/base.json."""
+    return lambda: _from_dict(cls, copy.deepcopy(_base_config()[section]))
 
 
 @dataclass
@@ -74,12 +78,12 @@ class TrainConfig:
     holdout_styles: tuple[str, ...] = ()
     augment: bool = True
     threads: int = 1  # torch threads (0: torch's choice); --threads sets it for the machine at hand
-    sampler: SamplerConfig = field(default_factory=_compact_sampler)
-    manifold: ManifoldConfig = field(default_factory=_compact_manifold)
-    phase: PhaseConfig = field(default_factory=PhaseConfig)
-    phase_stage: PhaseStageConfig = field(default_factory=PhaseStageConfig)
-    manifold_stage: ManifoldStageConfig = field(default_factory=ManifoldStageConfig)
-    sampler_stage: SamplerStageConfig = field(default_factory=_default_sampler_stage)
+    sampler: SamplerConfig = field(default_factory=_from_base("sampler", SamplerConfig))
+    manifold: ManifoldConfig = field(default_factory=_from_base("manifold", ManifoldConfig))
+    phase: PhaseConfig = field(default_factory=_from_base("phase", PhaseConfig))
+    phase_stage: PhaseStageConfig = field(default_factory=_from_base("phase_stage", PhaseStageConfig))
+    manifold_stage: ManifoldStageConfig = field(default_factory=_from_base("manifold_stage", ManifoldStageConfig))
+    sampler_stage: SamplerStageConfig = field(default_factory=_from_base("sampler_stage", SamplerStageConfig))
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -67,6 +67,23 @@ def test_the_base_holds_the_values_of_the_default_config():
     assert training_differences(TrainConfig(), load_preset("default")) == []
 
 
+def test_the_sections_of_the_default_config_are_read_from_the_base(tmp_path, monkeypatch):
+    """The compact network sizes and the stage schedules are written once, in base.json: TrainConfig() reads them."""
+    from model.train import pipeline
+
+    base = _base()
+    base["sampler"]["width"], base["sampler_stage"]["loop"]["iterations"] = 160, 123
+    (tmp_path / "base.json").write_text(json.dumps(base))
+    monkeypatch.setattr(pipeline, "BASE_CONFIG", tmp_path / "base.json")
+    pipeline._base_config.cache_clear()
+    try:
+        cfg = TrainConfig()
+        assert (cfg.sampler.width, cfg.sampler_stage.loop.iterations) == (160, 123)
+        assert cfg.sampler.rnn == base["sampler"]["rnn"] and cfg.sampler_stage.loop.restart_at == (8000, 12000)
+    finally:
+        pipeline._base_config.cache_clear()
+
+
 def test_presets_beside_the_base_are_those_a_chain_runs_and_the_default():
     chained = {stage.preset for name in recipe_names() for stage in load_recipe(name).stages}
     beside = {p.stem for p in RECIPE_DIR.glob("*.json")} - {BASE}
