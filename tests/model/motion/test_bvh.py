@@ -1,8 +1,6 @@
 """Tests for model.motion.bvh: lossless BVH round trips and errors with line numbers (Clip conversion: test_bvh_clip.py).
 
-The fixtures in tests/fixtures are synthetic (random angles, made-up offsets):
-``mixed_channels.bvh`` mixes channel orders and sets per joint; ``bandai_namco_rig.bvh`` has the
-Bandai-Namco joint names and layout, with a moving, turning ``joint_Root`` above ``Hips``.
+The fixture files are described in bvh_fixtures.py.
 """
 
 from __future__ import annotations
@@ -14,12 +12,8 @@ import numpy as np
 import pytest
 
 from model.motion.bvh import BvhDocument, BvhError, BvhJoint
+from tests.model.motion.bvh_fixtures import BANDAI, MIXED
 from tests.model.motion.bvh_reference import channel_column, reference_world
-
-FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
-MIXED = FIXTURES / "mixed_channels.bvh"
-BANDAI = FIXTURES / "bandai_namco_rig.bvh"
-
 
 # ---------------------------------------------------------------------- parse and format
 

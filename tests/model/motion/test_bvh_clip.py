@@ -1,8 +1,6 @@
 """Tests for model.motion.bvh_clip: BVH documents to and from Clips, checked against an independent reference.
 
-The fixtures in tests/fixtures are synthetic (random angles, made-up offsets):
-``mixed_channels.bvh`` mixes channel orders and sets per joint; ``bandai_namco_rig.bvh`` has the
-Bandai-Namco joint names and layout, with a moving, turning ``joint_Root`` above ``Hips``.
+The fixture files are described in bvh_fixtures.py.
 """
 
 from __future__ import annotations
@@ -21,12 +19,9 @@ from model.motion.bvh import BvhDocument, BvhJoint
 from model.motion.bvh_clip import dump_clip, from_clip, load_clip, to_clip
 from model.motion.rotations import quat_to_matrix
 from model.motion.skeleton import SkeletonError, SkeletonProfile
+from tests.model.motion.bvh_fixtures import BANDAI, MIXED
 from tests.model.motion.bvh_reference import angle_between_matrices, channel_column, euler_matrix, reference_world, wrapped_diff
 from tests.model.motion.rotation_angle import quat_angle
-
-FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
-MIXED = FIXTURES / "mixed_channels.bvh"
-BANDAI = FIXTURES / "bandai_namco_rig.bvh"
 
 ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
 
