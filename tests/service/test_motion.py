@@ -154,8 +154,20 @@ def _nearly_valid_poses(draw: st.DrawFn) -> dict:
 @given(payload=_pose_json | _nearly_valid_poses() | st.dictionaries(st.text(max_size=8), _number, max_size=3))
 def test_any_json_poses_decode_or_are_refused_cleanly(engine, payload):
     """JSON in (as the server reads a body): a validation error, a ServiceError with a contract code, or a clip."""
+    _converts_or_is_refused(engine, PoseMotion, payload)  # NaN and Infinity as some clients write them
+
+
+@settings(max_examples=100, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(text=ANY_BVH_TEXT)
+def test_any_bvh_text_converts_or_is_refused_cleanly(engine, text):
+    _converts_or_is_refused(engine, BvhMotion, {"bvh": text})  # a validation error: empty, or a lone surrogate
+
+
+def _converts_or_is_refused(engine, kind: type[PoseMotion] | type[BvhMotion], body: object) -> None:
+    """``body`` as JSON text, read as ``kind``: a validation error, a ServiceError with a contract code, or a clip
+    of finite numbers."""
     try:
-        motion = PoseMotion.model_validate_json(json.dumps(payload))  # NaN and Infinity as some clients write them
+        motion = kind.model_validate_json(json.dumps(body))
     except ValidationError:
         return
     try:
@@ -164,21 +176,6 @@ def test_any_json_poses_decode_or_are_refused_cleanly(engine, payload):
         assert exc.code in ("bad_motion", "skeleton_mismatch", "too_few_frames", "too_many_frames"), exc
         return
     assert torch.isfinite(clip.rotations).all() and torch.isfinite(clip.root_positions).all()
-
-
-@settings(max_examples=100, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
-@given(text=ANY_BVH_TEXT)
-def test_any_bvh_text_converts_or_is_refused_cleanly(engine, text):
-    try:
-        motion = BvhMotion.model_validate_json(json.dumps({"bvh": text}))
-    except ValidationError:  # empty, or a lone surrogate (not UTF-8)
-        return
-    try:
-        clip = motion_to_clip(motion, engine, LIMITS, "clip")
-    except ServiceError as exc:
-        assert exc.code in ("bad_motion", "skeleton_mismatch", "too_few_frames", "too_many_frames"), exc
-        return
-    assert torch.isfinite(clip.rotations).all()
 
 
 # The default rig's joints under Mixamo names (issue 64): its two spine joints as Mixamo's Spine and Spine1.
