@@ -2,7 +2,8 @@
 and streams with a retarget, a style switch, many characters and exact arrival, every output step switched on.
 
 The tests are the existing ones of test_http.py and test_stream.py, collected again here against a server per
-backend (the module's ``server`` fixture); their own modules run them on the default backend too.
+backend (the module's ``server`` fixture, which the ``client`` of tests/service/conftest.py then talks to);
+their own modules run them on the default backend too.
 """
 
 from __future__ import annotations
@@ -28,12 +29,6 @@ def server(request: pytest.FixtureRequest, bundle_dir):
                                   "RSMT_MAX_CHARACTERS_PER_CONNECTION": "16", **OUTPUT_STEPS}).start(timeout_s=180.0)
     yield srv
     srv.stop()
-
-
-@pytest.fixture(scope="module")
-def client(server):
-    with httpx.Client(base_url=server.url, timeout=30.0) as c:
-        yield c
 
 
 def test_the_server_runs_the_backend_it_was_given(server):
