@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import torch
 from safetensors.torch import load_file, save_file
@@ -25,7 +25,11 @@ from tqdm import tqdm
 
 from model.train import distributed
 
+if TYPE_CHECKING:
+    from model.train.motion_tensors import MotionTensors
+
 log = logging.getLogger(__name__)
+M = TypeVar("M", bound=nn.Module)
 Tensor = torch.Tensor
 
 
@@ -80,6 +84,16 @@ class LoopResult:
 
 
 DEVICE_CHOICES = ("auto", "cpu", "cuda")
+
+
+def seeded_start(make: Callable[[], M], seed: int, train: MotionTensors, val: MotionTensors,
+                 device: torch.device | str | None) -> tuple[M, MotionTensors, MotionTensors]:
+    """A stage's model and data on :func:`resolve_device`'s device. The model is built on the CPU right after seeding
+    torch with ``seed``, then moved: the same seed gives the same start on any device and in any process (torch 2.13
+    seeds its global RNG randomly at start-up)."""
+    dev = resolve_device(device)
+    torch.manual_seed(seed)
+    return make().to(dev), train.to(dev), val.to(dev)
 
 
 def resolve_device(device: str | torch.device | None = "auto") -> torch.device:

@@ -9,7 +9,7 @@ import torch
 
 from model.nets.manifold import ManifoldConfig, MotionManifold
 from model.train.batches import EDGE_CM, WindowBatch, foot_slide_loss, make_batch
-from model.train.loop import LoopConfig, LoopResult, cpu_randn_like, resolve_device, step_generator, train_loop
+from model.train.loop import LoopConfig, LoopResult, cpu_randn_like, seeded_start, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor
@@ -49,12 +49,7 @@ def train_manifold(train: MotionTensors, val: MotionTensors, config: ManifoldCon
                    folder: Path, progress: bool = True,
                    device: torch.device | str = "auto") -> tuple[MotionManifold, LoopResult]:
     """Fit encoder and decoder by rollout on windows of the training takes; the model is returned on ``device``."""
-    dev = resolve_device(device)
-    # Initialised on the CPU from the stage's seed, then moved: the same seed gives the same start on any
-    # device and in any process (torch 2.13 seeds its global RNG randomly at start-up).
-    torch.manual_seed(stage.loop.seed)
-    model = MotionManifold(config).to(dev)
-    train, val = train.to(dev), val.to(dev)
+    model, train, val = seeded_start(lambda: MotionManifold(config), stage.loop.seed, train, val, device)
     feet = list(train.skeleton.feet)
     starts, owners = train.window_starts(stage.window, 5)
     vstarts, vowners = val.window_starts(stage.window, stage.window)

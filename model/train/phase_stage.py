@@ -11,7 +11,7 @@ from tqdm import tqdm
 from model.motion.features import facing_yaw
 from model.motion.rotations import quat_rotate, yaw_quat
 from model.nets.phase import PeriodicAutoencoder, PhaseConfig, label_phases
-from model.train.loop import LoopConfig, LoopResult, resolve_device, step_generator, train_loop
+from model.train.loop import LoopConfig, LoopResult, resolve_device, seeded_start, step_generator, train_loop
 from model.train.motion_tensors import MotionTensors
 
 Tensor = torch.Tensor
@@ -61,12 +61,7 @@ def train_phase(train: MotionTensors, val: MotionTensors, config: PhaseConfig, s
                 folder: Path, progress: bool = True,
                 device: torch.device | str = "auto") -> tuple[PeriodicAutoencoder, LoopResult]:
     """Fit the PAE on centred velocity windows of the training takes; the model is returned on ``device``."""
-    dev = resolve_device(device)
-    # Initialised on the CPU from the stage's seed, then moved: the same seed gives the same start on any
-    # device and in any process (torch 2.13 seeds its global RNG randomly at start-up).
-    torch.manual_seed(stage.loop.seed)
-    model = PeriodicAutoencoder(config).to(dev)
-    train, val = train.to(dev), val.to(dev)
+    model, train, val = seeded_start(lambda: PeriodicAutoencoder(config), stage.loop.seed, train, val, device)
     vel_train, vel_val = local_velocities(train), local_velocities(val)
     c_train, c_val = _centres(train, config.window), _centres(val, config.window)
     gen = torch.Generator().manual_seed(stage.loop.seed)
