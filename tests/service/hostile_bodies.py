@@ -28,6 +28,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tests.service.raw_reads import read_until
+
 KEY = "hostile-bodies-key-0123456789"
 WRONG_KEY = "wrong-key-0123456789abcdef"
 BODY_BYTES = 850_000
@@ -45,12 +47,7 @@ def _one_request(port: int, source: str, request: bytes, out: list[tuple[str, fl
     try:
         with socket.create_connection(("127.0.0.1", port), timeout=30, source_address=(source, 0)) as s:
             s.sendall(request)
-            data = b""
-            while b"\r\n" not in data:
-                chunk = s.recv(4096)
-                if not chunk:
-                    break
-                data += chunk
+            data = read_until(s, b"\r\n")
         status = data.split(b" ", 2)[1].decode() if data.startswith(b"HTTP/1.1 ") else "no answer"
     except OSError as exc:
         status = type(exc).__name__

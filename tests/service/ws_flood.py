@@ -17,6 +17,8 @@ import socket
 import struct
 import time
 
+from tests.service.raw_reads import read_until
+
 
 def frame(text: bytes) -> bytes:
     """A masked client text frame (an all-zero mask: the payload goes as it is)."""
@@ -30,13 +32,7 @@ def open_raw(port: int, key: str) -> tuple[socket.socket, bytes]:
     nonce = base64.b64encode(os.urandom(16)).decode()
     sock.sendall(f"GET /v1/stream?token={key} HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
                  f"Connection: Upgrade\r\nSec-WebSocket-Key: {nonce}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
-    data = b""
-    while b"\r\n\r\n" not in data:
-        chunk = sock.recv(4096)
-        if not chunk:
-            break
-        data += chunk
-    head, _, rest = data.partition(b"\r\n\r\n")
+    head, _, rest = read_until(sock, b"\r\n\r\n").partition(b"\r\n\r\n")
     if not head.startswith(b"HTTP/1.1 101"):
         sock.close()
         raise ConnectionRefusedError(head.split(b"\r\n", 1)[0].decode(errors="replace"))

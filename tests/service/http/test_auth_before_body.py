@@ -10,6 +10,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
+from tests.service.raw_reads import read_until
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow  # floods a server with refused requests
@@ -39,13 +40,7 @@ def _head_of_answer(port: int, key_header: bytes, path: bytes = b"/v1/transition
     with socket.create_connection(("127.0.0.1", port), timeout=15) as s:
         s.sendall(b"POST " + path + b" HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n" + key_header
                   + b"Content-Length: 850000\r\n\r\n" + b'{"context": {"bvh": "' + b"x" * 1000)
-        data = b""
-        while b"\r\n\r\n" not in data and len(data) < 65536:
-            chunk = s.recv(4096)  # a server waiting for the rest of the body times this out: the test fails
-            if not chunk:
-                break
-            data += chunk
-        return data
+        return read_until(s, b"\r\n\r\n", 65536)  # a server waiting for the rest of the body times this out: the test fails
 
 
 @pytest.mark.parametrize("key_header", [b"X-API-Key: wrong-key-0123456789abcdef\r\n", b""], ids=["wrong", "missing"])

@@ -15,6 +15,7 @@ import pytest
 
 from tests.service.burst import Burst, metric, post, wait_for
 from tests.service.conftest import transition_body
+from tests.service.raw_reads import read_until
 from tests.service.slow_engine import slow_server
 
 pytestmark = pytest.mark.slow  # fills the work queue of a slowed server
@@ -40,12 +41,7 @@ def _padded_body() -> bytes:
 
 def _read_response(s: socket.socket) -> tuple[bytes, dict[str, str], bytes]:
     """Status line, headers (lower-case names) and body (by Content-Length) of one response."""
-    data = b""
-    while b"\r\n\r\n" not in data and len(data) < 65536:
-        chunk = s.recv(4096)  # a server still waiting for the body never answers: the socket times out
-        if not chunk:
-            break
-        data += chunk
+    data = read_until(s, b"\r\n\r\n", 65536)  # a server still waiting for the body never answers: the socket times out
     head, _, rest = data.partition(b"\r\n\r\n")
     status, *lines = head.decode("latin-1").split("\r\n")
     headers = {k.strip().lower(): v.strip() for k, _, v in (line.partition(":") for line in lines)}
