@@ -29,18 +29,17 @@ Stored as ``sequence_judge.json`` (styles, joints, the standardisation, the trai
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from torch import nn
 
-from model.evaluation.style_judge import WINDOW, window_starts  # the same windows as the first judge scores
+from model.evaluation.style_judge import WINDOW, JudgeFolder, window_starts  # the same windows as the first judge scores
 from model.motion.skeleton import Skeleton
 from model.retrieval.matching import key_joints
 
@@ -88,8 +87,10 @@ class SequenceJudgeNet(nn.Module):
 
 
 @dataclass
-class SequenceJudge:
+class SequenceJudge(JudgeFolder):
     """A trained sequence judge (network, input standardisation, rig and styles)."""
+
+    kind: ClassVar[str] = KIND
 
     styles: list[str]
     skeleton: Skeleton
@@ -121,38 +122,15 @@ class SequenceJudge:
         return torch.stack([self.net.body(x[:, s:s + WINDOW - 1].transpose(1, 2)).mean(2)
                             for s in window_starts(positions.shape[1])]).mean(0).double()
 
-    def predict(self, positions: Tensor) -> Tensor:
-        return self.log_probs(positions).argmax(dim=-1)
-
-    def describe(self) -> dict[str, Any]:
-        return {"kind": KIND, "styles": self.styles, "window": WINDOW, "features": int(self.mean.numel()), **self.info}
-
     def save(self, folder: str | Path) -> Path:
-        from safetensors.torch import save_file
-
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
         meta = {"format": FORMAT, "kind": KIND, "styles": self.styles, "skeleton": self.skeleton.to_dict(),
                 "fps": self.fps, "window": WINDOW, "width": self.width, "info": self.info}
-        (folder / "sequence_judge.json").write_text(json.dumps(meta, indent=1))
-        tensors = {f"net.{k}": v.contiguous() for k, v in self.net.state_dict().items()}
-        tensors.update(mean=self.mean.contiguous(), std=self.std.contiguous())
-        save_file(tensors, str(folder / "weights.safetensors"))
-        return folder
+        tensors = {f"net.{k}": v for k, v in self.net.state_dict().items()}
+        return self.write_folder(folder, "sequence_judge.json", meta, {**tensors, "mean": self.mean, "std": self.std})
 
     @classmethod
     def load(cls, folder: str | Path) -> SequenceJudge:
-        from safetensors.torch import load_file
-
-        folder = Path(folder)
-        path = folder / "sequence_judge.json"
-        if not path.is_file():
-            raise FileNotFoundError(f"{folder} is not a sequence judge folder (no sequence_judge.json; see "
-                                    "rsmt train sequence-judge)")
-        meta = json.loads(path.read_text())
-        if meta.get("format") != FORMAT:
-            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {FORMAT}")
-        t = load_file(str(folder / "weights.safetensors"))
+        meta, t = cls.read_folder(folder, "sequence_judge.json", FORMAT, "sequence judge", "rsmt train sequence-judge")
         mean, std = t["mean"], t["std"]
         net = SequenceJudgeNet(mean.numel(), len(meta["styles"]), int(meta["width"]))
         net.load_state_dict({k[4:]: v for k, v in t.items() if k.startswith("net.")})

@@ -34,7 +34,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from tqdm import tqdm
@@ -75,6 +75,54 @@ def window_features(positions: Tensor, fps: float, root: int = 0) -> Tensor:
     return torch.cat(parts, dim=1)
 
 
+class JudgeFolder:
+    """What the style judges share: the most likely style, a description, and their folder (a JSON description
+    beside weights.safetensors). A judge sets ``kind`` and has ``styles``, ``mean`` and ``info``."""
+
+    kind: ClassVar[str]
+    styles: list[str]
+    mean: Tensor
+    info: dict[str, Any]
+
+    def log_probs(self, positions: Tensor) -> Tensor:
+        raise NotImplementedError
+
+    def predict(self, positions: Tensor) -> Tensor:
+        """``[B]`` index into :attr:`styles` of the most likely style."""
+        return self.log_probs(positions).argmax(dim=-1)
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": self.kind, "styles": self.styles, "window": WINDOW, "features": int(self.mean.numel()),
+                **self.info}
+
+    @staticmethod
+    def write_folder(folder: str | Path, description: str, meta: dict[str, Any], tensors: dict[str, Tensor]) -> Path:
+        """``meta`` as folder/``description`` and ``tensors`` as folder/weights.safetensors; the folder."""
+        from safetensors.torch import save_file
+
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / description).write_text(json.dumps(meta, indent=1))
+        save_file({k: v.contiguous() for k, v in tensors.items()}, str(folder / "weights.safetensors"))
+        return folder
+
+    @staticmethod
+    def read_folder(folder: str | Path, description: str, form: str, what: str,
+                    command: str) -> tuple[dict[str, Any], dict[str, Tensor]]:
+        """The description (of format ``form``) and the tensors of a folder :meth:`write_folder` wrote; a folder
+        without one is not a ``what`` folder (``command`` writes one)."""
+        from safetensors.torch import load_file
+
+        folder = Path(folder)
+        path = folder / description
+        if not path.is_file():
+            raise FileNotFoundError(f"{folder} is not a {what} folder (no {description}; see {command})")
+        meta = json.loads(path.read_text())
+        if meta.get("format") != form:
+            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {form}")
+        return meta, load_file(str(folder / "weights.safetensors"))
+
+
 def feature_names(joints: Sequence[str]) -> list[str]:
     names = []
     for stat in ("speed mean", "speed std", "speed p90", "relative speed mean", "relative speed std",
@@ -94,8 +142,10 @@ def window_starts(length: int) -> list[int]:
 
 
 @dataclass
-class StyleJudge:
+class StyleJudge(JudgeFolder):
     """A fitted judge: ``weight [S, F]``, ``bias [S]`` on features standardised by ``mean``/``std`` ``[F]``."""
+
+    kind: ClassVar[str] = KIND
 
     styles: list[str]
     joints: list[str]
@@ -133,37 +183,15 @@ class StyleJudge:
         """``[B, S]`` log-probabilities of each style for sequences of global positions ``[B, T, J, 3]``."""
         return torch.log_softmax(self._logits(self._window_statistics(positions)), dim=-1).mean(dim=0)
 
-    def predict(self, positions: Tensor) -> Tensor:
-        """``[B]`` index into :attr:`styles` of the most likely style."""
-        return self.log_probs(positions).argmax(dim=-1)
-
-    def describe(self) -> dict[str, Any]:
-        return {"kind": KIND, "styles": self.styles, "window": WINDOW, "features": int(self.mean.numel()), **self.info}
-
     def save(self, folder: str | Path) -> Path:
-        from safetensors.torch import save_file
-
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
         meta = {"format": FORMAT, "kind": KIND, "styles": self.styles, "joints": self.joints, "fps": self.fps,
                 "root": self.root, "window": WINDOW, "features": feature_names(self.joints), "info": self.info}
-        (folder / "judge.json").write_text(json.dumps(meta, indent=1))
-        save_file({"weight": self.weight.contiguous(), "bias": self.bias.contiguous(), "mean": self.mean.contiguous(),
-                   "std": self.std.contiguous()}, str(folder / "weights.safetensors"))
-        return folder
+        return self.write_folder(folder, "judge.json", meta,
+                                 {"weight": self.weight, "bias": self.bias, "mean": self.mean, "std": self.std})
 
     @classmethod
     def load(cls, folder: str | Path) -> StyleJudge:
-        from safetensors.torch import load_file
-
-        folder = Path(folder)
-        path = folder / "judge.json"
-        if not path.is_file():
-            raise FileNotFoundError(f"{folder} is not a style judge folder (no judge.json; see rsmt train judge)")
-        meta = json.loads(path.read_text())
-        if meta.get("format") != FORMAT:
-            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {FORMAT}")
-        t = load_file(str(folder / "weights.safetensors"))
+        meta, t = cls.read_folder(folder, "judge.json", FORMAT, "style judge", "rsmt train judge")
         return cls(styles=list(meta["styles"]), joints=list(meta["joints"]), fps=float(meta["fps"]),
                    root=int(meta["root"]), weight=t["weight"].double(), bias=t["bias"].double(),
                    mean=t["mean"].double(), std=t["std"].double(), info=dict(meta.get("info", {})))
