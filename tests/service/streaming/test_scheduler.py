@@ -157,17 +157,24 @@ class _Outbox:
         raise AssertionError(message)
 
 
+def _one_character(engine, pool: ThreadPoolExecutor, style, frames: int) -> tuple[Scheduler, _Outbox, Stream]:
+    """A started scheduler stepping one character of ``frames`` frames (seed 1, as fast as it can) into an outbox
+    that holds four."""
+    sched = Scheduler(engine, pool, name="t")
+    sched.start()
+    box = _Outbox(capacity=4)
+    stream = Stream(character=engine.prepare(context_clip(), target_clip(), frames, style, seed=1), outbox=box, slot=0,
+                    pace="asap", fps=30.0, encoding="json")
+    sched.add(stream)
+    return sched, box, stream
+
+
 def test_generator_never_runs_ahead_of_the_queue(engine):
     style, _ = engine.encode_style(walk(60))
 
     async def main() -> None:
         with ThreadPoolExecutor(1) as pool:
-            sched = Scheduler(engine, pool, name="t")
-            sched.start()
-            box = _Outbox(capacity=4)
-            ch = engine.prepare(context_clip(), target_clip(), 30, style, seed=1)
-            stream = Stream(character=ch, outbox=box, slot=0, pace="asap", fps=30.0, encoding="json")
-            sched.add(stream)
+            sched, box, stream = _one_character(engine, pool, style, 30)
             await asyncio.sleep(0.6)
             assert box.frames == [0, 1, 2, 3] and stream.parked  # parked with a full queue, not stepping
             stream.queued = 0  # the client read them all
@@ -227,12 +234,8 @@ def test_requests_get_the_seq_or_the_contract_error(engine):
 
     async def main() -> None:
         with ThreadPoolExecutor(1) as pool:
-            sched = Scheduler(engine, pool, name="t")
-            sched.start()
-            box = _Outbox(capacity=4)
-            ch = engine.prepare(context_clip(), target_clip(), 12, style, seed=1)
-            stream = Stream(character=ch, outbox=box, slot=0, pace="asap", fps=30.0, encoding="json")
-            sched.add(stream)
+            sched, box, stream = _one_character(engine, pool, style, 12)
+            ch = stream.character
             await _until(lambda: stream.parked and len(box.frames) == 4)
             # Parked after four frames: changes apply to its kept state, from frame 4 on.
             assert await sched.retarget(stream, target_clip(yaw=90.0), 20) == 4
