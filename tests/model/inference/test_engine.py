@@ -110,25 +110,27 @@ def test_context_is_resampled(engine, walk):
     assert rot.shape[0] == 12
 
 
+def _play(engine, walk, frames: int, style, change=None, at: int = 0) -> list:
+    """Step one deterministic character of ``frames`` frames (from the walk's frames 0-10 to 40-42) in a batch of its
+    own to its end, calling ``change(character, batch)`` once it has played ``at`` frames: each step's output."""
+    batch = CharacterBatch(engine)
+    ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), frames, style, deterministic=True)
+    batch.add(ch)
+    outs = []
+    while not ch.done:
+        outs.append(batch.step())
+        if change is not None and ch.seq == at:
+            change(ch, batch)
+    batch.drop_finished()
+    assert len(batch) == 0
+    return outs
+
+
 def test_retarget_changes_arrival(engine, walk):
     style, _ = engine.encode_style(walk.window(30, 150))
-    results = []
-    for retarget in (False, True):
-        batch = CharacterBatch(engine)
-        ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), 30, style, deterministic=True)
-        batch.add(ch)
-        roots = []
-        while not ch.done:
-            out = batch.step()
-            roots.append(out.root_positions[0])
-            if retarget and ch.seq == 10:
-                far = Clip(walk.skeleton, walk.rotations[40:42], walk.root_positions[40:42] + torch.tensor([300.0, 0, 0]),
-                           walk.fps)
-                engine.retarget(ch, batch, target=far, frames=15)
-        results.append(torch.stack(roots))
-        batch.drop_finished()
-        assert len(batch) == 0
-    plain, moved = results
+    far = Clip(walk.skeleton, walk.rotations[40:42], walk.root_positions[40:42] + torch.tensor([300.0, 0, 0]), walk.fps)
+    plain, moved = (torch.stack([out.root_positions[0] for out in _play(engine, walk, 30, style, change, at=10)])
+                    for change in (None, lambda ch, batch: engine.retarget(ch, batch, target=far, frames=15)))
     assert plain.shape[0] == 30 and moved.shape[0] == 25
     assert torch.allclose(plain[:10], moved[:10])
     assert not torch.allclose(plain[10:25], moved[10:25])
@@ -152,17 +154,8 @@ def test_a_batch_shows_its_stacked_rows_as_the_next_step_reads_them(engine, walk
 def test_style_switch_mid_motion(engine, walk):
     a, _ = engine.encode_style(walk.window(30, 150))
     b, _ = engine.encode_style(synthetic_walk(frames=60, cadence_hz=1.6, stride_deg=40.0))
-    outs = []
-    for switch in (False, True):
-        batch = CharacterBatch(engine)
-        ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, a, deterministic=True)
-        batch.add(ch)
-        frames = []
-        while not ch.done:
-            frames.append(batch.step().rotations[0])
-            if switch and ch.seq == 5:
-                batch.set_style(ch, b)
-        outs.append(torch.stack(frames))
+    outs = [torch.stack([out.rotations[0] for out in _play(engine, walk, 20, a, change, at=5)])
+            for change in (None, lambda ch, batch: batch.set_style(ch, b))]
     assert torch.allclose(outs[0][:5], outs[1][:5])
     assert not torch.allclose(outs[0][6:], outs[1][6:])
 
