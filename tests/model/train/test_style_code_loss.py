@@ -1,4 +1,5 @@
-"""The style code's contrastive term: its math, the clips it draws, and a sampler stage that trains with it."""
+"""The style code's contrastive term: its math and a sampler stage that trains with it (the clips it draws:
+test_style_pairs.py)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from model.data.synthetic import SYNTHETIC_STYLES, synthetic_walk, write_synthetic_dataset
-from model.train.motion_tensors import MotionTensors
+from model.data.synthetic import write_synthetic_dataset
 from model.train.presets import preset_dict
 from model.train.recipe_chains import load_recipe
 from model.train.sampler_config import SamplerStageConfig
-from model.train.sampler_stage import StylePairs
 from model.train.style_code_loss import supervised_contrastive, time_mean_code
 from rsmt_cli.main import main
 
@@ -57,18 +56,6 @@ def test_a_batch_without_positives_gives_zero_with_a_gradient_and_bad_input_is_r
     with pytest.raises(ValueError):
         supervised_contrastive(codes, torch.tensor([0, 1, 2]), 0.0)
     assert time_mean_code(torch.ones(2, 5, 3)).shape == (2, 3)
-
-
-def test_clip_sets_hold_distinct_styles_each_with_its_own_clips():
-    styles = list(SYNTHETIC_STYLES)
-    clips = [(synthetic_walk(frames=80, speed_cm_s=100.0 + 10 * i), i % len(styles), "walk") for i in range(6)]
-    tensors = MotionTensors.from_clips(clips, styles, clips[0][0].skeleton, None, augment=False, seed=0, progress=False)
-    pairs = StylePairs(tensors, 30, 20)
-    gen = torch.Generator().manual_seed(0)
-    starts, ids = pairs.sample_clip_sets(8, 3, gen)  # more styles asked than there are: all of them
-    assert len(starts) == 3 * len(pairs.styles) and sorted(set(ids.tolist())) == pairs.styles
-    owner = torch.searchsorted(tensors.take_start, starts, right=True) - 1
-    assert torch.equal(tensors.style[owner], ids)
 
 
 def test_settings_are_checked():

@@ -152,21 +152,3 @@ def test_style_loss_trains_critics_and_uses_cross_style_pairs(tmp_path, monkeypa
     assert main(args) == 0
     assert [(tmp_path / "run" / d / "weights.safetensors").stat().st_mtime_ns
             for d in ("critic", "critic-acceleration")] == stamps
-
-
-def test_cross_style_pairs_differ_in_style():
-    from model.train.motion_tensors import MotionTensors
-    from model.train.sampler_stage import StylePairs
-
-    styles = list(SYNTHETIC_STYLES)
-    clips = [(synthetic_walk(frames=80, speed_cm_s=100.0 + 10 * i), i % len(styles), "walk") for i in range(6)]
-    tensors = MotionTensors.from_clips(clips, styles, clips[0][0].skeleton, None, augment=False, seed=0, progress=False)
-    pairs = StylePairs(tensors, 30, 20)
-    gen = torch.Generator().manual_seed(0)
-    starts_of_take = tensors.take_start
-    for _ in range(10):
-        starts, owners, clip_starts, style = pairs.sample_cross(6, gen)
-        assert (tensors.style[owners] != style).all()
-        assert ((starts >= starts_of_take[owners]) & (starts + 30 <= starts_of_take[owners] + tensors.take_len[owners])).all()
-        clip_owner = torch.searchsorted(starts_of_take, clip_starts, right=True) - 1
-        assert (tensors.style[clip_owner] == style).all()
