@@ -66,20 +66,19 @@ class StyleBook:
 
     def get(self, caller: Caller, style_id: str) -> EncodedStyle | None:
         """The caller's style (marked as used); an admin also finds any owner's."""
-        with self._lock:
-            for owner in self._owners(caller):
-                book = self._books.get(owner)
-                if book is not None and style_id in book:
-                    book.move_to_end(style_id)
-                    return book[style_id]
-            return None
+        return self._find(caller, style_id, touch=True)
 
     def peek(self, caller: Caller, style_id: str) -> EncodedStyle | None:
         """Like :meth:`get` without touching recency."""
+        return self._find(caller, style_id, touch=False)
+
+    def _find(self, caller: Caller, style_id: str, touch: bool) -> EncodedStyle | None:
         with self._lock:
             for owner in self._owners(caller):
                 book = self._books.get(owner)
                 if book is not None and style_id in book:
+                    if touch:
+                        book.move_to_end(style_id)
                     return book[style_id]
             return None
 
