@@ -83,6 +83,18 @@ def test_realtime_pacing(server, styles):
     assert np.median(gaps) > 0.5 / FPS  # frames are spread out, not burst
 
 
+def _run_sending(ws: Ws, name: str, at_seq: int, message: dict) -> dict:
+    """Run the started character ``name`` to its end, sending ``message`` once, when its frame ``at_seq`` arrives."""
+    sent: list[int] = []
+
+    def on_frame(w: Ws, f: dict) -> None:
+        if f["seq"] == at_seq and not sent:
+            w.send(message)
+            sent.append(1)
+
+    return ws.run({name}, on_frame=on_frame)[name]
+
+
 def _baseline(ws: Ws, styles, name: str, frames: int = 60) -> list[dict]:
     ws.send(start_message(name, frames, deterministic=True, style_id=styles["walk"]))
     return ws.run({name})[name]["frames"]
@@ -92,15 +104,8 @@ def test_retarget_changes_where_it_arrives(server, styles):
     with Ws(server.ws) as ws:
         base = _baseline(ws, styles, "base")
         ws.send(start_message("moved", 60, deterministic=True, style_id=styles["walk"]))
-        sent: list[int] = []
-
-        def on_frame(w: Ws, f: dict) -> None:
-            if f["seq"] == 10 and not sent:
-                w.send({"type": "retarget", "character": "moved", "target": bvh(target_clip(shift=250.0)),
-                        "request_id": "r1"})
-                sent.append(1)
-
-        got = ws.run({"moved"}, on_frame=on_frame)["moved"]
+        got = _run_sending(ws, "moved", 10, {"type": "retarget", "character": "moved",
+                                             "target": bvh(target_clip(shift=250.0)), "request_id": "r1"})
     acks = [m for m in got["messages"] if m["type"] == "retargeted"]
     assert len(acks) == 1
     k = acks[0]["from_seq"]
@@ -115,14 +120,7 @@ def test_retarget_changes_where_it_arrives(server, styles):
 def test_retarget_frames_changes_length(server, styles):
     with Ws(server.ws) as ws:
         ws.send(start_message("len", 60, pace="realtime", style_id=styles["walk"]))
-        sent: list[int] = []
-
-        def on_frame(w: Ws, f: dict) -> None:
-            if f["seq"] == 2 and not sent:
-                w.send({"type": "retarget", "character": "len", "frames": 5})
-                sent.append(1)
-
-        got = ws.run({"len"}, on_frame=on_frame)["len"]
+        got = _run_sending(ws, "len", 2, {"type": "retarget", "character": "len", "frames": 5})
     k = next(m for m in got["messages"] if m["type"] == "retargeted")["from_seq"]
     assert len(got["frames"]) == k + 5 == got["end"]["frames"]
     assert got["frames"][-1]["remaining"] == 0
@@ -132,14 +130,7 @@ def test_style_switch(server, styles):
     with Ws(server.ws) as ws:
         base = _baseline(ws, styles, "base")
         ws.send(start_message("sw", 60, deterministic=True, style_id=styles["walk"]))
-        sent: list[int] = []
-
-        def on_frame(w: Ws, f: dict) -> None:
-            if f["seq"] == 5 and not sent:
-                w.send({"type": "style", "character": "sw", "style_id": styles["brisk"]})
-                sent.append(1)
-
-        got = ws.run({"sw"}, on_frame=on_frame)["sw"]
+        got = _run_sending(ws, "sw", 5, {"type": "style", "character": "sw", "style_id": styles["brisk"]})
     ack = next(m for m in got["messages"] if m["type"] == "style_changed")
     k = ack["from_seq"]
     assert ack["style_id"] == styles["brisk"] and 5 < k < 60
@@ -152,14 +143,7 @@ def test_style_switch(server, styles):
 def test_cancel(server, styles):
     with Ws(server.ws) as ws:
         ws.send(start_message("c", 60, pace="realtime", style_id=styles["walk"]))
-        sent: list[int] = []
-
-        def on_frame(w: Ws, f: dict) -> None:
-            if f["seq"] == 3 and not sent:
-                w.send({"type": "cancel", "character": "c"})
-                sent.append(1)
-
-        got = ws.run({"c"}, on_frame=on_frame)["c"]
+        got = _run_sending(ws, "c", 3, {"type": "cancel", "character": "c"})
         assert got["end"]["reason"] == "cancelled" and got["end"]["frames"] == len(got["frames"]) < 60
         seen = ws.ping("after")  # nothing more arrives for it
         assert not [m for m in seen if m.get("character") == "c"]
