@@ -3,9 +3,14 @@
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 import threading
 import time
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -82,6 +87,47 @@ class GapProbe:
 
     def frames_in(self, since: float, until: float) -> int:
         return sum(sum(1 for x in times if since <= x <= until) for times in self.arrivals.values())
+
+
+def quiet_cpu_rate(pid: int, seconds: float) -> tuple[float, float, float]:
+    """Process ``pid``'s CPU seconds a second over the next ``seconds``, after 1 s for a stream to settle: the window's
+    start and end (monotonic) and the rate."""
+    time.sleep(1.0)
+    start, cpu = time.monotonic(), cpu_seconds(pid)
+    time.sleep(seconds)
+    end = time.monotonic()
+    return start, end, (cpu_seconds(pid) - cpu) / (end - start)
+
+
+@dataclass
+class FloodRun:
+    """A flood process's run beside a :class:`GapProbe` stream: what it printed at its end, how long it ran, the
+    server CPU it cost beyond the quiet rate, and the stream's frames a second before and during it."""
+
+    out: dict[str, Any]
+    seconds: float
+    extra_cpu_s: float
+    quiet_fps: float
+    flood_fps: float
+    gaps: np.ndarray  # the stream's frame gaps (ms) while the flood sent
+
+
+def run_flood(pid: int, probe: GapProbe, module: str, args: list[str], flood_s: float) -> FloodRun:
+    """``python -m module *args`` (a flood of ``flood_s`` seconds that prints ``ready`` when it starts and a JSON line
+    when it ends) against the server process ``pid``, after a 3 s quiet window, while ``probe`` reads its stream."""
+    quiet_from, quiet_until, quiet_rate = quiet_cpu_rate(pid, 3.0)
+    flood = subprocess.Popen([sys.executable, "-m", module, *args], stdout=subprocess.PIPE, text=True,
+                             cwd=Path(__file__).resolve().parents[2])
+    assert flood.stdout is not None and flood.stdout.readline().strip() == "ready"
+    since, flood_cpu = time.monotonic(), cpu_seconds(pid)  # from the flood's start
+    out = json.loads(flood.stdout.readline())
+    flood.wait(10)
+    until = time.monotonic()
+    return FloodRun(out=out, seconds=until - since,
+                    extra_cpu_s=cpu_seconds(pid) - flood_cpu - quiet_rate * (until - since),
+                    quiet_fps=probe.frames_in(quiet_from, quiet_until) / (quiet_until - quiet_from),
+                    flood_fps=probe.frames_in(since, since + flood_s) / flood_s,  # while it sent (not while it drained)
+                    gaps=probe.gaps_ms(since, since + flood_s))
 
 
 def p99(values: np.ndarray) -> float:

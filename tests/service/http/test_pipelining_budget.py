@@ -6,17 +6,13 @@ requests are still all answered, in order."""
 
 from __future__ import annotations
 
-import json
 import socket
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
-from tests.service.probes import GapProbe, cpu_seconds, p99
+from tests.service.probes import GapProbe, p99, run_flood
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow  # a 5 s flood beside a stream
@@ -37,30 +33,16 @@ def test_a_pipelining_connection_that_never_reads_holds_no_core(server):
     assert server.proc is not None
     pid = server.proc.pid
     with GapProbe(server.ws, characters=4, query=f"token={KEY}") as probe:
-        time.sleep(1.0)  # the stream settles
-        quiet_from, quiet_cpu = time.monotonic(), cpu_seconds(pid)
-        time.sleep(3.0)
-        quiet_until = time.monotonic()
-        quiet_rate = (cpu_seconds(pid) - quiet_cpu) / (quiet_until - quiet_from)
-        flood = subprocess.Popen([sys.executable, "-m", "tests.service.pipeline_flood", "--port", str(server.port),
-                                  "--seconds", str(FLOOD_S)], stdout=subprocess.PIPE, text=True,
-                                 cwd=Path(__file__).resolve().parents[3])
-        assert flood.stdout is not None and flood.stdout.readline().strip() == "ready"
-        since, flood_cpu = time.monotonic(), cpu_seconds(pid)  # from the flood's start
-        out = json.loads(flood.stdout.readline())
-        flood.wait(10)
-        until = time.monotonic()
-        extra = cpu_seconds(pid) - flood_cpu - quiet_rate * (until - since)
-        quiet_fps = probe.frames_in(quiet_from, quiet_until) / (quiet_until - quiet_from)
-        flood_fps = probe.frames_in(since, since + FLOOD_S) / FLOOD_S
-        gaps = probe.gaps_ms(since, since + FLOOD_S)
-    print(f"pipelining {out.get('sent', 0)} requests in {FLOOD_S:g} s, never reading: {extra:.2f} s of extra server "
-          f"CPU in {until - since:.2f} s; the other stream {flood_fps:.0f} frames/s (before: {quiet_fps:.0f}), p99 gap "
-          f"{p99(gaps):.1f} ms")
+        run = run_flood(pid, probe, "tests.service.pipeline_flood",
+                        ["--port", str(server.port), "--seconds", str(FLOOD_S)], FLOOD_S)
+    out = run.out
+    print(f"pipelining {out.get('sent', 0)} requests in {FLOOD_S:g} s, never reading: {run.extra_cpu_s:.2f} s of extra "
+          f"server CPU in {run.seconds:.2f} s; the other stream {run.flood_fps:.0f} frames/s (before: "
+          f"{run.quiet_fps:.0f}), p99 gap {p99(run.gaps):.1f} ms")
     assert not probe.errors, probe.errors
     assert "error" not in out, out  # the connection stayed open all along: the flood lasted
-    assert extra < 0.25 * (until - since), f"the pipelining connection took {extra:.2f} s of CPU"
-    assert flood_fps >= 0.8 * quiet_fps
+    assert run.extra_cpu_s < 0.25 * run.seconds, f"the pipelining connection took {run.extra_cpu_s:.2f} s of CPU"
+    assert run.flood_fps >= 0.8 * run.quiet_fps
 
 
 def test_pipelined_requests_are_all_answered_in_order(server):

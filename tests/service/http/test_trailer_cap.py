@@ -15,7 +15,7 @@ from collections.abc import Iterator
 import pytest
 
 from tests.service.conftest import transition_body
-from tests.service.probes import GapProbe, cpu_seconds, p99
+from tests.service.probes import GapProbe, cpu_seconds, p99, quiet_cpu_rate
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow  # sends a 40 MB trailer beside a stream
@@ -87,11 +87,8 @@ def test_a_40_mb_trailer_without_a_key_costs_no_cpu_and_ends_early(server):
     assert server.proc is not None
     pid = server.proc.pid
     with GapProbe(server.ws, characters=4, query=f"token={KEY_B}") as probe:
-        time.sleep(1.0)  # the stream settles
-        quiet_from, quiet_cpu = time.monotonic(), cpu_seconds(pid)
-        time.sleep(2.0)
-        since, attack_cpu = time.monotonic(), cpu_seconds(pid)
-        quiet_rate = (attack_cpu - quiet_cpu) / (since - quiet_from)
+        quiet_from, since, quiet_rate = quiet_cpu_rate(pid, 2.0)
+        attack_cpu = cpu_seconds(pid)
         out = _send_huge_trailer(server.port, None)
         time.sleep(0.5)  # what the server does after the connection ended counts too
         until = time.monotonic()

@@ -6,17 +6,12 @@ keeps at least 80% of its frames (it got 10 frames in 10 s); a client within its
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.service.probes import GapProbe, cpu_seconds, p99
+from tests.service.probes import GapProbe, p99, run_flood
 from tests.service.server import Server
 from tests.service.wsclient import Ws
 
@@ -45,30 +40,16 @@ def test_a_non_reading_ping_flood_is_closed_and_leaves_the_other_key_its_frames(
     pid = server.proc.pid
     closes_before = _closes_1008(server)
     with GapProbe(server.ws, characters=4, query=f"token={KEY_B}") as probe:
-        time.sleep(1.0)  # the stream settles
-        quiet_from, quiet_cpu = time.monotonic(), cpu_seconds(pid)
-        time.sleep(3.0)
-        quiet_until = time.monotonic()
-        quiet_rate = (cpu_seconds(pid) - quiet_cpu) / (quiet_until - quiet_from)
-        flood = subprocess.Popen([sys.executable, "-m", "tests.service.ws_flood", "--port", str(server.port), "--key",
-                                  KEY_A, "--seconds", str(FLOOD_S), "--batch", str(BATCH)],
-                                 stdout=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[3])
-        assert flood.stdout is not None and flood.stdout.readline().strip() == "ready"
-        since, flood_cpu = time.monotonic(), cpu_seconds(pid)  # from the flood's start
-        out = json.loads(flood.stdout.readline())
-        flood.wait(10)
-        until = time.monotonic()
-        extra = cpu_seconds(pid) - flood_cpu - quiet_rate * (until - since)
-        quiet_fps = probe.frames_in(quiet_from, quiet_until) / (quiet_until - quiet_from)
-        flood_fps = probe.frames_in(since, since + FLOOD_S) / FLOOD_S  # while it sent (not while it drained)
-        gaps = probe.gaps_ms(since, since + FLOOD_S)
+        run = run_flood(pid, probe, "tests.service.ws_flood", ["--port", str(server.port), "--key", KEY_A,
+                                                               "--seconds", str(FLOOD_S), "--batch", str(BATCH)], FLOOD_S)
+    out = run.out
     closes = _closes_1008(server) - closes_before
     print(f"ping flood of one key for {FLOOD_S:g} s: {out['sent']} messages sent on {out['opened']} connections "
           f"({out['refused']} handshakes refused), close codes {sorted(set(out['codes']), key=str)}, {closes:g} "
-          f"closed with 1008; {extra:.2f} s of extra server CPU in {until - since:.2f} s; the other key's stream "
-          f"{flood_fps:.0f} frames/s (before: {quiet_fps:.0f}), p99 gap {p99(gaps):.1f} ms")
+          f"closed with 1008; {run.extra_cpu_s:.2f} s of extra server CPU in {run.seconds:.2f} s; the other key's "
+          f"stream {run.flood_fps:.0f} frames/s (before: {run.quiet_fps:.0f}), p99 gap {p99(run.gaps):.1f} ms")
     assert not probe.errors, probe.errors
-    assert flood_fps >= 0.8 * quiet_fps, f"the other key's stream got {flood_fps / quiet_fps:.0%} of its frames"
+    assert run.flood_fps >= 0.8 * run.quiet_fps, f"the other key's stream got {run.flood_fps / run.quiet_fps:.0%} of its frames"
     assert out["opened"] >= 1 and closes >= 1
     assert 1008 in out["codes"], out["codes"]  # the flooder got a 1008 close frame
 
