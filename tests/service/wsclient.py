@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -55,6 +57,18 @@ class Ws:
         return msg
 
     json = recv
+
+    def messages_until(self, stop: threading.Event, poll_s: float = 1.0) -> Iterator[dict]:
+        """Each message as it arrives, until ``stop`` is set or the connection ends (for a reading thread, which
+        then keeps what it has)."""
+        while not stop.is_set():
+            try:
+                m = self.recv(timeout=poll_s)
+            except TimeoutError:
+                continue
+            except Exception:  # the connection ended
+                return
+            yield m
 
     def ping(self, ident: Any = "p", timeout: float = 30.0) -> list[dict]:
         """Send a ping and read until its pong; returns what came before it."""

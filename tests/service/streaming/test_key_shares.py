@@ -45,13 +45,7 @@ class Events:
         self._thread.start()
 
     def _read(self) -> None:
-        while not self._stop.is_set():
-            try:
-                m = self.ws.recv(timeout=0.5)
-            except TimeoutError:
-                continue
-            except Exception:
-                return
+        for m in self.ws.messages_until(self._stop, poll_s=0.5):
             if m["type"] in ("started", "end", "error"):
                 self.seen.append((time.monotonic(), m))
 
