@@ -44,7 +44,8 @@ def build_database(cache: MotionCache, takes: Sequence[int] | None = None, budge
     budget = budget_bytes // bytes_per_frame(skeleton.num_joints)
     # One pass visits every style of a content before the next content, so a budget cut mid-pass costs contents, not styles.
     queues = {k: list(v) for k, v in sorted(groups.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1]))}
-    segments, used, kept = [], 0, 0
+    segments, used = [], 0
+    kept: dict[str, int] = {}
     while any(queues.values()):
         for queue in queues.values():
             if not queue:
@@ -57,9 +58,12 @@ def build_database(cache: MotionCache, takes: Sequence[int] | None = None, budge
             rot, root = cache.rotations(i).float(), cache.root_positions(i).float()
             segments.append((rot[trim:trim + frames], root[trim:trim + frames], take.style, take.content))
             used += frames
-            kept += 1
-    source = (f"{cache.data_root.name}: train split, {kept} of {sum(len(v) for v in groups.values())} locomotion "
-              f"takes at {cache.fps:g} fps, {trim} frames trimmed from each end")
+            kept[take.source or cache.data_root.name] = kept.get(take.source or cache.data_root.name, 0) + 1
+    offered: dict[str, int] = {}
+    for (source, _, _), members in groups.items():
+        offered[source or cache.data_root.name] = offered.get(source or cache.data_root.name, 0) + len(members)
+    counts = ", ".join(f"{name} {kept.get(name, 0)} of {n}" for name, n in sorted(offered.items()))
+    source = f"train split locomotion takes ({counts}) at {cache.fps:g} fps, {trim} frames trimmed from each end"
     return MotionDatabase.from_segments(skeleton, cache.fps, segments, source)
 
 
