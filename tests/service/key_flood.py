@@ -18,16 +18,15 @@ import asyncio
 import contextlib
 import json
 import signal
-import subprocess
 import sys
 import time
 from collections import Counter
-from pathlib import Path
-from typing import Any
 
 import httpx
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
+
+from tests.service.child_process import ChildRun
 
 
 class Flood:
@@ -119,9 +118,11 @@ class Flood:
         print(json.dumps({"done": self.done, "statuses": dict(self.statuses)}), flush=True)
 
 
-class KeyFlood:
+class KeyFlood(ChildRun):
     """Run :class:`Flood` in a child process: ``with KeyFlood(...) as flood:`` returns once every client has
     sent its first request; :meth:`result` stops it and reads its counts."""
+
+    not_started = "the flood process did not start"
 
     def __init__(self, server_url: str, ws_url: str, token: str, mode: str, clients: int, frames: int,
                  seconds: float = 60.0, style_frames: int = 28) -> None:
@@ -129,24 +130,8 @@ class KeyFlood:
                         "--token", token, "--mode", mode, "--clients", str(clients), "--frames", str(frames),
                         "--seconds", str(seconds), "--style-frames", str(style_frames)]
         self.seconds = seconds
-        self.proc: subprocess.Popen[str] | None = None
         self.done = 0
         self.statuses: dict[str, int] = {}
-
-    def __enter__(self) -> KeyFlood:
-        self.proc = subprocess.Popen(self.command, stdout=subprocess.PIPE, text=True,
-                                     cwd=Path(__file__).resolve().parents[2])
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()
-        if line.strip() != "ready":
-            self.proc.kill()
-            raise RuntimeError(f"the flood process did not start: {line!r}")
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(10)
 
     def result(self) -> KeyFlood:
         """Stop the flood now and read its counts."""

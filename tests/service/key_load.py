@@ -17,16 +17,15 @@ import contextlib
 import json
 import signal
 import struct
-import subprocess
 import sys
 import time
 from collections import Counter
-from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
+from tests.service.child_process import ChildRun
 from tests.service.wsclient import start_message
 
 _FLOAT = struct.Struct("<f")
@@ -105,9 +104,12 @@ class Load:
               flush=True)
 
 
-class KeyLoad:
+class KeyLoad(ChildRun):
     """Run :class:`Load` in a child process for ``seconds`` (bounded): ``with KeyLoad(...) as load:`` returns once
-    its characters have started; :meth:`result` waits for its end and reads its counts."""
+    its characters have started (within its two minutes to start); :meth:`result` waits for its end and reads its
+    counts."""
+
+    not_started = "the load process did not start its characters"
 
     def __init__(self, ws_url: str, token: str, characters: int, seconds: float, frames: int, pace: str = "asap",
                  per_connection: int = 64) -> None:
@@ -115,27 +117,15 @@ class KeyLoad:
         self.command = [sys.executable, "-m", "tests.service.key_load", "--ws", ws_url, "--token", token,
                         "--characters", str(characters), "--per-connection", str(per_connection), "--pace", pace,
                         "--frames", str(frames), "--seconds", str(seconds)]
-        self.proc: subprocess.Popen[str] | None = None
         self.buckets: dict[int, int] = {}
         self.started = 0
         self.errors: list[dict[str, Any]] = []
         self.ready_at = 0.0  # time.monotonic() when every character had started
 
-    def __enter__(self) -> KeyLoad:
-        self.proc = subprocess.Popen(self.command, stdout=subprocess.PIPE, text=True,
-                                     cwd=Path(__file__).resolve().parents[2])
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()  # "ready" (within its two minutes to start), or "" if it died
-        if line.strip() != "ready":
-            self.proc.kill()
-            raise RuntimeError(f"the load process did not start its characters: {line!r}")
+    def __enter__(self) -> Self:
+        super().__enter__()
         self.ready_at = time.monotonic()
         return self
-
-    def __exit__(self, *exc: Any) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(10)
 
     def stop(self) -> None:
         """End the run now (before its ``seconds``); :meth:`result` then reads it."""
