@@ -23,27 +23,17 @@ const char* const kPose[] = {"rel", "vel", "rot", "root_xz"};
 }  // namespace
 
 Tensor Tensor::floats(std::vector<int64_t> shape, const std::vector<float>& values) {
-    Tensor t;
-    t.type = Type::Float32;
-    t.shape = std::move(shape);
-    t.bytes = raw(values);
-    return t;
+    return Tensor{Type::Float32, std::move(shape), raw(values)};
 }
 
 Tensor Tensor::ints(std::vector<int64_t> shape, const std::vector<int64_t>& values) {
-    Tensor t;
-    t.type = Type::Int64;
-    t.shape = std::move(shape);
-    t.bytes = raw(values);
-    return t;
+    return Tensor{Type::Int64, std::move(shape), raw(values)};
 }
 
 Tensor Tensor::flags(std::vector<int64_t> shape, const std::vector<bool>& values) {
-    Tensor t;
-    t.type = Type::Bool;
-    t.shape = std::move(shape);
-    for (bool v : values) t.bytes.push_back(v ? 1 : 0);
-    return t;
+    std::vector<uint8_t> bytes;
+    for (bool v : values) bytes.push_back(v ? 1 : 0);
+    return Tensor{Type::Bool, std::move(shape), std::move(bytes)};
 }
 
 std::vector<float> Tensor::as_floats() const {
