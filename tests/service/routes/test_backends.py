@@ -12,7 +12,24 @@ import httpx
 import pytest
 
 from model.export.backends import BACKENDS
-from tests.service.routes import test_http, test_stream
+from tests.service.routes import test_http
+from tests.service.routes.test_http import (  # noqa: F401  (collected again, on this module's servers)
+    style_id,
+    test_bad_requests,
+    test_inline_style_and_json_poses,
+    test_model_description,
+    test_same_seed_same_frames,
+    test_transition_json,
+)
+from tests.service.routes.test_stream import (  # noqa: F401  (collected again, on this module's servers)
+    styles,
+    test_exact_arrival,
+    test_frames_in_order_then_end,
+    test_many_characters_one_connection,
+    test_retarget_changes_where_it_arrives,
+    test_stream_equals_http_transition,
+    test_style_switch,
+)
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow  # a server per backend
@@ -35,23 +52,6 @@ def test_the_server_runs_the_backend_it_was_given(server):
     assert server.env["RSMT_BACKEND"] in BACKENDS
     r = httpx.post(server.url + "/v1/transition", json={**test_http.transition_body(frames=12)}, timeout=60)
     assert r.status_code == 200 and len(r.json()["frames"]) == 12
-
-
-style_id = test_http.style_id
-styles = test_stream.styles
-
-test_model_description = test_http.test_model_description
-test_transition_json = test_http.test_transition_json
-test_same_seed_same_frames = test_http.test_same_seed_same_frames
-test_inline_style_and_json_poses = test_http.test_inline_style_and_json_poses
-test_bad_requests = test_http.test_bad_requests
-
-test_frames_in_order_then_end = test_stream.test_frames_in_order_then_end
-test_stream_equals_http_transition = test_stream.test_stream_equals_http_transition
-test_retarget_changes_where_it_arrives = test_stream.test_retarget_changes_where_it_arrives
-test_style_switch = test_stream.test_style_switch
-test_many_characters_one_connection = test_stream.test_many_characters_one_connection
-test_exact_arrival = test_stream.test_exact_arrival
 
 
 def test_the_service_default_is_the_engine_default_and_a_wrong_name_is_refused():
