@@ -92,6 +92,8 @@ def per_frame_parameters(bundle: Bundle) -> int:
 def weight_bytes_per_frame(engine: Engine) -> int:
     """Bytes of the weights a frame reads at batch 1: :func:`per_frame_parameters` at their runtime width
     (float32; the LSTM cell's weight matrices at one byte where the engine runs them in int8)."""
+    if engine.source == "matching":  # it plays the database: no network runs
+        return 0
     int8 = engine.inference.int8_lstm
     return sum(p.numel() * (1 if int8 and n.startswith("lstm.weight") else p.element_size())
                for n, p in engine.bundle.net.named_parameters() if not n.startswith(_ONCE))
@@ -103,7 +105,8 @@ def bench_engine(engine: Engine, name: str, batch_sizes: tuple[int, ...] = (1, 8
     """Measure one engine, timed by ``clock`` (:data:`CLOCKS`); each throughput point runs for at most
     ``budget_s / len(batch_sizes)`` of it."""
     request = WalkRequest.of(engine)
-    res = BenchResult(name, per_frame_parameters(engine.bundle), bytes_per_frame=weight_bytes_per_frame(engine))
+    res = BenchResult(name, 0 if engine.source == "matching" else per_frame_parameters(engine.bundle),
+                      bytes_per_frame=weight_bytes_per_frame(engine))
     times = []
     for _ in range(5):
         engine.styles.delete(engine.style_id(request.style_clip))

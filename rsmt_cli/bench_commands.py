@@ -127,7 +127,7 @@ def engine_label(engine: Any, path: Path) -> str:
     strength = engine.inference.style_strength
     source = f"{engine.source} source; " if engine.source != "network" else ""
     return (f"{engine.name} ({path.name}; {source}{engine.output.in_words()}"
-            f"{', int8 LSTM' if engine.inference.int8_lstm else ''}"
+            f"{', int8 LSTM' if engine.inference.int8_lstm and engine.source != 'matching' else ''}"
             f"{f', style strength {strength:g}' if strength != 1.0 else ''}{', onnxruntime' if _on_onnxruntime(engine) else ''})")
 
 
