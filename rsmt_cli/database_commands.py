@@ -16,6 +16,14 @@ from pathlib import Path
 from typing import Any
 
 
+def add_bundle_and_data(parser: Any) -> None:
+    """BUNDLE, written in place, and the --from-data it is built from (``rsmt bundle database`` and
+    ``gait-limits``)."""
+    parser.add_argument("bundle", type=Path, metavar="BUNDLE")
+    parser.add_argument("--from-data", type=Path, required=True, metavar="DATA",
+                        help="the training data (folders separated by the path separator, as RSMT_DATA)")
+
+
 def add_database_parser(bundle_actions: Any) -> None:
     """``database`` under ``rsmt bundle``."""
     d = bundle_actions.add_parser(
@@ -24,9 +32,7 @@ def add_database_parser(bundle_actions: Any) -> None:
                     "poses of its locomotion takes (each without its first and last half second), every style and "
                     "content in turn, within --budget-mb. Writes BUNDLE/database.safetensors and database.json; "
                     "weights, config and styles are not touched.")
-    d.add_argument("bundle", type=Path, metavar="BUNDLE")
-    d.add_argument("--from-data", type=Path, required=True, metavar="DATA",
-                   help="the training data (folders separated by the path separator, as RSMT_DATA)")
+    add_bundle_and_data(d)
     d.add_argument("--budget-mb", type=float, default=10.0, help="the most the database may take (default 10 MB)")
     d.add_argument("--workers", type=int, default=1, help="processes that read the data the first time (default 1)")
     d.set_defaults(func=_database)

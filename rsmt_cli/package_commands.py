@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rsmt_cli.database_commands import add_database_parser
+from rsmt_cli.database_commands import add_bundle_and_data, add_database_parser
 from rsmt_cli.output_arguments import add_output_arguments, output_overrides
 from rsmt_cli.renamed_flags import add_renamed
 
@@ -105,9 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                     "height range per gait over the train split of a motion dataset, and write them "
                                     "to BUNDLE/gait_limits.json (weights, config and styles untouched). The engine "
                                     "keeps the root within the style's speed and says when a target is out of reach.")
-    g.add_argument("bundle", type=Path, metavar="BUNDLE")
-    g.add_argument("--from-data", type=Path, required=True, metavar="DATA",
-                   help="the training data (folders separated by the path separator, as RSMT_DATA)")
+    add_bundle_and_data(g)
     g.set_defaults(func=_gait_limits)
     add_database_parser(bsub)
 
