@@ -5,7 +5,6 @@ within 8 cm of the place and 10 degrees of the facing asked. The poses come from
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 from pathlib import Path
@@ -18,9 +17,8 @@ from rsmt_client import Client, StreamClient, TargetAt
 
 from model.inference.bundle import DEFAULT_BUNDLE
 from model.motion.bvh_clip import load_clip
-from model.motion.features import facing_yaw
-from model.motion.kinematics import forward_kinematics
 from model.motion.skeleton import Skeleton
+from tests.clients.arrival import miss, place_from
 
 pytestmark = pytest.mark.slow  # a server of the default model
 PLACE_CM, FACING_DEG = 8.0, 10.0
@@ -41,32 +39,10 @@ def skeleton() -> Skeleton:
     return Skeleton.load(DEFAULT_BUNDLE / "skeleton.json")
 
 
-def facing_deg(skeleton: Skeleton, roots: np.ndarray, rotations: np.ndarray) -> float:
-    """The facing of the last of these poses, as the model defines it (up x (right - left) of hips and shoulders)."""
-    positions, _ = forward_kinematics(torch.from_numpy(np.asarray(rotations, np.float64))[-1],
-                                      torch.from_numpy(np.asarray(roots, np.float64))[-1],
-                                      skeleton.offsets_tensor(torch.float64), skeleton.parents)
-    return math.degrees(float(facing_yaw(positions, skeleton)))
-
-
 def places(skeleton: Skeleton, walk: dict) -> list[TargetAt]:
     """The cases as places in the world, from the context's last root and facing."""
-    here = np.asarray(walk["root_positions"][-1])
-    yaw = facing_deg(skeleton, np.asarray(walk["root_positions"][-1:]), np.asarray(walk["rotations"][-1:]))
-    f = np.array([math.sin(math.radians(yaw)), math.cos(math.radians(yaw))])  # (x, z) ahead
-    left = np.array([f[1], -f[0]])  # ahead turned +90 degrees about +Y
-    out = []
-    for ahead, side, turn in CASES:
-        xz = here[[0, 2]] + ahead * f + side * left
-        out.append(TargetAt(float(xz[0]), float(xz[1]), yaw + turn))
-    return out
-
-
-def miss(skeleton: Skeleton, place: TargetAt, roots: np.ndarray, rotations: np.ndarray) -> tuple[float, float]:
-    """How far the last frame's root lies from the place (cm) and its facing from the one asked (degrees)."""
-    distance = math.hypot(float(roots[-1, 0]) - place.x, float(roots[-1, 2]) - place.z)
-    turn = (facing_deg(skeleton, roots[-1:], rotations[-1:]) - place.yaw + 180.0) % 360.0 - 180.0
-    return distance, abs(turn)
+    roots, rotations = np.asarray(walk["root_positions"][-1:]), np.asarray(walk["rotations"][-1:])
+    return [place_from(skeleton, roots, rotations, ahead, side, turn) for ahead, side, turn in CASES]
 
 
 def test_a_transition_arrives_at_the_place_and_facing_asked(default_model_eager_server, walk, skeleton):
