@@ -1,7 +1,8 @@
 """The Unity package's engine-independent core, compiled with Mono's ``mcs``: unit checks (JSON, coordinate
 conversion against known values, binary frames with any layout, jitter buffer, joint binding), a type check
 of the MonoBehaviour and asset code against UnityEngine stubs, and a console harness against a live server
-(hello, style registration over HTTP, start, frames, retarget, ping). Skipped with a reason without Mono."""
+(hello, style registration over HTTP, start, frames, retarget, a start to a place and facing, ping). Skipped
+with a reason without Mono."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ import json
 
 import numpy as np
 import pytest
+import torch
 from rsmt_client import Client
 
+from model.motion.bvh_clip import load_clip
+from model.motion.skeleton import Skeleton
+from tests.clients.arrival import miss, place_from
 from tests.clients.helpers import API_KEY, FRAMES, SEED, UNITY, json_lines, mono_tools, run, run_harness, unity_to_model
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]  # slow: compiles with Mono's mcs
@@ -48,13 +53,19 @@ def test_monobehaviour_and_asset_code_type_check(tmp_path):
 
 
 @pytest.mark.parametrize("encoding", ["json", "binary"])
-def test_harness_against_live_server(harness_exe, server, motions, tmp_path, encoding):
+def test_harness_against_live_server(harness_exe, server, client_bundle, motions, tmp_path, encoding):
     out = tmp_path / "result.json"
+    # target_at: 1 m ahead of where the context ends and 40 cm to its left, turned 30 degrees (model units, axes).
+    skeleton = Skeleton.load(client_bundle / "skeleton.json")
+    context = load_clip(motions["context"], dtype=torch.float64)
+    place = place_from(skeleton, context.root_positions.numpy(), context.rotations.numpy(), 100.0, 40.0, 30.0)
     proc = run_harness(harness_exe, "run", "--url", server.url, "--api-key", API_KEY, "--context", str(motions["context"]),
                        "--target", str(motions["target"]), "--style", str(motions["style"]), "--style2",
                        str(motions["style2"]), "--frames", str(FRAMES), "--seed", str(SEED), "--deterministic",
                        "--encoding", encoding, "--retarget", str(motions["target2"]),
-                       "--retarget-after", "4", "--retarget-frames", "12", "--out", str(out))
+                       "--retarget-after", "4", "--retarget-frames", "12",
+                       "--target-at", f"{place.x!r},{place.z!r},{place.yaw!r}", "--target-at-frames", str(FRAMES),
+                       "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(out.read_text())
     assert r["hello"] == {"joints": 21, "fps": 30, "units": "cm", "encoding": encoding, "metres_per_unit": 0.01}
@@ -79,3 +90,11 @@ def test_harness_against_live_server(harness_exe, server, motions, tmp_path, enc
     rt = r["retarget"]
     assert rt["from_seq"] > 4 and rt["end_frames"] == rt["from_seq"] + 12 == rt["received"] and rt["reason"] == "arrived"
     assert rt["monotonic"] is True and rt["shown_last"] == rt["received"] - 1 and rt["samples"] > rt["received"]
+    # The start to a place and facing arrives there: the last frame, back in the model's axes, as the model measures it.
+    placed = r["target_at"]
+    assert placed["received"] == FRAMES and placed["end"] == {"reason": "arrived", "frames": FRAMES}
+    last_root, last_rots = unity_to_model(np.array([placed["last"]["root"]]), np.array([placed["last"]["rotations"]]),
+                                          r["hello"]["metres_per_unit"])
+    distance, turn = miss(skeleton, place, last_root, last_rots)
+    print(f"unity target_at {place} ({encoding}): {distance:.3f} cm, {turn:.3f} degrees off")
+    assert placed["last"]["seq"] == FRAMES - 1 and distance <= 8.0 and turn <= 10.0

@@ -1,6 +1,7 @@
 """The Unreal plugin's engine-independent core (``Source/RsmtCore``), compiled with g++ as Unreal would (no
 exceptions, no RTTI, warnings as errors): unit checks, then sessions captured from a live server (hello +
-frames, JSON and binary) replayed in pieces the way ``IWebSocket::OnRawMessage`` delivers them."""
+frames, JSON and binary; a start the core built to a place and facing) replayed in pieces the way
+``IWebSocket::OnRawMessage`` delivers them."""
 
 from __future__ import annotations
 
@@ -9,9 +10,13 @@ import json
 import httpx
 import numpy as np
 import pytest
+import torch
 from rsmt_client import Client
 from rsmt_client.stream import FrameLayout
 
+from model.motion.bvh_clip import load_clip
+from model.motion.skeleton import Skeleton
+from tests.clients.arrival import miss, place_from
 from tests.clients.helpers import (
     API_KEY,
     FRAMES,
@@ -120,3 +125,27 @@ def test_style_registration_body_of_several_clips(core_test_exe, server, motions
     assert r.json()["style_id"] == two["style_id"] and r.json()["clips"] == 2 and r.json()["name"] == "ue-two"
     six = run([str(core_test_exe), "style-body", "six", *[str(motions["style"])] * 6], timeout=60, check=False)
     assert six.returncode == 1 and six.stdout == ""
+
+
+@pytest.mark.parametrize("encoding", ["json", "binary"])
+def test_a_start_to_a_place_and_facing_arrives_there(core_test_exe, server, client_bundle, motions, tmp_path, encoding):
+    """The core's start (BuildStart with targetAtJson: 1 m ahead of where the context ends, 40 cm to its left, turned 30
+    degrees) sent to the server; its frames, read by the core, end at the place and facing asked."""
+    skeleton = Skeleton.load(client_bundle / "skeleton.json")
+    context = load_clip(motions["context"], dtype=torch.float64)
+    place = place_from(skeleton, context.root_positions.numpy(), context.rotations.numpy(), 100.0, 40.0, 30.0)
+    with Client(server.url, api_key=API_KEY) as c:
+        style_id = c.register_style(motions["style"])["style_id"]
+    proc = run([str(core_test_exe), "start-at", "ue-at", str(motions["context"]), str(FRAMES), style_id, str(SEED),
+                repr(place.x), repr(place.z), repr(place.yaw)], timeout=60)
+    start = json.loads(proc.stdout)
+    assert "target" not in start and start["pace"] == "asap"
+    recording = capture(server.ws, encoding, start, tmp_path / f"target-at-{encoding}.rec")
+    lines = json_lines(run([str(core_test_exe), "replay", str(recording), "4096"], timeout=120).stdout)
+    frames = [m for m in lines if "frame" in m]
+    assert [m["event"] for m in lines if "event" in m] == ["started", "end"]
+    assert [f["seq"] for f in frames] == list(range(FRAMES)) and frames[-1]["remaining"] == 0
+    roots, rotations = unreal_to_model(np.array([frames[-1]["root"]]), np.array([frames[-1]["rotations"]]))
+    distance, turn = miss(skeleton, place, roots, rotations)
+    print(f"unreal target_at {place} ({encoding}): {distance:.3f} cm, {turn:.3f} degrees off")
+    assert distance <= 8.0 and turn <= 10.0

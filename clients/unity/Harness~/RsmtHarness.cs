@@ -4,13 +4,14 @@
 //   mono RsmtHarness.exe selftest
 //   mono RsmtHarness.exe run --url http://127.0.0.1:8000 [--api-key K] --context a.bvh --target b.bvh --style s.bvh
 //        --frames 40 [--seed 7] [--deterministic] [--encoding binary|json] [--retarget c.bvh --retarget-after 5
-//        --retarget-frames 12] [--delay 0.1] --out result.json
+//        --retarget-frames 12] [--target-at x,z,yaw --target-at-frames 40] [--delay 0.1] --out result.json
 //   mono RsmtHarness.exe failover --url URL [--api-key K] --context a.bvh --target b.bvh [--target2 c.bvh] --style s.bvh
 //        --frames 60 [--characters 2] [--encoding binary|json] --kill-after 10 [--failover] [--attempts 40] --out result.json
 //
 // `run` registers the style over HTTP, connects, reads hello, streams one transition (pace asap) and records
 // every frame converted to Unity axes; with --retarget it streams a second one in real time, retargets it
-// mid-way, and plays it through the jitter buffer, recording what was shown.
+// mid-way, and plays it through the jitter buffer, recording what was shown; with --target-at it streams one more
+// started with TargetAtJson (a place and facing in the model's units and axes) and records its last frame.
 // `failover` registers the style through the stream client, streams several characters in real time with
 // exact_arrival, prints {"kill": true} once the first has sent --kill-after frames (the test then kills the server
 // and starts another on the same port) and records every frame (Unity axes), started/end, errors and losses.
@@ -466,7 +467,39 @@ static class RsmtHarness
             output.Append(",\"pong\":").Append(pong ? "true" : "false");
             output.Append(",\"frames\":[").Append(string.Join(",", recorded.Select(PoseJson))).Append(']');
 
-            // 4. Retarget mid-way, in real time, played through the jitter buffer.
+            // 4. A start to a place and facing (TargetAtJson, the model's units and axes): the last frame recorded.
+            if (a.ContainsKey("target-at"))
+            {
+                var at = a["target-at"].Split(',').Select(x => double.Parse(x, CultureInfo.InvariantCulture)).ToArray();
+                if (at.Length != 3) throw new ArgumentException("--target-at takes x,z,yaw");
+                int atFrames = int.Parse(Get(a, "target-at-frames", Get(a, "frames")), CultureInfo.InvariantCulture);
+                RsmtFrame last = null;
+                int count = 0;
+                RsmtMessage end3 = null;
+                client.MessageReceived += m =>
+                {
+                    if (m.Character != "cs3") return;
+                    if (m.Kind == RsmtMessageKind.Frame)
+                    {
+                        count++;
+                        last = m.Frame;
+                    }
+                    else if (m.Kind == RsmtMessageKind.End) end3 = m;
+                };
+                client.Start(new RsmtStartOptions
+                {
+                    Character = "cs3", ContextJson = RsmtMessages.BvhMotion(client.Cuts.Context(context)),
+                    TargetAtJson = RsmtMessages.TargetAt(at[0], at[1], at[2]),
+                    Frames = atFrames, StyleId = style.StyleId, Seed = seed, Pace = "asap",
+                });
+                Pump(client, clock, () => end3 != null || errors.Count > 0, 60);
+                if (errors.Count > 0) throw new Exception("server error: " + errors[0]);
+                output.Append(",\"target_at\":{\"received\":").Append(count).Append(",\"end\":{\"reason\":")
+                      .Append(Json.Quote(end3.Reason)).Append(",\"frames\":").Append(end3.Frames).Append("},\"last\":")
+                      .Append(last == null ? "null" : PoseJson(last)).Append('}');
+            }
+
+            // 5. Retarget mid-way, in real time, played through the jitter buffer.
             if (a.ContainsKey("retarget"))
             {
                 string newTarget = File.ReadAllText(a["retarget"]);

@@ -5,6 +5,10 @@
 //   rsmt_core_test replay FILE.rec [CHUNK]  replay a recorded session: every message cut into CHUNK-byte pieces
 //                                           (OnRawMessage style), reassembled, classified, decoded; prints one JSON
 //                                           line per frame with the pose converted to Unreal axes
+//   rsmt_core_test style-body NAME CLIP.bvh...   the POST /v1/styles body of these clips
+//   rsmt_core_test start-at CHARACTER CONTEXT.bvh FRAMES STYLE_ID SEED X Z YAW
+//                                           the start message (BuildStart, pace asap) to a place and facing
+//                                           (TargetAtJson, the model's units and axes)
 //
 // A .rec file is what the Python tests captured from a live server: records of
 // [kind: 'T' text | 'B' binary][length: uint32 little-endian][payload], hello first.
@@ -569,6 +573,26 @@ int main(int argc, char** argv) {
         std::fwrite(body.data(), 1, body.size(), stdout);
         return body.empty() ? 1 : 0;
     }
-    std::fprintf(stderr, "usage: %s selftest | replay FILE.rec [CHUNK] | style-body NAME CLIP.bvh...\n", argv[0]);
+    if (argc == 10 && std::strcmp(argv[1], "start-at") == 0) {  // a start message to a place and facing (pace asap)
+        std::ifstream in(argv[3], std::ios::binary);
+        if (!in) {
+            std::fprintf(stderr, "cannot open %s\n", argv[3]);
+            return 2;
+        }
+        StartOptions o;
+        o.character = argv[2];
+        o.contextJson = BvhMotionJson(std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()));
+        o.frames = std::atoi(argv[4]);
+        o.styleId = argv[5];
+        o.hasSeed = true;
+        o.seed = std::strtoull(argv[6], nullptr, 10);
+        o.targetAtJson = TargetAtJson(std::strtod(argv[7], nullptr), std::strtod(argv[8], nullptr), std::strtod(argv[9], nullptr));
+        o.pace = "asap";
+        const std::string start = BuildStart(o);
+        std::fwrite(start.data(), 1, start.size(), stdout);
+        return 0;
+    }
+    std::fprintf(stderr, "usage: %s selftest | replay FILE.rec [CHUNK] | style-body NAME CLIP.bvh... | start-at CHARACTER "
+                 "CONTEXT.bvh FRAMES STYLE_ID SEED X Z YAW\n", argv[0]);
     return 2;
 }
