@@ -60,15 +60,17 @@ class Engine:
 
     def __init__(self, bundle: Bundle, threads: int | None = None, cache_entries: int = 1024,
                  cache_bytes: int = 256 << 20, compiled: bool = True, overrides: Overrides | None = None,
-                 source: str = "network") -> None:
+                 source: str = "network", max_frames: int | None = None) -> None:
         """``overrides``: a caller's changes to the bundle's output steps and inference settings
         (:class:`model.inference.overrides.Overrides`; None keeps them all).
         ``compiled=False`` runs the per-frame step and the output steps in eager PyTorch instead of
         their traced graphs (:mod:`model.inference.traced_step`): slower, for debugging.
         ``source``: what makes the motion, one of :data:`SOURCES`: ``network`` (the bundle's network, and its style
         adapters), ``matching`` (windows of the bundle's motion database, :mod:`model.nets.matching_net`) or
-        ``hybrid`` (those windows where they match the request, the network elsewhere: :mod:`model.nets.hybrid_net`)."""
+        ``hybrid`` (those windows where they match the request, the network elsewhere: :mod:`model.nets.hybrid_net`).
+        ``max_frames``: a caller's cap on a transition's frames below the model's own (:attr:`max_frames`)."""
         overrides = overrides or Overrides()
+        self._frames_cap = max_frames
         # Played capture is real motion already blended onto its target: the matching source's frames leave as
         # played unless the caller asks for an output step (on val its joint error was 1.36 against 2.00 cm with them).
         self.output = overrides.output(RAW_OUTPUT.output(bundle.output) if source == "matching" else bundle.output)
@@ -165,8 +167,17 @@ class Engine:
     def max_frames(self) -> int:
         """Longest transition accepted: twice the training horizon. Beyond the horizon the
         time-to-arrival code saturates (as RSMT's does), so the model walks on as if far from the
-        target until the remaining frames fall inside what it was trained on."""
-        return 2 * self.config.max_transition
+        target until the remaining frames fall inside what it was trained on. A cap given to the engine
+        (the service's ``RSMT_MAX_TRANSITION_FRAMES``) lowers it."""
+        own = 2 * self.config.max_transition
+        return own if self._frames_cap is None else min(own, self._frames_cap)
+
+    def check_frames(self, frames: int) -> None:
+        """The one check of a transition's length: 1 to :attr:`max_frames` (:class:`TooManyFrames` above it,
+        :class:`FramesOutOfRange` below 1), the message naming the model and the range."""
+        if not 1 <= frames <= self.max_frames:
+            error = TooManyFrames if frames > self.max_frames else FramesOutOfRange
+            raise error(f"frames must be between 1 and {self.max_frames} for model {self.name!r}; got {frames}")
 
     @property
     def version(self) -> str:
@@ -303,9 +314,7 @@ class Engine:
             except ValueError as exc:
                 raise EngineError(str(exc)) from None
             self._usable_strength(style_strength)
-        if not 1 <= frames <= self.max_frames:
-            error = TooManyFrames if frames > self.max_frames else FramesOutOfRange
-            raise error(f"frames must be between 1 and {self.max_frames}; got {frames}")
+        self.check_frames(frames)
         context = self.conform(context, "context")
         target = self.conform(target, "target")
         if context.num_frames < c.context:
@@ -368,8 +377,8 @@ class Engine:
                  frames: int | None = None) -> Reach | None:
         """Change where and/or when a live character arrives, from its next frame on; returns its reach notice
         from where it now stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
-        if frames is not None and not 1 <= frames <= self.max_frames:
-            raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
+        if frames is not None:
+            self.check_frames(frames)
         if batch is None and ch.row is None:
             ch.row = self.begin([ch])
         if target is not None:
