@@ -141,3 +141,24 @@ def test_the_reach_notice_of_a_stream_is_its_latest_target_s() -> None:
             break
     assert s.transition_poses(a).reach == Reach(False, 930.0, 40, 140, 266.7, 200.0)
     assert Reach.from_message({"reach": None}) is None and Reach.from_message(None) is None
+    # What collect gives carries it too: ended "arrived", yet short of the target by what the speed cannot cover.
+    assert a.end is not None and a.end["reason"] == "arrived"
+    assert a.reach == Reach(False, 930.0, 40, 140, 266.7, 200.0) and a.stopped_short
+    assert a.reach.short_cm == pytest.approx(930.0 - 266.7) and a.poses().reach == a.reach
+
+
+def test_a_stream_retargeted_back_within_reach_arrives() -> None:
+    s = _session()
+    far = {"feasible": False, "distance_cm": 930.0, "frames": 40, "needed_frames": 140, "reachable_cm": 266.7,
+           "max_speed_cm_s": 200.0}
+    near = {**far, "feasible": True, "distance_cm": 120.0, "needed_frames": 18}
+    b, _ = s.begin_collect("b")
+    for raw in [json.dumps({"type": "started", "character": "b", "slot": 0, "reach": far}),
+                json.dumps({"type": "retargeted", "character": "b", "from_seq": 1, "reach": near}),
+                json.dumps({"type": "end", "character": "b", "reason": "arrived", "frames": 2})]:
+        if s.take(s.parse(raw), b):
+            break
+    assert b.reach is not None and b.reach.feasible and b.reach.short_cm == 0.0 and not b.stopped_short
+    c, _ = s.begin_collect("c")  # a model without gait limits says nothing either way
+    s.take(s.parse(json.dumps({"type": "started", "character": "c", "slot": 1, "reach": None})), c)
+    assert c.reach is None and not c.stopped_short

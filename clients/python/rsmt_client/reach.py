@@ -2,7 +2,9 @@
 
 The server keeps a character's root within its style's capture speed, so a target farther than that speed
 covers in the frames asked is not reached: the character arrives short (it does not glide there). The
-notice says so before a frame is read: ``feasible`` false, with the frames the distance would take.
+notice says so before a frame is read: ``feasible`` false, with the frames the distance would take. A stream's
+result keeps the last notice it saw (:attr:`rsmt_client.StreamResult.reach`), so a caller can tell a character
+that stopped short from one that arrived.
 """
 
 from __future__ import annotations
@@ -24,6 +26,11 @@ class Reach:
     needed_frames: int
     reachable_cm: float
     max_speed_cm_s: float
+
+    @property
+    def short_cm(self) -> float:
+        """How far short of the target the character stops (0 where the target is within reach)."""
+        return 0.0 if self.feasible else max(0.0, self.distance_cm - self.reachable_cm)
 
     @classmethod
     def from_message(cls, data: Mapping[str, Any] | None) -> Reach | None:

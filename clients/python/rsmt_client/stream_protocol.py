@@ -54,7 +54,8 @@ def handshake_headers(api_key: str | None, token_in_query: bool) -> dict[str, st
 
 @dataclass
 class StreamResult:
-    """What one character produced: its frames, the ``end`` message and the other messages about it."""
+    """What one character produced: its frames, the ``end`` message and the other messages about it; ``reach``, the
+    last reach notice (its ``started`` or latest ``retargeted``), says whether it arrived or stopped short."""
 
     character: str
     fps: float
@@ -62,10 +63,23 @@ class StreamResult:
     end: Message | None = None
     messages: list[Message] = field(default_factory=list)
 
+    @property
+    def reach(self) -> Reach | None:
+        """The notice of the last ``started`` / ``retargeted`` that carried one (None: none did, as for a model
+        without gait limits)."""
+        notices = [m for m in self.messages if m.get("type") in ("started", "retargeted") and m.get("reach")]
+        return Reach.from_message(notices[-1]) if notices else None
+
+    @property
+    def stopped_short(self) -> bool:
+        """Whether the last target was out of reach, so the character ended short of it (``reach.short_cm``)."""
+        reach = self.reach
+        return reach is not None and not reach.feasible
+
     def poses(self, joints: tuple[str, ...] | None = None) -> Poses:
         roots = np.array([f.root_position for f in self.frames], dtype=np.float32).reshape(-1, 3)
         rots = np.array([f.rotations for f in self.frames], dtype=np.float32)
-        return Poses(roots, rots, self.fps, joints=joints)
+        return Poses(roots, rots, self.fps, joints=joints, reach=self.reach)
 
 
 class StreamSession:
@@ -169,9 +183,7 @@ class StreamSession:
         poses = result.poses(self.joint_names)
         started = next((m for m in result.messages if m.get("type") == "started"), {})
         poses.style_id, poses.model = started.get("style_id"), started.get("model")
-        notices = [m for m in result.messages if m.get("type") in ("started", "retargeted") and m.get("reach")]
-        poses.reach = Reach.from_message(notices[-1]) if notices else None  # the latest (re)target's
-        return poses
+        return poses  # its reach: the latest (re)target's notice (StreamResult.reach)
 
     # ------------------------------------------------------------------ sending
     def encode(self, message: Message) -> str:
