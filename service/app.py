@@ -15,10 +15,10 @@ from service.http.handshake_log import install_handshake_log
 from service.http.log_redaction import install_redaction
 from service.http.logs import ensure_service_logging
 from service.http.queue_gate import QueueGateMiddleware
-from service.http.ratelimit import RateLimiter
 from service.http.request_metrics import MetricsMiddleware
 from service.lifecycle import lifespan
 from service.metrics import Metrics
+from service.ratelimit import RateLimiter
 from service.routes import docs, health, metrics, models, stream, styles, transition, viewer
 from service.settings import Settings, get_settings
 from service.state import ServiceState

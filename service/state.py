@@ -6,8 +6,8 @@ import enum
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from service.http.ratelimit import RateLimiter
 from service.metrics import Metrics
+from service.ratelimit import RateLimiter
 from service.settings import Settings
 from service.style_store.lane import StoreLane
 

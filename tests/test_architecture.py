@@ -140,3 +140,55 @@ def test_modules_are_small():
 def test_model_top_level_holds_few_modules():
     top = sorted(p.name for p in (REPO / "model").glob("*.py"))
     assert len(top) <= MAX_MODEL_TOP_LEVEL, f"model/ holds {len(top)} modules at its top level: {', '.join(top)}"
+
+
+# Inside service/: its rooms (each top-level module, each subpackage with all it holds) import one another without
+# a cycle, so the service reads as floors, each standing on the ones below.
+def _service_room(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if parts[0] == "service" and len(parts) > 1 else None
+
+
+def _service_arrows() -> dict[tuple[str, str], set[str]]:
+    """``(room, room it imports)`` -> the files that make that arrow (TYPE_CHECKING and lazy imports count)."""
+    arrows: dict[tuple[str, str], set[str]] = {}
+    for name, deps in GRAPH.items():
+        src = _service_room(name)
+        for dep in deps:
+            dst = _service_room(dep)
+            if src and dst and src != dst:
+                arrows.setdefault((src, dst), set()).add(str(MODULES[name].relative_to(REPO)))
+    return arrows
+
+
+def _path(arrows: dict[tuple[str, str], set[str]], start: str, goal: str) -> list[str] | None:
+    """The rooms of a shortest chain of arrows from ``start`` to ``goal`` (None when there is none)."""
+    before: dict[str, str] = {start: start}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for room in frontier:
+            for src, dst in arrows:
+                if src == room and dst not in before:
+                    before[dst] = room
+                    nxt.append(dst)
+        frontier = nxt
+    if goal not in before:
+        return None
+    chain = [goal]
+    while chain[-1] != start:
+        chain.append(before[chain[-1]])
+    return chain[::-1]
+
+
+def test_service_rooms_have_no_cycles():
+    arrows = _service_arrows()
+    assert ("routes", "registry") in arrows or ("routes", "deps") in arrows, "the service's graph was not read"
+    found = []
+    for src, dst in sorted(arrows):
+        back = _path(arrows, dst, src)
+        if back is not None:
+            chain = [src, *back]
+            found.append(" -> ".join(chain) + ": " + "; ".join(
+                f"{a} -> {b} ({', '.join(sorted(arrows[(a, b)]))})" for a, b in zip(chain, chain[1:])))
+    assert not found, "service/ rooms on an import cycle (move the code to the floor it belongs on):\n" + "\n".join(found)

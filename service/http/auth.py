@@ -19,7 +19,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.errors import ServiceError, error_response
 from service.http.addresses import address_key
-from service.http.ratelimit import retry_after_header
+from service.ratelimit import retry_after_header
 from service.state import ServiceState
 from service.style_book import Caller
 

@@ -57,8 +57,8 @@ from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
 from service.http.addresses import address_key
 from service.http.header_cap import HEADERS_TOO_LARGE_RESPONSE, BodyMeter, HeadMeter, body_meter
-from service.http.ratelimit import TokenBucket
 from service.http.ws_read_budget import feed_within_queue
+from service.ratelimit import TokenBucket
 
 if TYPE_CHECKING:
     from uvicorn.config import Config

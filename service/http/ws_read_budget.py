@@ -5,7 +5,7 @@ the app, so a single read of tiny messages (a ``ping`` flood: up to 256 KiB, som
 decoded and queued before the app sees the first. :func:`feed_within_queue` hands the protocol the bytes a
 slice at a time and stops once more messages wait than the connection may queue
 (``RSMT_WS_MAX_QUEUED_MESSAGES``): reading pauses and the rest is never decoded, and the app closes the
-connection with 1008 at its next message (:mod:`service.streaming.message_budget`). uvicorn stops reading
+connection with 1008 at its next message (:mod:`service.sessions.message_budget`). uvicorn stops reading
 after queueing a message until the app has taken them all, so within one read is the only place such a
 queue can grow.
 """

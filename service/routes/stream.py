@@ -1,6 +1,6 @@
 """WebSocket ``/v1/stream`` (docs/protocol.md): the handshake checks, then the connection's messages, each
-within the connection's budgets (:mod:`service.streaming.message_budget`), handed one at a time to its
-:class:`~service.streaming.protocol.Session` until the client leaves."""
+within the connection's budgets (:mod:`service.sessions.message_budget`), handed one at a time to its
+:class:`~service.sessions.protocol.Session` until the client leaves."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from fastapi import APIRouter, WebSocket
 
 from service.errors import ServiceError, error_response
 from service.http.auth import check_access, key_from
+from service.sessions.message_budget import MessageBudget, close_flooded
+from service.sessions.protocol import Session
 from service.state import ServiceState
 from service.streaming.connection import Connection
-from service.streaming.message_budget import MessageBudget, close_flooded
-from service.streaming.protocol import Session
 from service.style_book import Caller
 
 log = logging.getLogger(__name__)

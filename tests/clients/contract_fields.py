@@ -2,7 +2,7 @@
 
 The contract's fields come from the server itself: the JSON request bodies of ``app.openapi()`` (built from
 ``service/app.py``) and the JSON schema of the stream's client messages (``service.schemas.CLIENT_MESSAGE``, the
-pydantic models ``service/streaming/protocol.py`` reads), each nested object (a ``Motion``'s ``BvhMotion`` and
+pydantic models ``service/sessions/protocol.py`` reads), each nested object (a ``Motion``'s ``BvhMotion`` and
 ``PoseMotion``) as a shape of its own.
 
 A client's keys are read from the functions that build each body: in Python the string constants of those

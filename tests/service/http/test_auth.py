@@ -10,7 +10,7 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from service.app import create_app
-from service.http.ratelimit import RateLimiter
+from service.ratelimit import RateLimiter
 from service.settings import Settings
 from tests.service.server import Server
 

@@ -13,8 +13,8 @@ import pytest
 
 from service.http.header_cap import BodyMeter, HeadMeter, body_meter
 from service.http.log_redaction import REDACTED, redact, redact_keys
-from service.http.ratelimit import RateLimiter, TokenBucket
 from service.http.ws_read_budget import SLICE_BYTES, feed_within_queue
+from service.ratelimit import RateLimiter, TokenBucket
 
 HEAD = b"POST /v1/transition HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
 CHUNKED = b"5\r\nhello\r\n3;name=value\r\nabc\r\n10\r\n" + b"x" * 16 + b"\r\n0\r\nX-Sum: 1\r\nX-Other: 2\r\n\r\n"

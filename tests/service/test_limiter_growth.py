@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from service.http.ratelimit import RateLimiter
+from service.ratelimit import RateLimiter
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow  # 20,000 failed logins from new addresses

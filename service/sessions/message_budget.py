@@ -23,7 +23,7 @@ import asyncio
 from typing import Any
 
 from service.errors import ServiceError
-from service.http.ratelimit import TokenBucket, retry_after_header
+from service.ratelimit import TokenBucket, retry_after_header
 from service.settings import Settings
 from service.state import ServiceState
 from service.streaming.connection import CLOSE_POLICY, Connection
