@@ -9,12 +9,15 @@
 
 Every command takes ``--url`` (default http://127.0.0.1:8000, or $RSMT_URL) and ``--api-key``
 (or $RSMT_API_KEY). Results print as JSON lines on stdout; errors print the server's code and
-message on stderr and exit with 1.
+message on stderr and exit with 1. ``transition`` and ``stream`` also say on stderr whether the target was within
+reach at the style's capture speed (their JSON carries the notice as ``reach``); ``stream`` ends with "arrived" or
+"stopped short ... cm short".
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -161,6 +164,31 @@ def _print(obj: Any) -> None:
     print(json.dumps(obj, separators=(", ", ": ")), flush=True)
 
 
+def _reach_fields(reach: Any) -> dict[str, Any] | None:
+    """The reach notice (``rsmt_client.Reach``) as the JSON summary carries it (None: the model said nothing)."""
+    return None if reach is None else dataclasses.asdict(reach)
+
+
+def _reach_line(reach: Any) -> str:
+    """What the reach notice says, for stderr: within reach or not, the distance, what is reachable, the frames."""
+    if reach is None:
+        return "reach: not said (the model has no gait limits)"
+    said = "within reach" if reach.feasible else "out of reach"
+    return (f"reach: {said}: {reach.distance_cm:.1f} cm away, {reach.reachable_cm:.1f} cm reachable in "
+            f"{reach.frames} frames at the style's top speed {reach.max_speed_cm_s:.1f} cm/s "
+            f"({reach.needed_frames} frames needed)")
+
+
+def _end_line(reason: str | None, reach: Any) -> str:
+    """How a streamed character ended: arrived, stopped short (its last target out of reach) or cancelled."""
+    if reason != "arrived":
+        return f"ended: {reason}"
+    if reach is not None and not reach.feasible:
+        return (f"stopped short: {reach.short_cm:.1f} cm short of the target ({reach.distance_cm:.1f} cm away, "
+                f"{reach.reachable_cm:.1f} cm reachable in {reach.frames} frames; ask for {reach.needed_frames})")
+    return "arrived"
+
+
 def _guard(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
     """``fn`` with the service's errors printed (code and message) and exit status 1."""
 
@@ -220,7 +248,9 @@ def _transition(args: argparse.Namespace) -> int:
         poses = c.transition(context, target, args.frames, seed=args.seed, deterministic=args.deterministic,
                              exact_arrival=args.exact_arrival, **_style_choice(args.style))
         summary: dict[str, Any] = {"frames": poses.num_frames, "fps": poses.fps, "style_id": poses.style_id,
-                                   "model": poses.model, "timing_ms": poses.timing_ms}
+                                   "model": poses.model, "timing_ms": poses.timing_ms,
+                                   "reach": _reach_fields(poses.reach)}
+        print(_reach_line(poses.reach), file=sys.stderr, flush=True)
         if args.out:
             poses.save_bvh(args.out, c.model())
             summary["out"] = str(args.out)
@@ -252,12 +282,16 @@ def _stream(args: argparse.Namespace) -> int:
         character = s.start(context, target, args.frames, seed=args.seed, deterministic=args.deterministic,
                             pace=args.pace, exact_arrival=args.exact_arrival, **style)
         result = s.collect(character, timeout=args.timeout + args.frames / float(s.model["fps"]), on_frame=show)
+        reason = (result.end or {}).get("reason")
         summary: dict[str, Any] = {"type": "end", "character": character, "frames": len(result.frames),
-                                   "reason": (result.end or {}).get("reason"), "encoding": s.encoding}
+                                   "reason": reason, "encoding": s.encoding, "reach": _reach_fields(result.reach),
+                                   "stopped_short": reason == "arrived" and result.stopped_short}
         if args.out:
             result.poses(s.joint_names).save_bvh(args.out, s.model)
             summary["out"] = str(args.out)
     _print(summary)
+    print(_reach_line(result.reach), file=sys.stderr, flush=True)
+    print(_end_line(reason, result.reach), file=sys.stderr, flush=True)
     return 0
 
 
