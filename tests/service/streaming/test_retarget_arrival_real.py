@@ -34,7 +34,7 @@ from tests.service.wsclient import Ws, poses_of
 pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]
 
 SETTINGS = RetargetSettings()  # 40 frames, retargeted at frame 20, one target frame
-CONNECTIONS = 4  # cases streamed at once, each on its own connection (one connection's messages are handled in turn)
+CONNECTIONS = 12  # cases streamed at once, each on its own connection (one connection's messages are handled in turn)
 TARGET_CM = 8.0
 
 
