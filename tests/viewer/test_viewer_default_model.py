@@ -232,6 +232,10 @@ def test_six_far_clicks_keep_the_toes_down_and_say_when_out_of_reach(default_bro
     live = b.execute(f"return {V}.live()")
     assert live["outOfReach"] >= 1 and not live["reach"]["feasible"]
     assert "out of reach" in b.execute("return document.getElementById('status').textContent")
+    # The last walk, out of reach, ends "stopped short" (never "arrived").
+    b.wait_for(f"{V}.live().character === null && {V}.live().ended !== null", 60, "the last walk to end")
+    ended = b.execute(f"return [{V}.live().ended, document.getElementById('status').textContent]")
+    assert ended[0] == "stopped short" and ended[1].startswith("stopped short: ") and "arrived" not in ended[1], ended
     save(b.screenshot(), artefacts / "viewer-live-far-clicks.png")
     record = b.execute("return window.liveRecord")
     roots = np.array([f["root"] for f in record])

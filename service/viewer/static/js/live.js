@@ -39,7 +39,7 @@ export class LiveMode {
 
   freshStats() {
     return { frames: 0, arrivals: [], lateness: [], t0: null, arrived0: null, lastLateness: null, retargets: 0, styleChanges: 0,
-             reach: null, outOfReach: 0 };
+             reach: null, outOfReach: 0, ended: null };
   }
 
   async guard(fn) {
@@ -162,10 +162,31 @@ export class LiveMode {
            `(${m(reach.max_speed_cm_s)} m/s), not ${reach.frames}: it stops short, at most ${m(reach.reachable_cm)} m on`, "error");
   }
 
+  // The end of a walk: "arrived" only where its last target (the click, or the last retarget) was within reach;
+  // otherwise the root went as far as the style's capture speed allows and stopped short of the marker, by at
+  // least what the notice says (the gait does not keep to its top speed the whole way).
+  showEnd(reason) {
+    const r = this.stats.reach, m = (cm) => (cm / 100).toFixed(2);
+    if (reason !== "arrived") {
+      this.stats.ended = reason;
+      status(reason, "ok");
+    } else if (r && !r.feasible) {
+      const h = this.history, f = h.frames - 1, p = this.dest ? this.dest.point : null;
+      const left = p ? Math.hypot(p[0] - h.roots[f * 3], p[2] - h.roots[f * 3 + 2]) : r.distance_cm - r.reachable_cm;
+      this.stats.ended = "stopped short";
+      status(`stopped short: ${m(left)} m from the marker, out of reach (${m(r.distance_cm)} m away; this style's top ` +
+             `speed covers at most ${m(r.reachable_cm)} m in ${r.frames} frames); click the ground to walk again`, "error");
+    } else {
+      this.stats.ended = "arrived";
+      status("arrived: click the ground to walk again", "ok");
+    }
+  }
+
   onMessage(msg) {
     if (msg.type === "started" && msg.character === this.character) {
       this.slot = msg.slot;
       this.stats.t0 = null; // the server's t restarts with every character
+      this.stats.ended = null;
       this.els.stop.disabled = false;
       this.showReach(msg.reach);
     } else if (msg.type === "retargeted" && msg.character === this.character) {
@@ -173,7 +194,7 @@ export class LiveMode {
     } else if (msg.type === "end" && msg.character === this.character) {
       this.character = null;
       this.els.stop.disabled = true;
-      status(msg.reason === "arrived" ? "arrived: click the ground to walk again" : "cancelled", "ok");
+      this.showEnd(msg.reason);
     } else if (msg.type === "style_changed") {
       this.stats.styleChanges += 1;
       status(`style switched from frame ${msg.from_seq}`, "ok");
@@ -207,7 +228,7 @@ export class LiveMode {
       connected: !!(this.stream && this.stream.open), character: this.character, frames: s.frames, seq: this.seq,
       remaining: this.remaining ?? null, fps: s.arrivals.length, latenessMs: s.lastLateness,
       latenessP50Ms: sorted.length ? sorted[Math.floor(sorted.length / 2)] : null, rttMs: this.stream ? this.stream.rttMs : null,
-      retargets: s.retargets, styleChanges: s.styleChanges, reach: s.reach, outOfReach: s.outOfReach,
+      retargets: s.retargets, styleChanges: s.styleChanges, reach: s.reach, outOfReach: s.outOfReach, ended: s.ended,
     };
   }
 
