@@ -23,7 +23,7 @@ from service.routes import docs, health, metrics, models, stream, styles, transi
 from service.settings import Settings, get_settings
 from service.state import ServiceState
 from service.streaming.connection import RawSendMiddleware
-from service.style_store.lane import StoreLane
+from service.styles import StoreLane
 from service.viewer.page import mount_page
 
 DESCRIPTION = """Real-time stylized motion transitions (RSMT, SIGGRAPH 2023).

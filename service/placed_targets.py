@@ -11,11 +11,12 @@ from __future__ import annotations
 from typing import Any, TypeVar
 
 from model.inference.placed_target import Placement, placed_target
-from service.engine_jobs import Prepared, Registered, prepare_character, run_transition
+from service.caller import Caller
+from service.engine_jobs import Prepared, prepare_character, run_transition
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
 from service.schemas import PoseMotion, StartMessage, TransitionRequest
-from service.style_book import Caller
+from service.styles import Registered
 from service.work_queue import Continue
 
 Request = TypeVar("Request", TransitionRequest, StartMessage)

@@ -23,15 +23,14 @@ from model.export.backends import with_backend
 from model.inference.bundle import Bundle, BundleError
 from model.inference.engine import Engine
 from model.inference.errors import EngineError
-from service.builtin_styles import builtin_list
+from service.caller import ANONYMOUS
 from service.errors import ServiceError
 from service.metrics import Metrics
 from service.motion import MotionLimits
 from service.settings import Settings
 from service.streaming.scheduler import Scheduler
 from service.streaming.step_shares import StepShares
-from service.style_book import ANONYMOUS
-from service.style_store import StyleStore, style_store_factory
+from service.styles import StyleStore, builtin_list, style_store_factory
 from service.work_queue import Continue, WorkQueue
 
 log = logging.getLogger(__name__)
@@ -60,7 +59,8 @@ def find_bundles(path: Path) -> list[Path]:
 
 @dataclass(eq=False)
 class LoadedModel:
-    """One served model: its engine, threads, scheduler and effective limits."""
+    """One served model: its engine, threads, scheduler, payload limits and style store (as the style functions
+    see it, it is a :class:`service.styles.StyleHost`)."""
 
     name: str
     path: Path
@@ -70,9 +70,8 @@ class LoadedModel:
     setup: ThreadPoolExecutor  # stream setup: its own lane, never behind HTTP work
     queue: WorkQueue  # HTTP work waits here for ``work``
     setup_queue: WorkQueue  # stream setup waits here for ``setup`` (no bound: each connection sends one at a time)
-    max_transition: int
     limits: MotionLimits
-    book: StyleStore  # the styles registered through this model, by owner (service.style_store)
+    book: StyleStore  # the styles registered through this model, by owner (service.styles.store)
     scheduler: Scheduler | None = None
     warmup: dict[str, Any] = field(default_factory=dict)
 
@@ -86,7 +85,7 @@ class LoadedModel:
             "version": engine.version,
             "fps": c.fps,
             "context_frames": c.context,
-            "max_transition_frames": self.max_transition,
+            "max_transition_frames": engine.max_frames,
             "target_velocity_flag": c.target_velocity_flag,
             "style_clip_frames": {"min": c.style_frames_min, "max": c.style_frames_max},
             "skeleton": {
@@ -112,11 +111,6 @@ class LoadedModel:
         """Run ``fn(*args)`` for a stream's message of ``owner`` on this model's stream-setup threads, in turn
         with the other keys' (``shutting_down`` once closed)."""
         return await self.setup_queue.run(fn, *args, owner=owner)
-
-    def check_frames(self, frames: int) -> None:
-        if frames > self.max_transition:
-            raise ServiceError("too_many_frames", f"frames must be between 1 and {self.max_transition} for model "
-                                                  f"{self.name!r}; got {frames}")
 
 
 class Registry:
@@ -196,7 +190,8 @@ def load_registry(settings: Settings) -> Registry:
         try:
             engine = Engine(bundle, threads=settings.threads or None, cache_entries=settings.style_cache_entries,
                             cache_bytes=settings.style_cache_bytes, overrides=settings.overrides(),
-                            compiled=not settings.eager, source=settings.source)
+                            compiled=not settings.eager, source=settings.source,
+                            max_frames=settings.max_transition_frames)  # the engine checks frames
         except EngineError as exc:
             raise NoModelError(f"cannot serve {path} with RSMT_SOURCE={settings.source}: {exc}") from exc
         engine = with_backend(engine, settings.backend)
@@ -204,13 +199,11 @@ def load_registry(settings: Settings) -> Registry:
         if name in names:
             raise NoModelError(f"two bundles are named {name!r}; rename one directory")
         names.add(name)
-        cap = settings.max_transition_frames
-        max_transition = min(engine.max_frames, cap) if cap else engine.max_frames
         limits = MotionLimits(settings.max_clip_frames, settings.quaternion_tolerance, settings.max_abs_position)
         work = _threads(settings.request_threads, f"work-{name}", settings.threads)
         setup = _threads(settings.request_threads, f"setup-{name}", settings.threads)
         models.append(LoadedModel(
-            name=name, path=path, engine=engine, max_transition=max_transition, limits=limits, work=work,
+            name=name, path=path, engine=engine, limits=limits, work=work,
             queue=WorkQueue(work, settings.request_threads, settings.queue_limit, name=name),
             setup=setup, setup_queue=WorkQueue(setup, settings.request_threads, None, name=name),
             step=_threads(1, f"step-{name}", settings.threads),

@@ -13,6 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, Stri
 # Hard ceilings for any model; the configured limits (service.settings) are usually lower.
 MAX_FRAMES_ANY = 100_000
 MAX_JOINTS_ANY = 1_000
+# A built-in style's id is this prefix and its name (docs/api-contract.md); the styles package serves them, error
+# hints below it name them.
+BUILTIN_PREFIX = "builtin:"
 # The largest integer a JSON number holds exactly in JavaScript (Number.MAX_SAFE_INTEGER).
 SEED_MAX = 2**53 - 1
 
@@ -20,7 +23,10 @@ SEED_MAX = 2**53 - 1
 # bool is not an int), rather than read as 30, 30, 1 and 0.5.
 Vec3 = Annotated[list[StrictFloat], Field(min_length=3, max_length=3)]
 Quat = Annotated[list[StrictFloat], Field(min_length=4, max_length=4, description="x, y, z, w")]
-FrameCount = Annotated[StrictInt, Field(ge=1, le=MAX_FRAMES_ANY)]
+# A transition's frames: a JSON integer here; its range is decided in one place, the engine's check
+# (Engine.check_frames: 1 to the model's longest, RSMT_MAX_TRANSITION_FRAMES capping it), whose error names the model
+# and the range. The schema only tells clients the lower bound (``minimum`` in the OpenAPI contract) and checks nothing.
+FrameCount = Annotated[StrictInt, Field(json_schema_extra={"minimum": 1})]
 Seed = Annotated[StrictInt, Field(ge=0, le=SEED_MAX, description="sampling seed, at most 2^53 - 1 (default: random)")]
 CharacterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
 StyleId = Annotated[str, Field(min_length=1, max_length=128)]

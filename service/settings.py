@@ -95,7 +95,7 @@ class Settings(_DeclaredSettings):
     style_store: str = Field(
         default="memory", pattern=r"^(memory|rediss?://\S+|unix://\S+)$",
         description="where registered styles live: 'memory' (this process only, lost on restart) or a Redis URL "
-        "redis://HOST:PORT/DB shared by every replica (service/style_store)")
+        "redis://HOST:PORT/DB shared by every replica (service/styles/store)")
     style_store_ttl_s: int = Field(
         default=0, ge=0, description="with Redis: a registered style is forgotten this many seconds after it was last "
         "registered or used (0: never; the per-key cap still applies)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from service.style_ids import PREFIX
+from service.schemas import BUILTIN_PREFIX as PREFIX
 
 # pydantic names each branch of the Motion union after its class in an error's location.
 MOTION_BRANCHES = {"BvhMotion": "bvh", "PoseMotion": "root_positions"}

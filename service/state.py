@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from service.metrics import Metrics
 from service.ratelimit import RateLimiter
 from service.settings import Settings
-from service.style_store.lane import StoreLane
+from service.styles import StoreLane
 
 if TYPE_CHECKING:
     from service.registry import Registry

@@ -58,11 +58,11 @@ def _warm_requests(model: LoadedModel) -> tuple[dict[str, float], Character]:
     context = rest_clip(engine, c.context)
     target = rest_clip(engine, 2)
     started = time.perf_counter()
-    ch = engine.prepare(context, target, min(10, model.max_transition), style, deterministic=True)
-    engine.prepare(context, target, min(10, model.max_transition), style, seed=1)
+    ch = engine.prepare(context, target, min(10, engine.max_frames), style, deterministic=True)
+    engine.prepare(context, target, min(10, engine.max_frames), style, seed=1)
     out["prepare_ms"] = (time.perf_counter() - started) * 1e3 / 2
     started = time.perf_counter()
-    rot, root = engine.generate([engine.prepare(context, target, min(10, model.max_transition), style, seed=2)])[0]
+    rot, root = engine.generate([engine.prepare(context, target, min(10, engine.max_frames), style, seed=2)])[0]
     dumps({"frames": frames_json(rot, root)})
     frames_bvh(rot, root, engine.skeleton, c.fps)
     out["generate_ms"] = (time.perf_counter() - started) * 1e3
@@ -108,7 +108,7 @@ def _warm_start(model: LoadedModel, arrived: threading.Barrier) -> tuple[float, 
     c = engine.config
     started = time.perf_counter()
     style, _ = engine.encode_style(rest_clip(engine, c.style_frames_min), "warm-up")
-    engine.prepare(rest_clip(engine, c.context), rest_clip(engine, 2), min(10, model.max_transition), style, seed=3)
+    engine.prepare(rest_clip(engine, c.context), rest_clip(engine, 2), min(10, engine.max_frames), style, seed=3)
     return (time.perf_counter() - started) * 1e3, style.style_id
 
 

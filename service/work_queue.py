@@ -35,10 +35,10 @@ from typing import Any, Generic, TypeVar
 
 from starlette.types import Receive
 
+from service.caller import ANONYMOUS
 from service.errors import ClientGone, ServiceError
 from service.key_turns import KeyTurns
 from service.metrics import Metrics
-from service.style_book import ANONYMOUS
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -103,7 +103,7 @@ class WorkQueue:
 
     async def run(self, fn: Callable[..., T | Continue[T]], *args: Any, owner: str = ANONYMOUS,
                   gone: Callable[[], Awaitable[None]] | None = None) -> T:
-        """Run ``fn(*args)`` on a thread once ``owner`` (the API key's owner digest, :class:`service.style_book.Caller`)
+        """Run ``fn(*args)`` on a thread once ``owner`` (the API key's owner digest, :class:`service.caller.Caller`)
         has its turn, and the slices it returns (:class:`Continue`) on its next turns; ``gone`` (awaitable)
         completes when the caller's client disconnects, in which case a job not yet started raises
         :class:`ClientGone`.

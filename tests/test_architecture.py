@@ -192,3 +192,12 @@ def test_service_rooms_have_no_cycles():
             found.append(" -> ".join(chain) + ": " + "; ".join(
                 f"{a} -> {b} ({', '.join(sorted(arrows[(a, b)]))})" for a, b in zip(chain, chain[1:])))
     assert not found, "service/ rooms on an import cycle (move the code to the floor it belongs on):\n" + "\n".join(found)
+
+
+def test_styles_are_reached_through_their_face():
+    """Style handling is one subpackage; the rest of the code imports what ``service/styles/__init__.py`` names,
+    never a module inside it (which can then move without touching its users)."""
+    assert "service.styles.jobs" in MODULES and "service.styles" in GRAPH["service.routes.styles"]
+    inside = [f"{name} -> {dep}" for name, deps in sorted(GRAPH.items()) if not name.startswith("service.styles")
+              for dep in sorted(deps) if dep.startswith("service.styles.")]
+    assert not inside, f"import these from service.styles (add them to its __init__ if missing): {'; '.join(inside)}"

@@ -3,7 +3,7 @@
 Keys are off unless ``RSMT_API_KEYS`` (or ``RSMT_ADMIN_API_KEYS``) lists some. Comparison is constant-time.
 :class:`ApiKeyMiddleware` refuses a request without a valid key before its body is read, rate-limiting such
 failures per client address; the route dependency checks the key again, applies the per-key rate limit and
-says which :class:`~service.style_book.Caller` the request acts as.
+says which :class:`~service.caller.Caller` the request acts as.
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBea
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from service.caller import Caller
 from service.errors import ServiceError, error_response
 from service.http.addresses import address_key
 from service.ratelimit import retry_after_header
 from service.state import ServiceState
-from service.style_book import Caller
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="an API key (when keys are on)")
 _bearer = HTTPBearer(auto_error=False, description="the same API key as a bearer token")

@@ -35,10 +35,10 @@ from starlette.datastructures import Headers
 from starlette.routing import compile_path, get_route_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.caller import ANONYMOUS, Caller
 from service.errors import ServiceError, error_response
 from service.http.auth import key_from
 from service.http.request_metrics import ROUTE_TEMPLATE
-from service.style_book import ANONYMOUS, Caller
 
 if TYPE_CHECKING:
     from service.registry import Registry

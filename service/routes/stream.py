@@ -8,13 +8,13 @@ import logging
 
 from fastapi import APIRouter, WebSocket
 
+from service.caller import Caller
 from service.errors import ServiceError, error_response
 from service.http.auth import check_access, key_from
 from service.sessions.message_budget import MessageBudget, close_flooded
 from service.sessions.protocol import Session
 from service.state import ServiceState
 from service.streaming.connection import Connection
-from service.style_book import Caller
 
 log = logging.getLogger(__name__)
 router = APIRouter()

@@ -1,6 +1,6 @@
 """Style clips: register (encode once, cache by content hash), list, get, delete; each API key sees only the
-styles it registered (:mod:`service.style_book`), an admin key everyone's. Every key also sees the models'
-built-in styles (``builtin:NAME``, :mod:`service.builtin_styles`): listed and fetched here, never deleted."""
+styles it registered (:mod:`service.styles.book`), an admin key everyone's. Every key also sees the models'
+built-in styles (``builtin:NAME``, :mod:`service.styles.builtin`): listed and fetched here, never deleted."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 
-from service.builtin_styles import builtin_list, is_builtin
+from service.caller import Caller
 from service.deps import RegistryDep
-from service.engine_jobs import encode_registration, style_info
 from service.errors import ServiceError
 from service.http.auth import CallerDep, require_access
 from service.registry import LoadedModel, Registry
@@ -22,10 +21,16 @@ from service.schemas import (
     StyleInfo,
     StyleList,
 )
-from service.style_book import Caller
-from service.style_hints import builtin_suggestion
-from service.style_lookups import file_style, on_lane
-from service.style_registration import encode_clips_registration
+from service.styles import (
+    builtin_list,
+    builtin_suggestion,
+    encode_clips_registration,
+    encode_registration,
+    file_style,
+    is_builtin,
+    on_lane,
+    style_info,
+)
 from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1/styles", tags=["styles"], dependencies=[Depends(require_access)],
@@ -49,7 +54,7 @@ async def create_style(body: StyleCreate, request: Request, registry: RegistryDe
     else:
         style, clips = await model.run(encode_clips_registration, model, body.clips, body.name, owner=caller.owner,
                                         gone=gone)
-    had = await file_style(request.app.state.service, model, caller.owner, style, clips)  # the store's lane
+    had = await file_style(request.app.state.service.store_lane, model, caller.owner, style, clips)  # the store's lane
     return style_info(model, style, had)
 
 
@@ -77,7 +82,7 @@ async def list_styles(request: Request, registry: RegistryDep, caller: CallerDep
                       model: Annotated[ModelName | None, Query()] = None) -> dict:
     models = [registry.get(model)] if model is not None else sorted(registry, key=lambda m: m.name)
     # On the store's lane: with RSMT_STYLE_STORE=redis each store call is a round trip (or a timeout).
-    listed = await on_lane(request.app.state.service, lambda: [(m, m.book.styles_of(caller)) for m in models])
+    listed = await on_lane(request.app.state.service.store_lane, lambda: [(m, m.book.styles_of(caller)) for m in models])
     return {"styles": [info for m, styles in listed
                        for info in [*_builtins(m), *(style_info(m, s, True) for s in styles)]]}
 
@@ -85,7 +90,7 @@ async def list_styles(request: Request, registry: RegistryDep, caller: CallerDep
 @router.get("/{style_id}", response_model=StyleInfo, responses={404: ERROR_RESPONSES[404]},
             summary="one of your registered styles, or a built-in one")
 async def get_style(style_id: StyleId, request: Request, registry: RegistryDep, caller: CallerDep) -> dict:
-    return await on_lane(request.app.state.service, _find, registry, caller, style_id)
+    return await on_lane(request.app.state.service.store_lane, _find, registry, caller, style_id)
 
 
 @router.delete("/{style_id}", status_code=204, response_class=Response,
@@ -100,7 +105,7 @@ async def delete_style(style_id: StyleId, request: Request, registry: RegistryDe
                                                      "its bundle): it cannot be deleted; DELETE /v1/styles/ID forgets "
                                                      "styles you registered")
         raise ServiceError("unknown_style", f"no model has the built-in style {style_id!r} (GET /v1/styles lists them)")
-    deleted = await on_lane(request.app.state.service,
+    deleted = await on_lane(request.app.state.service.store_lane,
                             lambda: [m.name for m in registry if m.book.delete(caller, style_id)])
     if not deleted:
         raise ServiceError("unknown_style", f"no style {style_id!r} under this API key")

@@ -16,7 +16,7 @@ from service.schemas import (
     TransitionJson,
     TransitionRequest,
 )
-from service.style_lookups import registered_style
+from service.styles import registered_style
 from service.work_queue import disconnect_of
 
 router = APIRouter(prefix="/v1", tags=["transitions"], dependencies=[Depends(require_access)],
@@ -34,7 +34,7 @@ async def transition(body: TransitionRequest, request: Request, registry: Regist
                      caller: CallerDep) -> Response:
     arrived = time.perf_counter()
     model = registry.get(body.model)
-    registered = await registered_style(state, model, caller, body.style_id)  # on the store's lane, not the work thread
+    registered = await registered_style(state.store_lane, model, caller, body.style_id)  # the store's lane, not the work thread
     result = await model.run(run_transition_at, model, caller, body, arrived, registered, owner=caller.owner,
                              gone=disconnect_of(request.receive))
     result["timing_ms"]["total"] = round((time.perf_counter() - arrived) * 1e3, 3)

@@ -16,7 +16,8 @@ from typing import Any
 import orjson
 from pydantic import ValidationError
 
-from service.engine_jobs import lookup_style, reach_body, resolve_style
+from service.caller import Caller
+from service.engine_jobs import check_frames, reach_body
 from service.errors import ServiceError, describe_validation
 from service.motion import motion_to_clip
 from service.placed_targets import prepare_character_at
@@ -35,8 +36,7 @@ from service.state import ServiceState
 from service.streaming.connection import CLOSE_TOO_BIG, Connection
 from service.streaming.frames import floats_per_frame, frame_layout
 from service.streaming.stream import Stream
-from service.style_book import Caller
-from service.style_lookups import on_lane, registered_style
+from service.styles import lookup_style, on_lane, registered_style, resolve_style
 
 log = logging.getLogger(__name__)
 PROTOCOL = 1
@@ -74,7 +74,7 @@ class Session:
                 "send_queue_frames": self.settings.send_queue_frames,
                 "idle_timeout_s": self.settings.idle_timeout_s,
                 "max_message_bytes": self.settings.ws_max_message_bytes,
-                "max_transition_frames": model.max_transition,
+                "max_transition_frames": model.engine.max_frames,
             },
         }
 
@@ -190,14 +190,14 @@ class Session:
     async def start(self, msg: StartMessage) -> None:
         conn = self.conn
         model = self.registry.get(msg.model)
-        model.check_frames(msg.frames)
+        check_frames(model, msg.frames)
         cid = msg.character or conn.next_character_id()
         self._check_room(cid)
         conn.reserved.add(cid)
         self.state.reserved_characters += 1
         began = time.perf_counter()
         try:
-            registered = await registered_style(self.state, model, self.caller, msg.style_id)  # the store's lane
+            registered = await registered_style(self.state.store_lane, model, self.caller, msg.style_id)  # the store's lane
             character, style, seed = await model.run_stream(prepare_character_at, model, self.caller, msg, cid,
                                                               registered, owner=self.caller.owner)
             self.state.metrics.prepare_seconds.labels(model.name).observe(time.perf_counter() - began)
@@ -247,7 +247,7 @@ class Session:
     async def retarget(self, msg: RetargetMessage) -> None:
         stream, model = self._live(msg.character)
         if msg.frames is not None:
-            model.check_frames(msg.frames)
+            check_frames(model, msg.frames)
         target = None
         if msg.target is not None:
             target = await model.run_stream(motion_to_clip, msg.target, model.engine, model.limits, "target",
@@ -260,7 +260,7 @@ class Session:
     async def style(self, msg: StyleMessage) -> None:
         stream, model = self._live(msg.character)
         if msg.style_id is not None:
-            style = await on_lane(self.state, lookup_style, model, self.caller, msg.style_id)  # may reach Redis
+            style = await on_lane(self.state.store_lane, lookup_style, model, self.caller, msg.style_id)  # may reach Redis
         else:
             style = await model.run_stream(resolve_style, model, self.caller, None, msg.style, owner=self.caller.owner)
         assert stream.scheduler is not None

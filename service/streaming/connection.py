@@ -45,7 +45,7 @@ class Connection:
         self.streams: dict[str, Stream] = {}  # live characters by id
         self.reserved: set[str] = set()  # ids whose start is being prepared
         self.busy = 0  # client messages being handled
-        self.owner = ""  # the API key's owner digest (service.style_book.Caller): the per-key character share
+        self.owner = ""  # the API key's owner digest (service.caller.Caller): the per-key character share
         self.closing = False
         self.close_code: int | None = None
         self.closed = asyncio.Event()

@@ -31,10 +31,11 @@ from model.data.synthetic import SYNTHETIC_STYLES, synthetic_skeleton, synthetic
 from model.inference.errors import SkeletonMismatch
 from model.motion.clip import Clip
 from model.motion.skeleton import Skeleton
-from service.builtin_styles import PREFIX, builtin_style
 from service.errors import ServiceError
 from service.motion import motion_to_clip
 from service.registry import LoadedModel
+from service.schemas import BUILTIN_PREFIX as PREFIX
+from service.styles import builtin_style
 from service.viewer.model_takes import SHAPES, TAKE_S, cached_takes, generate_takes
 from service.viewer.schemas import ClipRequest
 

@@ -73,7 +73,7 @@ def test_style_registered_through_the_lb_is_usable_on_every_replica(topology):
     assert sid in [s["style_id"] for s in listed]
     other = httpx.get(f"{topology.replicas[2].url}/v1/styles/{sid}",
                       headers={"X-API-Key": "not-the-key-but-long-enough"}, timeout=10)
-    assert other.status_code == 401  # and the store is still per key (tests/service/test_style_store.py)
+    assert other.status_code == 401  # and the store is still per key (tests/service/styles/test_style_store.py)
 
 
 def test_styles_survive_a_restart_of_every_replica(topology):

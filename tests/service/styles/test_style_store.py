@@ -1,4 +1,4 @@
-"""The style stores (service/style_store): the clip codec, and the Redis store against a real redis-server:
+"""The style stores (service/styles/store): the clip codec, and the Redis store against a real redis-server:
 ownership as in the memory book, the per-key cap, TTL, encoding on another replica's engine, and a Redis
 outage answered with ``style_store_unavailable`` until Redis is back (no restart of the service side)."""
 
@@ -15,13 +15,13 @@ from model.data.synthetic import synthetic_walk
 from model.inference.bundle import Bundle
 from model.inference.engine import Engine
 from model.inference.style_sets import encode_style_set
+from service.caller import Caller
 from service.errors import ServiceError
 from service.settings import Settings
-from service.style_book import Caller
-from service.style_store import style_store_factory
-from service.style_store.codec import CodecError, StoredClip, decode_clip, encode_clip
-from service.style_store.memory import MemoryStyleStore
-from service.style_store.redis_store import RedisStyleStore, connect, safe_address
+from service.styles.store import style_store_factory
+from service.styles.store.codec import CodecError, StoredClip, decode_clip, encode_clip
+from service.styles.store.memory import MemoryStyleStore
+from service.styles.store.redis_store import RedisStyleStore, connect, safe_address
 from tests.service.processes import RedisProcess
 
 A, B, ADMIN = Caller("a"), Caller("b"), Caller("admin", admin=True)

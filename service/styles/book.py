@@ -14,30 +14,14 @@ from one key evicts that key's styles before anyone else's.
 
 from __future__ import annotations
 
-import hashlib
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # torch-free at import time: the auth middleware imports Caller
+from service.caller import Caller
+
+if TYPE_CHECKING:
     from model.inference.engine import EncodedStyle
-
-ANONYMOUS = ""  # the one owner when API keys are off
-
-
-@dataclass(frozen=True)
-class Caller:
-    """The owner a request acts as (a digest of its API key, never the key) and whether it is an admin."""
-
-    owner: str = ANONYMOUS
-    admin: bool = False
-
-    @classmethod
-    def from_key(cls, key: str | None, admin: bool) -> Caller:
-        if key is None:
-            return cls(ANONYMOUS, admin)
-        return cls(hashlib.sha256(key.encode()).hexdigest()[:32], admin)
 
 
 class StyleBook:

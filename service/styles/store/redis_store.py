@@ -2,7 +2,7 @@
 
 Per model (name and version), under ``rsmt:styles:<model>:<version>:``:
 
-* ``clip:<id>``: the registered clip (:mod:`service.style_store.codec`), content-addressed: one copy
+* ``clip:<id>``: the registered clip (:mod:`service.styles.store.codec`), content-addressed: one copy
   whichever keys registered it; ``meta:<id>``: its id and length as JSON (for listings);
 * ``names:<owner>``: the name that owner gave each of its ids (content is shared below the keys, names are
   not: no key sees the name another chose); the clip and its meta are written on every registration, so that
@@ -39,10 +39,10 @@ from redis.retry import Retry
 from model.inference.errors import EngineError
 from model.inference.style_sets import encode_style_set
 from model.motion.clip import Clip
+from service.caller import Caller
 from service.errors import ServiceError
-from service.style_book import Caller
-from service.style_store.base import StyleEntry, StyleMeta
-from service.style_store.codec import CodecError, StoredClip, decode_clip, encode_clip
+from service.styles.store.base import StyleEntry, StyleMeta
+from service.styles.store.codec import CodecError, StoredClip, decode_clip, encode_clip
 
 if TYPE_CHECKING:
     from model.inference.engine import EncodedStyle, Engine

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
-from service.style_book import Caller
+from service.caller import Caller
 
 if TYPE_CHECKING:
     from model.inference.engine import EncodedStyle

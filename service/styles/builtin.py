@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from model.inference.engine import EncodedStyle
 from service.errors import ServiceError
-from service.style_ids import PREFIX
+from service.schemas import BUILTIN_PREFIX as PREFIX
 
 if TYPE_CHECKING:
     from model.inference.engine import Engine

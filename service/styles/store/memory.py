@@ -1,4 +1,4 @@
-"""The default store: each model's styles in this process only (:class:`service.style_book.StyleBook`).
+"""The default store: each model's styles in this process only (:class:`service.styles.book.StyleBook`).
 
 Styles are lost on restart and each process (each replica, each ``--workers`` worker) has its own;
 the per-key cap and the whole-book entry and byte bounds are the book's.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from service.style_book import StyleBook
+from service.styles.book import StyleBook
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 
 class MemoryStyleStore(StyleBook):
-    """A :class:`StyleBook` as a :class:`service.style_store.StyleStore`: the encoded style is all it keeps."""
+    """A :class:`StyleBook` as a :class:`service.styles.store.StyleStore`: the encoded style is all it keeps."""
 
     def add(self, owner: str, style: EncodedStyle, clips: Sequence[Clip] = ()) -> bool:
         """File ``style`` under ``owner``; the clips are not needed in memory (the code is kept)."""

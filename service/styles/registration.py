@@ -17,12 +17,12 @@ from model.inference.style_sets import encode_style_set, style_set_context
 from model.motion.clip import Clip
 from service.errors import ServiceError, from_engine
 from service.motion import conform_motion, parse_motion
-from service.registry import LoadedModel
 from service.schemas import BvhMotion, PoseMotion
-from service.style_hints import style_length_hint
+from service.styles.hints import style_length_hint
+from service.styles.host import StyleHost
 
 
-def registration_clips(model: LoadedModel, motions: Sequence[BvhMotion | PoseMotion]) -> list[Clip]:
+def registration_clips(model: StyleHost, motions: Sequence[BvhMotion | PoseMotion]) -> list[Clip]:
     """The clips of a ``motions`` registration on the model's rig, each checked; errors say ``motions[i]``."""
     clips: list[Clip] = []
     first: tuple[tuple[str, ...], tuple[int, ...]] | None = None
@@ -46,10 +46,10 @@ def registration_clips(model: LoadedModel, motions: Sequence[BvhMotion | PoseMot
     return clips
 
 
-def encode_clips_registration(model: LoadedModel, motions: Sequence[BvhMotion | PoseMotion],
+def encode_clips_registration(model: StyleHost, motions: Sequence[BvhMotion | PoseMotion],
                               name: str) -> tuple[EncodedStyle, list[Clip]]:
     """A ``motions`` registration's encoded style (to file under the caller, with the caller's own name) and its
-    clips, as :func:`service.engine_jobs.encode_registration` does for one: the code is computed even when the
+    clips, as :func:`service.styles.jobs.encode_registration` does for one: the code is computed even when the
     engine has it already, so the time taken never tells that another key registered the same clips."""
     clips = registration_clips(model, motions)
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from service.builtin_styles import PREFIX
+from service.schemas import BUILTIN_PREFIX as PREFIX
 
 
 def builtin_suggestion(style_id: str, builtin_names: Iterable[str]) -> str:

@@ -1,4 +1,4 @@
-"""The per-owner style book (service/style_book.py) on real encoded styles: per-owner LRU, the whole-book
+"""The per-owner style book (service/styles/book.py) on real encoded styles: per-owner LRU, the whole-book
 entry and byte bounds evicting from the biggest owner, and what an admin caller sees."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ import pytest
 from model.data.synthetic import synthetic_walk
 from model.inference.bundle import Bundle
 from model.inference.engine import EncodedStyle, Engine
-from service.style_book import Caller, StyleBook
+from service.caller import Caller
+from service.styles.book import StyleBook
 
 A, B, ADMIN = Caller("a"), Caller("b"), Caller("admin", admin=True)
 
