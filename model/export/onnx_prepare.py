@@ -4,7 +4,8 @@ that an engine holding the graphs starts a transition from the poses it has (no 
 In: the context's last ``context`` frames (local x, y, z, w rotations ``[K, J, 4]`` and root positions ``[K, 3]``, on
 the model's rig at its fps) and the target frame (``[1, J, 4]``, ``[1, 3]``). Out, each with a batch of one: the
 context and target states in the transition's canonical frame (``begin``'s inputs), that frame (``yaw``, ``origin``:
-``output``'s) and the output steps' first memory. The target's velocity is unknown (one frame), as a game sends it.
+``output``'s) and the output steps' first memory (its caps open: inf). The target's velocity is unknown (one frame),
+as a game sends it.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class Prepare(torch.nn.Module):
         tpos, trot6 = frame.positions_to(tpos.unsqueeze(0)), quat_to_sixd(frame.rotations_to(tglob.unsqueeze(0)))
         tgt = state_from_positions(torch.cat([tpos, tpos], 1), torch.cat([trot6, trot6], 1),
                                    sk.roles.root).index((slice(None), 1))  # no frame before it: a zero velocity
-        memory = e.pipeline.frame.start(quat_normalize(crot), croot)
+        memory = {**e.pipeline.frame.start(quat_normalize(crot), croot), **e.pipeline.frame.open_columns()}
         states = (ctx.rel, ctx.vel, ctx.rot, ctx.root_xz, tgt.rel, tgt.vel, tgt.rot, tgt.root_xz, frame.yaw, frame.origin)
         return (*states, *(memory[key] for key in e.output_fn.fn.keys))
 

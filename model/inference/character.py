@@ -10,6 +10,7 @@ from typing import Any
 import torch
 
 from model.inference.output.arrival import ArrivalMemory
+from model.inference.output.steering import RETARGETED
 from model.inference.reach import Reach
 from model.inference.traced_step import CompiledStep
 from model.motion.features import CanonicalFrame
@@ -57,20 +58,45 @@ class PreparedStart:
     velocity_known: bool
 
 
-@dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
-class Character:
-    """One transition in progress. The engine's batch owns its tensors while it is live: out of a batch,
-    the character holds them itself (``row``, ``frame``, ``memory``), and before its first frame it holds
-    what its warm-up needs (``prepared``)."""
+@dataclass(frozen=True)
+class Limits:
+    """A character's caps from its style's capture (:mod:`model.motion.gait_limits`; inf: none), under the names of
+    the batch columns the output steps read them by: the most its root moves on the ground in a frame (cm;
+    :mod:`model.inference.output.speed_cap`, smoothing's root), its feet's lift off its floor (floor contact) and
+    its planted feet's rise (the foot plant), in cm."""
+
+    speed_cap: float = math.inf
+    lift_cap: float = math.inf
+    plant_cap: float = math.inf
+
+
+@dataclass(frozen=True)
+class CharacterRequest:
+    """What the caller asked of one transition: its id, style (run at ``style_strength``,
+    :mod:`model.inference.style_strength`; None: the engine's setting), its length in frames all told, and whether
+    it was retargeted mid-stream (its facing is finished by the retarget window). Frozen: a retarget or a style
+    switch makes a new one (``dataclasses.replace``) and hands it to the batch (:meth:`CharacterBatch.restate`)."""
 
     id: str
     style: EncodedStyle
-    frames_total: int
+    frames: int
+    style_strength: float | None = None
+    retargeted: bool = False
+
+
+@dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
+class Character:
+    """A handle on one transition in progress: its :class:`CharacterRequest`, its caps (:class:`Limits`, from its
+    style), the frames emitted so far, and its live part. While it is a member of a batch the batch owns that part
+    (its network row, canonical frame rows, output memory, style context and columns) and hands it back when it
+    leaves (``row``, ``frame``, ``memory``); before its first frame it holds what its warm-up needs (``prepared``).
+    The engine keeps its target (``goal``, ``arrival``) and its reach notice."""
+
+    request: CharacterRequest
+    limits: Limits = Limits()
     seq: int = 0  # frames emitted so far
     cancelled: bool = False
     slot: int = 0
-    retargeted: bool = False  # given a new target mid-stream (its facing is finished by the retarget window)
-    style_strength: float | None = None  # the strength its style runs at (model.inference.style_strength; None: the engine's)
     row: NetState | None = field(default=None, repr=False)  # its network state while out of a batch
     frame: CanonicalFrame | None = field(default=None, repr=False)  # its transition's frame, fixed when it starts
     # Exact arrival (see model.inference.output.arrival): the target pose in world space and its state.
@@ -78,24 +104,48 @@ class Character:
     # Memory of the output pipeline's frame steps while out of a batch: named rows [1, ...].
     memory: dict[str, Tensor] | None = field(default=None, repr=False)
     prepared: PreparedStart | None = field(default=None, repr=False)
-    # The most its root moves on the ground in a frame (cm; its style's capture maximum, inf: not capped), and
-    # whether its target is within that reach (model.inference.reach; None: the bundle has no gait limits).
-    speed_cap: float = math.inf
+    # Whether its target is within its reach (model.inference.reach; None: the bundle has no gait limits).
     reach: Reach | None = None
     # Its target's state in its canonical frame and whether its velocity is known, as asked (the network may aim
-    # nearer where it is out of reach: model.inference.engine.Engine._limit).
+    # nearer where it is out of reach: model.inference.engine.Engine.retarget).
     goal: tuple[PoseState, bool] | None = field(default=None, repr=False)
+
+    @property
+    def id(self) -> str:
+        return self.request.id
+
+    @property
+    def style(self) -> EncodedStyle:
+        return self.request.style
+
+    @property
+    def frames_total(self) -> int:
+        return self.request.frames
+
+    @property
+    def style_strength(self) -> float | None:
+        return self.request.style_strength
+
+    @property
+    def retargeted(self) -> bool:
+        return self.request.retargeted
 
     def replica(self, character_id: str, style: EncodedStyle | None = None) -> Character:
         """Another character in this one's place (its prepared start or its state shared, never mutated by
         a batch, which copies what it joins), e.g. for warming a batch of many up."""
-        return replace(self, id=character_id, style=self.style if style is None else style, seq=0, cancelled=False)
+        request = replace(self.request, id=character_id, style=self.style if style is None else style)
+        return replace(self, request=request, seq=0, cancelled=False)
 
     def canonical_frame(self) -> CanonicalFrame:
         """:attr:`frame`, which every prepared character has."""
         if self.frame is None:
             raise ValueError("character was not prepared by Engine.prepare")
         return self.frame
+
+    def column(self, name: str) -> float | bool:
+        """Its value in the batch column ``name`` (a step's declared input): one of its :class:`Limits`, or whether
+        it was retargeted."""
+        return self.retargeted if name == RETARGETED else float(getattr(self.limits, name))
 
     @property
     def remaining(self) -> int:

@@ -1,14 +1,22 @@
-"""A batch of live characters whose states are stacked so that one step of each weight set advances them all."""
+"""A batch of live characters whose states are stacked so that one step of each weight set advances them all.
+
+While a character is a member, the batch owns its live part: its network state, canonical frame and output memory
+rows, its style context and its columns (the per-character inputs the steps declare: its caps, whether it was
+retargeted). A retarget or a style switch hands the batch the character's new request (:meth:`CharacterBatch.restate`);
+nothing else writes the batch's rows."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Protocol
 
 import torch
 
-from model.inference.character import Character, EncodedStyle, StepOutput, WeightSet
+from model.inference.character import Character, CharacterRequest, EncodedStyle, Limits, StepOutput, WeightSet
 from model.inference.output.pipeline import OutputPipeline
+from model.inference.output.smoothing import SPEED_CAP
 from model.inference.output.speed_cap import speed_capped
+from model.inference.output.steering import RETARGETED
 from model.inference.traced_step import CompiledFrameOutput
 from model.motion.features import CanonicalFrame
 from model.nets.transition_net import NetState
@@ -17,13 +25,14 @@ Tensor = torch.Tensor
 
 
 @torch.inference_mode()
-def restyle_held(ch: Character, style: EncodedStyle, ws: WeightSet) -> None:
-    """Switch the style of a character outside a batch; ``ws``: the new style's weights. A row it holds is
-    re-encoded by them when they change (one not begun yet is encoded by :meth:`Engine.begin`)."""
-    if style.weights != ch.style.weights and ch.row is not None:
+def restate_held(ch: Character, request: CharacterRequest, limits: Limits, ws: WeightSet) -> None:
+    """Hand a character outside a batch its new request (a retarget or a style switch) and the caps of its style;
+    ``ws``: its style's weights. A row it holds is re-encoded by them when they change (one not begun yet is encoded
+    by :meth:`Engine.begin`)."""
+    if request.style.weights != ch.style.weights and ch.row is not None:
         for name, value in ws.net.reencoded(ch.row).items():
             setattr(ch.row, name, value)
-    ch.style = style
+    ch.request, ch.limits = request, limits
 
 
 class BatchEngine(Protocol):
@@ -32,11 +41,13 @@ class BatchEngine(Protocol):
     output_fn: CompiledFrameOutput
     pipeline: OutputPipeline
 
-    def begin(self, characters: list[Character]) -> NetState: ...
+    def begin(self, characters: list[Character], contexts: list[Any] | None = None) -> NetState: ...
 
     def weights(self, name: str = "") -> WeightSet: ...
 
     def context_of(self, style: EncodedStyle, strength: float | None = None) -> Any: ...
+
+    def limits_of(self, style: EncodedStyle) -> Limits: ...
 
 
 def by_weights(characters: list[Character]) -> list[tuple[str, Tensor]]:
@@ -58,20 +69,26 @@ def inverse_of(groups: list[tuple[str, Tensor]]) -> Tensor:
 class CharacterBatch:
     """Live characters whose states are stacked so one sampler step advances them all.
 
-    Stacking happens only when membership or a style changes, not every frame.
+    Characters added wait until :meth:`admit` joins them (the start of each :meth:`step`: one batched warm-up for
+    every newcomer). Style contexts and columns are restacked there too, only when membership, a style or a request
+    changed, not every frame.
     """
 
     def __init__(self, engine: BatchEngine) -> None:
         self.engine = engine
         self.members: list[Character] = []
         self._state: NetState | None = None
+        self._contexts: list[Any] = []  # each member's style context, from its request as handed in
         self._style: Any = None  # the members' stacked style contexts
         self._yaw: Tensor | None = None
         self._origin: Tensor | None = None
-        # The output pipeline's memory, a row per member (model.inference.output.pipeline.FrameSteps.keys).
+        # The output pipeline's memory, a row per member (model.inference.output.pipeline.FrameSteps.memory_keys).
         self._memory: dict[str, Tensor] | None = None
+        # The steps' columns (their declared per-character inputs, model.inference.output.pipeline), a row per member.
+        self._names = tuple(dict.fromkeys((*engine.pipeline.loop_columns, *engine.pipeline.frame.columns)))
+        self._columns: dict[str, Tensor] = {}
         self._pending: list[Character] = []
-        self._style_dirty = False
+        self._changed = False  # membership, a style or a request changed since the last restack
         # The members by weight set: (weights, their rows, their style context); with several sets, the
         # index that puts the rows stepped set after set back in member order.
         self._groups: list[tuple[WeightSet, Tensor, Any]] = []
@@ -81,35 +98,38 @@ class CharacterBatch:
         return len(self.members) + len(self._pending)
 
     def add(self, ch: Character) -> None:
+        """Queue a prepared (or detached) character; it joins at the next :meth:`admit`."""
         if ch.row is None and ch.prepared is None:
             raise ValueError("character was not prepared by Engine.prepare")
         self._pending.append(ch)
 
-    def _sync(self) -> None:
-        """Bring the stacked tensors up to date: characters waiting to join joined, the style contexts restacked
-        after a membership or style change."""
+    def admit(self) -> None:
+        """Join the characters waiting (newcomers warmed up in one batch, resumed ones with the rows they hold), and
+        restack the style contexts and columns where membership, a style or a request changed. :meth:`step` starts
+        with it; a caller that must read or change a waiting character's row before then calls it first."""
         if self._pending:
-            self._join(self._pending)
-            self._pending = []
-            self._style_dirty = True
-        if self._style_dirty and self.members:
-            self._restyle()
+            waiting, self._pending = self._pending, []
+            self._join(waiting)
+        if self._changed and self.members:
+            self._restack()
 
     def _join(self, waiting: list[Character]) -> None:
-        """Stack ``waiting`` under the members: newcomers warmed up in one batch, resumed ones with the rows they
-        hold; each hands its canonical frame and output memory to the batch."""
+        """Stack ``waiting`` under the members; each hands its row, canonical frame and output memory to the batch."""
         fresh = [c for c in waiting if c.row is None]
         resumed = [c for c in waiting if c.row is not None]
         joined = fresh + resumed
         if any(c.memory is None for c in joined):
             raise ValueError("character was not prepared by Engine.prepare")
+        contexts = [self.engine.context_of(c.style, c.style_strength) for c in joined]
         rows = [] if self._state is None else [self._state]
         if fresh:
-            rows.append(self.engine.begin(fresh))  # one batched warm-up for every newcomer
+            rows.append(self.engine.begin(fresh, contexts[:len(fresh)]))  # one batched warm-up for every newcomer
         rows += [c.row for c in resumed]  # type: ignore[misc]  # resumed ones hold a row
         self._state = type(rows[0]).stack(rows)
         self._take_frames_and_memory(joined)
         self.members.extend(joined)
+        self._contexts.extend(contexts)
+        self._changed = True
 
     def _take_frames_and_memory(self, joined: list[Character]) -> None:
         """The canonical frames and output memories of ``joined`` stacked under the members' (the characters
@@ -128,63 +148,69 @@ class CharacterBatch:
             c.row = None
             c.memory = None
 
-    def _restyle(self) -> None:
-        """The members' style contexts stacked (at each one's strength) and grouped by weight set."""
-        contexts = [self.engine.context_of(m.style, m.style_strength) for m in self.members]
-        self._style = type(contexts[0]).stack(contexts)
+    def _restack(self) -> None:
+        """The members' style contexts stacked and grouped by weight set, and their columns stacked."""
+        self._style = type(self._contexts[0]).stack(self._contexts)
         groups = by_weights(self.members)
         whole = len(groups) == 1  # the usual case: the batch's style context as it is, no copy
         self._groups = [(self.engine.weights(w), idx, self._style if whole else self._style.index(idx))
                         for w, idx in groups]
         self._inverse = inverse_of(groups) if len(groups) > 1 else None
-        self._style_dirty = False
+        self._columns = {k: torch.tensor([m.column(k) for m in self.members]) for k in self._names}
+        self._changed = False
 
     @torch.inference_mode()
-    def set_style(self, ch: Character, style: EncodedStyle) -> None:
-        """Switch a member's style from the next frame; a style on other weights re-encodes its target by them."""
-        ws = self.engine.weights(style.weights)
-        if ch in self.members and style.weights != ch.style.weights:
+    def restate(self, ch: Character, request: CharacterRequest) -> None:
+        """Hand a member (or a character waiting to join) its new request from the next frame: a retarget's or a
+        style switch's. Its style's context and caps are taken from it; a style on other weights re-encodes its
+        target by them."""
+        ws = self.engine.weights(request.style.weights)  # an unknown weight set fails before anything changes
+        limits = self.engine.limits_of(request.style)
+        if ch not in self.members:  # waiting to join or resume
+            restate_held(ch, request, limits, ws)
+            return
+        i = self.members.index(ch)
+        if request.style.weights != ch.style.weights:
             self.update_row(ch, ws.net.reencoded(self.row_of(ch)))
-            ch.style = style
-        else:  # waiting to join or resume
-            restyle_held(ch, style, ws)
-        self._style_dirty = True
+        self._contexts[i] = self.engine.context_of(request.style, request.style_strength)
+        ch.request, ch.limits = request, limits
+        self._changed = True
+
+    def set_style(self, ch: Character, style: EncodedStyle) -> None:
+        """Switch a member's style from the next frame (:meth:`restate` with its request in that style)."""
+        self.restate(ch, replace(ch.request, style=style))
 
     def stacked(self) -> tuple[NetState, Any, Tensor, Tensor, dict[str, Tensor]]:
         """The members' stacked sampler state and style context, canonical frames (``yaw [N]``, ``origin [N, 3]``)
-        and output-step memory, as the next :meth:`step` reads them (characters waiting to join joined first)."""
-        self._sync()
+        and output steps' memory with their columns, as the next :meth:`step` reads them (after :meth:`admit`)."""
+        self.admit()
         if self._state is None or self._style is None or self._yaw is None or self._origin is None \
                 or self._memory is None:
             raise ValueError("no live characters in the batch")
-        return self._state, self._style, self._yaw, self._origin, self._memory
+        return self._state, self._style, self._yaw, self._origin, self._frame_inputs(self._memory)
+
+    def _frame_inputs(self, memory: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The output steps' memory and their columns, as the frame steps read them."""
+        return {**memory, **{k: self._columns[k] for k in self.engine.output_fn.fn.columns}}
+
+    def _index(self, ch: Character) -> int:
+        if ch not in self.members:
+            raise ValueError(f"character {ch.id!r} is not a member of this batch (one waiting joins at admit())")
+        return self.members.index(ch)
 
     def row_of(self, ch: Character) -> NetState:
-        self._sync()
-        i = self.members.index(ch)
+        """A member's network state ``[1]`` (a copy)."""
+        i = self._index(ch)
         assert self._state is not None
         return self._state.index(slice(i, i + 1))
 
     @torch.inference_mode()
     def update_row(self, ch: Character, updates: dict[str, Tensor]) -> None:
-        self._sync()
-        i = self.members.index(ch)
+        """Set fields of a member's network state (``updates``: name -> ``[1, ...]``)."""
+        i = self._index(ch)
         assert self._state is not None
         for k, v in updates.items():
             getattr(self._state, k)[i : i + 1] = v
-
-    @torch.inference_mode()
-    def set_memory(self, ch: Character, key: str, value: Tensor) -> None:
-        """Set a row ``key`` of a character's output memory (``value [1, ...]``), in the batch or on the character
-        (a key the output steps do not keep is left alone)."""
-        self._sync()
-        if ch in self.members:
-            assert self._memory is not None
-            if key in self._memory:
-                i = self.members.index(ch)
-                self._memory[key][i : i + 1] = value
-        elif ch.memory is not None and key in ch.memory:
-            ch.memory[key] = value
 
     def remove(self, ch: Character) -> None:
         if ch in self._pending:
@@ -201,8 +227,7 @@ class CharacterBatch:
         if ch in self._pending:
             self._pending.remove(ch)
             return
-        self._sync()
-        i = self.members.index(ch)
+        i = self._index(ch)
         assert self._state is not None and self._yaw is not None and self._origin is not None
         row = torch.tensor([i])
         ch.row = self._state.index(row)  # a copy: later steps never write into it
@@ -223,28 +248,30 @@ class CharacterBatch:
             return
         if not keep:
             self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
-            self._memory = None
+            self._memory, self._contexts, self._columns = None, [], {}
             return
-        idx = torch.tensor([self.members.index(k) for k in keep])
+        rows = [self.members.index(k) for k in keep]
+        idx = torch.tensor(rows)
         assert self._state is not None and self._yaw is not None and self._origin is not None
         self._state = self._state.index(idx)
         self._yaw, self._origin = self._yaw[idx], self._origin[idx]
         assert self._memory is not None
         self._memory = {k: v[idx] for k, v in self._memory.items()}
+        self._contexts = [self._contexts[i] for i in rows]
         self.members = keep
-        self._style_dirty = True
+        self._changed = True
 
     @torch.inference_mode()
     def step(self) -> StepOutput:
-        """Advance every member by one frame and return their world-space poses."""
-        self._sync()
+        """Advance every member by one frame (after :meth:`admit`) and return their world-space poses."""
+        self.admit()
         if not self.members:
             raise ValueError("no live characters to step")
         assert self._state is not None and self._style is not None
-        flags = [m.retargeted for m in self.members]  # which rows steer their facing by the retarget window
-        late = torch.tensor(flags) if any(flags) else None
-        caps = [m.speed_cap for m in self.members]
-        before = self._state.pose.root_xz.clone() if min(caps) < float("inf") else None
+        retargeted = self._columns[RETARGETED]  # the rows that steer their facing by the retarget window
+        late = retargeted if bool(retargeted.any()) else None
+        caps = self._columns[SPEED_CAP]
+        before = self._state.pose.root_xz.clone() if bool((caps < float("inf")).any()) else None
         if self._inverse is None:  # one weight set: the whole batch in one step
             self._state, shift = self._groups[0][0].step_fn(self._state, self._style, late)  # steering included
         else:
@@ -254,12 +281,13 @@ class CharacterBatch:
             shifts = [p[1] for p in parts]
             shift = None if shifts[0] is None else torch.cat([s for s in shifts if s is not None])[self._inverse]
         if before is not None:  # each row's root within its style's capture speed (model.inference.output.speed_cap)
-            self._state, shift = speed_capped(before, self._state, shift, torch.tensor(caps))
+            self._state, shift = speed_capped(before, self._state, shift, caps)
         memory = self._memory
         assert memory is not None and self._yaw is not None and self._origin is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])
-        local, root, new = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining, memory, shift)
-        memory.update(new)
+        local, root, new = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining,
+                                                 self._frame_inputs(memory), shift)
+        memory.update({k: new[k] for k in memory})
         local, root = self.engine.pipeline.arrival(local, root, remaining, [m.arrival for m in self.members])
         seq = []
         for m in self.members:

@@ -13,13 +13,22 @@ import itertools
 import logging
 import math
 import time
+from dataclasses import replace
 from typing import Any
 
 import torch
 
 from model.inference.bundle import Bundle
-from model.inference.character import Character, EncodedStyle, PreparedStart, StepOutput, WeightSet
-from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restyle_held
+from model.inference.character import (
+    Character,
+    CharacterRequest,
+    EncodedStyle,
+    Limits,
+    PreparedStart,
+    StepOutput,
+    WeightSet,
+)
+from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restate_held
 from model.inference.errors import (
     EngineError,
     FramesOutOfRange,
@@ -29,10 +38,8 @@ from model.inference.errors import (
     TooManyFrames,
 )
 from model.inference.int8_step import int8_lstm_sampler
-from model.inference.output.floor_contact import LIFT_CAP
-from model.inference.output.foot_plant import PLANT_CAP
+from model.inference.output.arrival import ArrivalMemory
 from model.inference.output.pipeline import OutputPipeline
-from model.inference.output.smoothing import SPEED_CAP
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, ground_distance, reach_of
 from model.inference.style_codes import LRUCache, clip_content_hash
@@ -52,7 +59,7 @@ Tensor = torch.Tensor
 log = logging.getLogger(__name__)
 SOURCES = ("network", "matching", "hybrid")
 RAW_OUTPUT = Overrides(steering=0, foot_lock=False, stride_warp=0.0, smoothing=0.0, root_smoothing=0.0)
-__all__ = ["Character", "CharacterBatch", "EncodedStyle", "Engine", "StepOutput", "WeightSet"]
+__all__ = ["Character", "CharacterBatch", "CharacterRequest", "EncodedStyle", "Engine", "StepOutput", "WeightSet"]
 
 
 class Engine:
@@ -188,41 +195,36 @@ class Engine:
         maximum, the largest of them for a style registered from a clip; None where the bundle has no gait limits."""
         return None if self.gait_limits is None else self.gait_limits.max_speed(style.gait or None)
 
-    def _limit(self, ch: Character, root_xz: Tensor, goal: PoseState, frames: int) -> PoseState:
-        """Set ``ch``'s speed cap from its style and its reach notice for the target state ``goal`` (canonical
-        frame) ``frames`` frames away from a root at ``root_xz [1, 2]``; returns the target the network is to aim
-        at: ``goal``, or where it is out of reach (and :attr:`aim_within_reach`), ``goal`` moved toward the root
-        until the capture's speed covers it, so the network walks there at a gait it knows and arrives short
-        instead of hurrying (the notice still names the true target)."""
-        speed = self.max_speed(ch.style)
-        if speed is None:
-            ch.speed_cap, ch.reach = float("inf"), None
-            return goal
-        self._cap(ch, speed)
-        root = self.skeleton.roles.root
-        ch.reach = reach_of(ground_distance(root_xz, goal.positions(), root), frames, speed, self.config.fps)
-        if ch.arrival is not None:  # an exact arrival out of reach would drag the body there: it arrives short
-            ch.arrival.out_of_reach = not ch.reach.feasible
-        if ch.reach.feasible or not self.aim_within_reach:
-            return goal
-        ahead = goal.root_xz - root_xz
-        aim = root_xz + ahead * (ch.reach.reachable_cm / max(ch.reach.distance_cm, 1e-6))
-        return PoseState(goal.rel, goal.vel, goal.rot, aim)
+    def limits_of(self, style: EncodedStyle) -> Limits:
+        """The caps of a character of ``style``: its root's ground step (cm a frame) at its capture's top speed, its
+        feet's lift off the floor and its planted feet's rise at its capture's; none where the bundle has no gait
+        limits. The batch hands them to the steps that read them as columns."""
+        speed = self.max_speed(style)
+        if self.gait_limits is None:
+            return Limits(math.inf if speed is None else speed / self.config.fps)
+        gait = style.gait or None
+        return Limits(math.inf if speed is None else speed / self.config.fps, self.gait_limits.foot_lift(gait),
+                      self.gait_limits.planted_rise(gait))
 
-    def _cap(self, ch: Character, speed: float | None, batch: CharacterBatch | None = None) -> None:
-        """Cap ``ch``'s root at ``speed`` cm/s (None: no cap), in the loop and in the output filter's memory, and
-        its feet's lift off the floor and its planted feet's rise at its style's capture's (floor contact's and the
-        foot plant's memory)."""
-        ch.speed_cap = float("inf") if speed is None else speed / self.config.fps
-        gait = ch.style.gait or None
-        lift = float("inf") if self.gait_limits is None else self.gait_limits.foot_lift(gait)
-        rise = float("inf") if self.gait_limits is None else self.gait_limits.planted_rise(gait)
-        # The output steps' rows: the speed cap's, floor contact's, the foot plant's.
-        for key, value in ((SPEED_CAP, ch.speed_cap), (LIFT_CAP, lift), (PLANT_CAP, rise)):
-            if batch is not None:
-                batch.set_memory(ch, key, torch.tensor([value]))
-            elif ch.memory is not None and key in ch.memory:
-                ch.memory[key] = torch.tensor([value])
+    def _aim(self, style: EncodedStyle, arrival: ArrivalMemory | None, root_xz: Tensor, goal: PoseState,
+             frames: int) -> tuple[PoseState, Reach | None]:
+        """The reach notice of a character of ``style`` for the target state ``goal`` (canonical frame) ``frames``
+        frames away from a root at ``root_xz [1, 2]``, and the target the network is to aim at: ``goal``, or where it
+        is out of reach (and :attr:`aim_within_reach`), ``goal`` moved toward the root until the capture's speed
+        covers it, so the network walks there at a gait it knows and arrives short instead of hurrying (the notice
+        still names the true target). An exact ``arrival`` out of reach is told so (it would drag the body there)."""
+        speed = self.max_speed(style)
+        if speed is None:
+            return goal, None
+        root = self.skeleton.roles.root
+        reach = reach_of(ground_distance(root_xz, goal.positions(), root), frames, speed, self.config.fps)
+        if arrival is not None:
+            arrival.out_of_reach = not reach.feasible
+        if reach.feasible or not self.aim_within_reach:
+            return goal, reach
+        ahead = goal.root_xz - root_xz
+        aim = root_xz + ahead * (reach.reachable_cm / max(reach.distance_cm, 1e-6))
+        return PoseState(goal.rel, goal.vel, goal.rot, aim), reach
 
     # ------------------------------------------------------------------ input
     def conform(self, clip: Clip, what: str = "motion") -> Clip:
@@ -330,17 +332,16 @@ class Engine:
         noise = self.net.noise(gen)
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
-        ch = Character(id=character_id or f"c{next(self._ids)}", style=style, frames_total=frames,
-                       retargeted=retargeted, style_strength=style_strength, frame=frame, arrival=arrival,
-                       goal=(tstate, known),
-                       memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions))
-        aim = self._limit(ch, cstate.root_xz[:, -1], tstate, frames)
-        ch.prepared = PreparedStart(cstate, aim, frames, noise, known)
-        return ch
+        request = CharacterRequest(character_id or f"c{next(self._ids)}", style, frames, style_strength, retargeted)
+        aim, reach = self._aim(style, arrival, cstate.root_xz[:, -1], tstate, frames)
+        return Character(request, self.limits_of(style), frame=frame, arrival=arrival, reach=reach,
+                         goal=(tstate, known), prepared=PreparedStart(cstate, aim, frames, noise, known),
+                         memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions))
 
     @torch.inference_mode()
-    def begin(self, characters: list[Character]) -> NetState:
-        """Warm the recurrent core of prepared characters on their contexts, all in one batch."""
+    def begin(self, characters: list[Character], contexts: list[Any] | None = None) -> NetState:
+        """Warm the recurrent core of prepared characters on their contexts, all in one batch; ``contexts``: their
+        style contexts as the batch runs them (by default from their requests, :meth:`context_of`)."""
         inits = [c.prepared for c in characters]
         if any(i is None for i in inits):
             raise ValueError("character was not prepared by Engine.prepare, or has begun already")
@@ -350,7 +351,9 @@ class Engine:
         frames = torch.tensor([i.frames for i in starts])
         noise = torch.cat([i.noise for i in starts])
         known = torch.tensor([i.velocity_known for i in starts])
-        style = self.net.style_type.stack([self.context_of(c.style, c.style_strength) for c in characters])
+        if contexts is None:
+            contexts = [self.context_of(c.style, c.style_strength) for c in characters]
+        style = self.net.style_type.stack(contexts)
         for c in characters:
             c.prepared = None
         groups = by_weights(characters)
@@ -375,26 +378,31 @@ class Engine:
 
     def retarget(self, ch: Character, batch: CharacterBatch | None = None, target: Clip | None = None,
                  frames: int | None = None) -> Reach | None:
-        """Change where and/or when a live character arrives, from its next frame on; returns its reach notice
-        from where it now stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
-        if frames is not None:
-            self.check_frames(frames)
-        if batch is None and ch.row is None:
+        """Change where and/or when a live character arrives, from its next frame on (``batch``: the batch it is
+        live in or waits to join, if any; one waiting joins it first); returns its reach notice from where it now
+        stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
+        if frames is not None and not 1 <= frames <= self.max_frames:
+            raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
+        if batch is not None:
+            batch.admit()  # one waiting is warmed up with the others waiting, as its first step would
+        elif ch.row is None:
             ch.row = self.begin([ch])
+        request = ch.request
         if target is not None:
             target = self.conform(target, "target")
             if ch.arrival is not None:
                 ch.arrival.rotations, ch.arrival.root = quat_normalize(target.rotations[-1]), target.root_positions[-1]
             ch.goal = self._target_state(target, ch.canonical_frame())
-            ch.retargeted = True
-        updates: dict[str, Tensor] = {}
+            request = replace(request, retargeted=True)
         if frames is not None:
-            updates["tta"] = torch.tensor([frames])
-            ch.frames_total = ch.seq + frames
+            request = replace(request, frames=ch.seq + frames)
+        if request is not ch.request:
+            self._restate(ch, request, batch)
         row = batch.row_of(ch) if batch is not None else ch.row
         assert row is not None and ch.goal is not None
         goal, known = ch.goal
-        aim = self._limit(ch, row.pose.root_xz, goal, ch.remaining)
+        aim, ch.reach = self._aim(ch.style, ch.arrival, row.pose.root_xz, goal, ch.remaining)
+        updates: dict[str, Tensor] = {} if frames is None else {"tta": torch.tensor([frames])}
         if target is not None or frames is not None or aim is not goal:  # a new target or time, or one out of reach
             with torch.inference_mode():
                 updates.update(self.weights(ch.style.weights).net.target_fields(
@@ -406,15 +414,17 @@ class Engine:
                 setattr(ch.row, k, v)
         return ch.reach
 
-    @torch.inference_mode()
-    def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:
-        """Switch a character's style from its next frame (``batch``: the batch it is live in, if any). A style
-        on other weights re-encodes the target by them; the recurrent state carries over."""
+    def _restate(self, ch: Character, request: CharacterRequest, batch: CharacterBatch | None) -> None:
+        """Hand ``ch`` its new request: to the batch it is in, or to the character itself out of one."""
         if batch is not None:
-            batch.set_style(ch, style)
-        else:
-            restyle_held(ch, style, self.weights(style.weights))  # an unknown weight set fails before anything changes
-        self._cap(ch, self.max_speed(style), batch)
+            batch.restate(ch, request)
+        else:  # an unknown weight set fails before anything changes
+            restate_held(ch, request, self.limits_of(request.style), self.weights(request.style.weights))
+
+    def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:
+        """Switch a character's style from its next frame (``batch``: the batch it is live in, if any), with its
+        style's caps. A style on other weights re-encodes the target by them; the recurrent state carries over."""
+        self._restate(ch, replace(ch.request, style=style), batch)
 
     def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
         """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""

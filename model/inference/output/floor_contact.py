@@ -15,7 +15,6 @@ lowered by the excess. A character without a cap (``inf``, a bundle without gait
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import torch
@@ -28,7 +27,7 @@ Tensor = torch.Tensor
 
 TOLERANCE_CM = 1.0  # real feet dip a little under their resting height; only more than this is corrected
 _UP = torch.tensor([0.0, 1.0, 0.0])
-LIFT_CAP = "lift_cap"  # the memory row of a character's lift cap (cm above its floor; inf: none)
+LIFT_CAP = "lift_cap"  # the batch column of a character's lift cap (cm above its floor; inf: none)
 
 
 class FloorContact:
@@ -77,7 +76,8 @@ class FloorStep:
     character's context. It runs before the feet are moved, so the feet the lock holds are where the body was
     lifted to; it leaves the lifted legs' kinematics on the frame (a lift moves every joint up alike)."""
 
-    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("floor", LIFT_CAP)
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("floor",)
+    COLUMNS: ClassVar[tuple[str, ...]] = (LIFT_CAP,)
 
     def __init__(self, contact: FloorContact) -> None:
         self.contact = contact
@@ -87,11 +87,11 @@ class FloorStep:
         return cls(FloorContact(parts.skeleton, kinematics=parts.kinematics)) if parts.settings.floor else None
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
-        return {"floor": self.contact.floor(rotations, roots), LIFT_CAP: torch.full((1,), math.inf)}
+        return {"floor": self.contact.floor(rotations, roots)}
 
     def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
         legs = self.contact.kinematics(frame.local, frame.root)
         up = self.contact.lift_of(legs[0], memory["floor"], memory[LIFT_CAP])
         frame.root = frame.root + up
         frame.set_chains(self.contact.kinematics, (legs[0] + up.unsqueeze(-2), legs[1]))
-        new["floor"], new[LIFT_CAP] = memory["floor"], memory[LIFT_CAP]
+        new["floor"] = memory["floor"]

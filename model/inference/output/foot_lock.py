@@ -158,6 +158,7 @@ class FootLockStep:
     planted feet against what the warp left of steering's shift."""
 
     MEMORY_KEYS: ClassVar[tuple[str, ...]] = FootLockState.MEMORY_KEYS
+    COLUMNS: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, lock: FootLock) -> None:
         self.lock = lock

@@ -16,7 +16,6 @@ bundle without gait limits, or with ones measured before this step) is left as i
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import torch
@@ -28,14 +27,15 @@ from model.motion.skeleton import Skeleton
 
 Tensor = torch.Tensor
 
-PLANT_CAP = "plant_cap"  # the memory row of a character's planted rise (cm above its floor; inf: none)
+PLANT_CAP = "plant_cap"  # the batch column of a character's planted rise (cm above its floor; inf: none)
 _UP = torch.tensor([0.0, 1.0, 0.0])
 
 
 class FootPlant:
     """Batched, for one skeleton's legs at ``fps``: how far to bring each planted foot down."""
 
-    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("plant_floor", "plant_previous", PLANT_CAP)
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("plant_floor", "plant_previous")
+    COLUMNS: ClassVar[tuple[str, ...]] = (PLANT_CAP,)
 
     def __init__(self, skeleton: Skeleton, fps: float, legs: LegChains) -> None:
         self.legs, self.fps = legs, fps
@@ -48,11 +48,10 @@ class FootPlant:
         return torch.stack([pick(positions, foot)[..., 1].amin(dim=-1) for foot in self.feet], dim=-1)
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
-        """One character's memory from its context ``[T, J, 4]``, ``[T, 3]``: its floor, its last ankles, no cap."""
+        """One character's memory from its context ``[T, J, 4]``, ``[T, 3]``: its floor, its last ankles."""
         chains = self.legs.kinematics(rotations, roots)
         pos = self.legs.poses(rotations, roots, chains)[0]
-        return {"plant_floor": self.lowest(chains[0]).min().view(1), "plant_previous": pos[-1:, -1].clone(),
-                PLANT_CAP: torch.full((1,), math.inf)}
+        return {"plant_floor": self.lowest(chains[0]).min().view(1), "plant_previous": pos[-1:, -1].clone()}
 
     def drop(self, positions: Tensor, ankles: Tensor, memory: dict[str, Tensor]) -> Tensor:
         """How far ``[N, 2]`` to bring each foot down, for the legs' kinematics ``positions [N, K, 3]`` and the
@@ -68,6 +67,7 @@ class FootPlantStep:
     feet (floor contact, the stride warp, the foot lock): it reads the legs as they leave."""
 
     MEMORY_KEYS: ClassVar[tuple[str, ...]] = FootPlant.MEMORY_KEYS
+    COLUMNS: ClassVar[tuple[str, ...]] = FootPlant.COLUMNS
 
     def __init__(self, plant: FootPlant) -> None:
         self.plant = plant
@@ -89,4 +89,4 @@ class FootPlantStep:
         if not frame.eager or bool(move.any()):
             frame.local = legs.bend(frame.local, pos, grot, ankles - down.unsqueeze(-1) * _UP, move)
         frame.set_chains(legs.kinematics, None)
-        new.update({"plant_floor": memory["plant_floor"], "plant_previous": ankles, PLANT_CAP: memory[PLANT_CAP]})
+        new.update({"plant_floor": memory["plant_floor"], "plant_previous": ankles})

@@ -3,9 +3,13 @@
 A frame step (:mod:`model.inference.output.pipeline` lists them) is a class with
 
 * ``MEMORY_KEYS``: the names of its per-character memory rows (``[N, ...]`` each, kept by the batch);
+* ``COLUMNS``: the names of the per-character inputs it reads (``[N]`` each: its caps, inf where a character has
+  none), which the batch stacks from its members (:class:`model.inference.character.Limits`) and hands in beside
+  the memory; a step reads them and never writes them;
 * ``build(parts) -> step | None``: the step for a bundle's settings, None where they switch it off;
 * ``start(rotations, roots) -> memory``: one character's memory from its context ``[T, J, 4]``, ``[T, 3]``;
-* ``__call__(frame, memory, new)``: change the :class:`Frame` in place, writing its memory into ``new``.
+* ``__call__(frame, memory, new)``: change the :class:`Frame` in place, reading its memory and columns from
+  ``memory`` and writing its memory into ``new``.
 
 Steps run eagerly or inside one traced graph (:mod:`model.inference.traced_step`): they branch on settings,
 never on the data.
@@ -107,6 +111,7 @@ class FrameStep(Protocol):
     """A step of the frame output (see the module doc)."""
 
     MEMORY_KEYS: ClassVar[tuple[str, ...]]
+    COLUMNS: ClassVar[tuple[str, ...]]
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]: ...
 

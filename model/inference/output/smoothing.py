@@ -13,14 +13,13 @@ reached. The first frame blends with the last context frame, so the seam stays c
 
 Letting the lag go speeds the root up: a root moving at ``v`` trails its network by ``a v / (1 - a)``,
 made up over the last frames on top of ``v``. So a character with a speed cap (its style's capture maximum,
-:mod:`model.inference.output.speed_cap`; kept in this step's memory) never has its root's ground step made
+:mod:`model.inference.output.speed_cap`; a batch column this step reads) never has its root's ground step made
 longer than that cap here (:func:`within_cap`): where the lag cannot be made up within it, the root arrives
 that much late. A character without a cap is filtered as above.
 """
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import torch
@@ -31,7 +30,7 @@ from model.motion.rotations import quat_normalize
 Tensor = torch.Tensor
 
 DEFAULT_FADE = 5
-SPEED_CAP = "speed_cap"  # the memory row of a character's speed cap (cm a frame on the ground; inf: none)
+SPEED_CAP = "speed_cap"  # the batch column of a character's speed cap (cm a frame on the ground; inf: none)
 
 
 def smoothing_weight(strength: float, remaining: Tensor, fade: int = DEFAULT_FADE) -> Tensor:
@@ -74,7 +73,8 @@ class Smoothing:
     """The filter as a frame step (:mod:`model.inference.output.frame`): its memory is the previous emitted
     frame, remembered before the later steps (and exact arrival) bend it, so the filter follows the network."""
 
-    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root", "speed_cap")
+    MEMORY_KEYS: ClassVar[tuple[str, ...]] = ("prev_rot", "prev_root")
+    COLUMNS: ClassVar[tuple[str, ...]] = (SPEED_CAP,)
 
     def __init__(self, strength: float, root_strength: float) -> None:
         self.strength, self.root_strength = strength, root_strength
@@ -85,13 +85,12 @@ class Smoothing:
         return cls(out.smoothing, out.root_strength) if out.smooths else None
 
     def start(self, rotations: Tensor, roots: Tensor) -> dict[str, Tensor]:
-        """The last context frame: the first generated frame blends with it, so the seam stays continuous; no
-        speed cap (the engine sets a character's: :data:`SPEED_CAP`)."""
-        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:], SPEED_CAP: torch.full((1,), math.inf)}
+        """The last context frame: the first generated frame blends with it, so the seam stays continuous."""
+        return {"prev_rot": rotations[-1:], "prev_root": roots[-1:]}
 
     def __call__(self, frame: Frame, memory: dict[str, Tensor], new: dict[str, Tensor]) -> None:
         fade = smoothing_weight(1.0, frame.remaining)
         frame.local, root = smooth_frame(frame.local, frame.root, memory["prev_rot"], memory["prev_root"],
                                          self.strength * fade, self.root_strength * fade)
         frame.root = within_cap(root, memory["prev_root"], memory[SPEED_CAP])
-        new["prev_rot"], new["prev_root"], new[SPEED_CAP] = frame.local, frame.root, memory[SPEED_CAP]
+        new["prev_rot"], new["prev_root"] = frame.local, frame.root

@@ -50,6 +50,7 @@ from model.nets.transition_net import NetState
 
 Tensor = torch.Tensor
 S = TypeVar("S", bound=NetState)
+RETARGETED = "retargeted"  # the batch column of the rows retargeted mid-stream (``late``: the retarget window)
 
 
 @dataclass(frozen=True)

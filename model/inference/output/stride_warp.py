@@ -128,6 +128,7 @@ class StrideWarpStep:
     it bends the legs itself. Either way it leaves the rest of steering's shift to the steps after it."""
 
     MEMORY_KEYS: ClassVar[tuple[str, ...]] = StrideWarp.MEMORY_KEYS
+    COLUMNS: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, warp: StrideWarp, lock_follows: bool) -> None:
         self.warp, self.lock_follows = warp, lock_follows
