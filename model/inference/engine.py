@@ -381,8 +381,8 @@ class Engine:
         """Change where and/or when a live character arrives, from its next frame on (``batch``: the batch it is
         live in or waits to join, if any; one waiting joins it first); returns its reach notice from where it now
         stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
-        if frames is not None and not 1 <= frames <= self.max_frames:
-            raise FramesOutOfRange(f"frames must be between 1 and {self.max_frames}; got {frames}")
+        if frames is not None:
+            self.check_frames(frames)
         if batch is not None:
             batch.admit()  # one waiting is warmed up with the others waiting, as its first step would
         elif ch.row is None:
