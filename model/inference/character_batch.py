@@ -133,7 +133,7 @@ class CharacterBatch:
 
     def _take_frames_and_memory(self, joined: list[Character]) -> None:
         """The canonical frames and output memories of ``joined`` stacked under the members' (the characters
-        hold neither afterwards)."""
+        hold neither afterwards, nor their rows and prepared starts)."""
         frames = [c.canonical_frame() for c in joined]
         memories = [c.memory for c in joined]
         if self._yaw is not None and self._origin is not None:
@@ -145,8 +145,7 @@ class CharacterBatch:
         held = [m for m in memories if m is not None]
         self._memory = {k: torch.cat([m[k] for m in held]) for k in held[0]}
         for c in joined:
-            c.row = None
-            c.memory = None
+            c.row, c.memory, c.prepared = None, None, None
 
     def _restack(self) -> None:
         """The members' style contexts stacked and grouped by weight set, and their columns stacked."""

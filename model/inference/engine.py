@@ -341,7 +341,8 @@ class Engine:
     @torch.inference_mode()
     def begin(self, characters: list[Character], contexts: list[Any] | None = None) -> NetState:
         """Warm the recurrent core of prepared characters on their contexts, all in one batch; ``contexts``: their
-        style contexts as the batch runs them (by default from their requests, :meth:`context_of`)."""
+        style contexts as the batch runs them (by default from their requests, :meth:`context_of`). Returns their
+        rows and changes nothing of theirs (whoever takes the rows drops the prepared starts)."""
         inits = [c.prepared for c in characters]
         if any(i is None for i in inits):
             raise ValueError("character was not prepared by Engine.prepare, or has begun already")
@@ -354,8 +355,6 @@ class Engine:
         if contexts is None:
             contexts = [self.context_of(c.style, c.style_strength) for c in characters]
         style = self.net.style_type.stack(contexts)
-        for c in characters:
-            c.prepared = None
         groups = by_weights(characters)
         if len(groups) == 1:
             return self.weights(groups[0][0]).net.begin(ctx, tgt, frames, noise, style, velocity_known=known)
@@ -386,7 +385,7 @@ class Engine:
         if batch is not None:
             batch.admit()  # one waiting is warmed up with the others waiting, as its first step would
         elif ch.row is None:
-            ch.row = self.begin([ch])
+            ch.row, ch.prepared = self.begin([ch]), None
         request = ch.request
         if target is not None:
             target = self.conform(target, "target")
