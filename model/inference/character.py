@@ -142,6 +142,14 @@ class Character:
             raise ValueError("character was not prepared by Engine.prepare")
         return self.frame
 
+    def update_row(self, updates: dict[str, Tensor]) -> None:
+        """Set fields of the network row it holds out of a batch (``updates``: name -> ``[1, ...]``; a batch's member
+        is changed through :meth:`CharacterBatch.update_row`)."""
+        if self.row is None:
+            raise ValueError(f"character {self.id!r} holds no row: it has not begun, or a batch holds it")
+        for name, value in updates.items():
+            setattr(self.row, name, value)
+
     def column(self, name: str) -> float | bool:
         """Its value in the batch column ``name`` (a step's declared input): one of its :class:`Limits`, or whether
         it was retargeted."""

@@ -30,8 +30,7 @@ def restate_held(ch: Character, request: CharacterRequest, limits: Limits, ws: W
     ``ws``: its style's weights. A row it holds is re-encoded by them when they change (one not begun yet is encoded
     by :meth:`Engine.begin`)."""
     if request.style.weights != ch.style.weights and ch.row is not None:
-        for name, value in ws.net.reencoded(ch.row).items():
-            setattr(ch.row, name, value)
+        ch.update_row(ws.net.reencoded(ch.row))
     ch.request, ch.limits = request, limits
 
 

@@ -409,8 +409,7 @@ class Engine:
         if batch is not None:
             batch.update_row(ch, updates)
         else:
-            for k, v in updates.items():
-                setattr(ch.row, k, v)
+            ch.update_row(updates)
         return ch.reach
 
     def _restate(self, ch: Character, request: CharacterRequest, batch: CharacterBatch | None) -> None:
