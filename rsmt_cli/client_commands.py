@@ -55,8 +55,9 @@ def _motion_args(parser: argparse.ArgumentParser) -> None:
                              "reads is cut to its middle, said on stderr)")
     parser.add_argument("--seed", type=int, help="sampling seed (same inputs + seed give the same frames)")
     parser.add_argument("--deterministic", action="store_true", help="no sampling noise")
-    parser.add_argument("--exact-arrival", action="store_true",
-                        help="bend the last frames so the arrival frame equals the target pose")
+    parser.add_argument("--exact-arrival", action=argparse.BooleanOptionalAction, default=None,
+                        help="bend the last frames so the arrival frame equals the target pose (default: the server's, "
+                        "exact for --at only; --no-exact-arrival leaves an --at target the network's own arrival)")
     parser.add_argument("-o", "--out", type=Path, metavar="BVH", help="write the generated frames as BVH")
 
 

@@ -9,7 +9,7 @@ import json
 import httpx
 import numpy as np
 import pytest
-from rsmt_client import Frame, Poses, RetryPolicy, RsmtError
+from rsmt_client import Frame, Poses, RetryPolicy, RsmtError, TargetAt
 from rsmt_client import http_protocol as ops
 from rsmt_client._retry import Retrying
 from rsmt_client.stream_protocol import StreamSession
@@ -31,7 +31,7 @@ def _transition_answer() -> dict:
 
 def test_transition_asks_for_the_model_once():
     state = ops.ClientState("http://h/")
-    op = ops.transition(state, {"bvh": "HIERARCHY"}, {"bvh": "HIERARCHY"}, 2, "sty_a", None, 7, True, None, False)
+    op = ops.transition(state, {"bvh": "HIERARCHY"}, {"bvh": "HIERARCHY"}, 2, "sty_a", None, 7, True, None, None)
     first = next(op)
     assert (first.method, first.path) == ("GET", "/v1/model")  # joint names and frame limits are not known yet
     second = op.send(_answer(first, 200, MODEL))
@@ -162,3 +162,14 @@ def test_a_stream_retargeted_back_within_reach_arrives() -> None:
     c, _ = s.begin_collect("c")  # a model without gait limits says nothing either way
     s.take(s.parse(json.dumps({"type": "started", "character": "c", "slot": 1, "reach": None})), c)
     assert c.reach is None and not c.stopped_short
+
+
+def test_exact_arrival_is_sent_as_said_and_left_to_the_server_when_not():
+    # False must reach the server: a target_at arrives exactly unless the request says "exact_arrival": false.
+    bodies = {said: ops.transition_body({"bvh": "H"}, TargetAt(100.0, 0.0, 90.0), 20, "sty_a", None, None, False, "json",
+                                        None, said) for said in (None, False, True)}
+    assert "exact_arrival" not in bodies[None]
+    assert bodies[False]["exact_arrival"] is False and bodies[True]["exact_arrival"] is True
+    start = {said: StreamSession.start_message({"bvh": "H"}, TargetAt(100.0, 0.0, 90.0), 20, "sty_a", None, None, False,
+                                               "realtime", "c", None, None, said) for said in (None, False)}
+    assert "exact_arrival" not in start[None] and start[False]["exact_arrival"] is False

@@ -163,7 +163,7 @@ class Client(_Settings):
 
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, model: str | None = None,
-                   exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
+                   exact_arrival: bool | None = None, style_strength: float | None = None) -> Poses:
         """``POST /v1/transition``: the ``frames`` generated poses as float32 arrays (``target``: a Motion, or a
         :class:`rsmt_client.placement.TargetAt` place and facing; ``style_strength``: the style moved from the
         model's neutral style by this factor; None: the server's setting)."""
@@ -172,7 +172,7 @@ class Client(_Settings):
 
     def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                        seed: int | None = None, deterministic: bool = False, model: str | None = None,
-                       exact_arrival: bool = False, style_strength: float | None = None) -> str:
+                       exact_arrival: bool | None = None, style_strength: float | None = None) -> str:
         """``POST /v1/transition`` with ``output: bvh``: the server's BVH text of exactly ``frames`` frames."""
         return self._run(ops.transition_bvh(self._state, context, target, frames, style_id, style, seed, deterministic,
                                             model, exact_arrival, style_strength))
@@ -267,13 +267,13 @@ class AsyncClient(_Settings):
 
     async def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                          seed: int | None = None, deterministic: bool = False, model: str | None = None,
-                         exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
+                         exact_arrival: bool | None = None, style_strength: float | None = None) -> Poses:
         return await self._run(ops.transition(self._state, context, target, frames, style_id, style, seed, deterministic,
                                               model, exact_arrival, style_strength))
 
     async def transition_bvh(self, context: Any, target: Any, frames: int, style_id: str | None = None,
                              style: Any = None, seed: int | None = None, deterministic: bool = False,
-                             model: str | None = None, exact_arrival: bool = False,
+                             model: str | None = None, exact_arrival: bool | None = None,
                              style_strength: float | None = None) -> str:
         return await self._run(ops.transition_bvh(self._state, context, target, frames, style_id, style, seed,
                                                   deterministic, model, exact_arrival, style_strength))

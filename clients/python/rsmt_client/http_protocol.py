@@ -240,7 +240,7 @@ def with_style(state: ClientState, request: Request, style_id: str | None,
 
 
 def transition(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any,
-               seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool,
+               seed: int | None, deterministic: bool, model_name: str | None, exact_arrival: bool | None,
                style_strength: float | None = None) -> Operation[Poses]:
     cuts = yield from cutter(state, model_name)
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "json", model_name,
@@ -259,7 +259,7 @@ def transition(state: ClientState, context: Any, target: Any, frames: int, style
 
 def transition_bvh(state: ClientState, context: Any, target: Any, frames: int, style_id: str | None,
                    style_motion: Any, seed: int | None, deterministic: bool, model_name: str | None,
-                   exact_arrival: bool, style_strength: float | None = None) -> Operation[str]:
+                   exact_arrival: bool | None, style_strength: float | None = None) -> Operation[str]:
     cuts = yield from cutter(state, model_name)
     body = transition_body(context, target, frames, style_id, style_motion, seed, deterministic, "bvh", model_name,
                            exact_arrival, cuts, style_strength)
@@ -268,7 +268,7 @@ def transition_bvh(state: ClientState, context: Any, target: Any, frames: int, s
 
 
 def transition_body(context: Any, target: Any, frames: int, style_id: str | None, style_motion: Any, seed: int | None,
-                    deterministic: bool, output: str, model_name: str | None, exact_arrival: bool = False,
+                    deterministic: bool, output: str, model_name: str | None, exact_arrival: bool | None = None,
                     cuts: Cutter | None = None, style_strength: float | None = None) -> dict[str, Any]:
     """The request; with ``cuts``, each motion cut to what the model reads (:mod:`rsmt_client.motion_cuts`)."""
     if (style_id is None) == (style_motion is None):
@@ -287,8 +287,8 @@ def transition_body(context: Any, target: Any, frames: int, style_id: str | None
         body["seed"] = int(seed)
     if model_name is not None:
         body["model"] = model_name
-    if exact_arrival:  # sent only when asked, so older servers keep accepting the request
-        body["exact_arrival"] = True
+    if exact_arrival is not None:  # sent only when said (None: the server's default, exact for target_at only),
+        body["exact_arrival"] = bool(exact_arrival)  # so older servers keep accepting the request
     if style_strength is not None:
         body["style_strength"] = float(style_strength)
     return body

@@ -222,7 +222,7 @@ class StreamClient(_SessionView):
     def start(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
               seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
               character: str | None = None, model: str | None = None, request_id: Any = None,
-              exact_arrival: bool = False, style_strength: float | None = None) -> str:
+              exact_arrival: bool | None = None, style_strength: float | None = None) -> str:
         """Send ``start``; returns the character id (``character`` or a new one). Frames follow ``started``.
         ``target``: a Motion, or a :class:`rsmt_client.placement.TargetAt` place and facing."""
         character = character or StreamSession.new_id()
@@ -293,7 +293,7 @@ class StreamClient(_SessionView):
 
     def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                    seed: int | None = None, deterministic: bool = False, pace: str = "asap",
-                   timeout: float = 60.0, exact_arrival: bool = False, style_strength: float | None = None) -> Poses:
+                   timeout: float = 60.0, exact_arrival: bool | None = None, style_strength: float | None = None) -> Poses:
         """A whole transition over the stream (start, then collect): the same frames ``POST /v1/transition`` gives."""
         c = self.start(context, target, frames, style_id, style, seed, deterministic, pace, exact_arrival=exact_arrival,
                        style_strength=style_strength)
@@ -410,7 +410,7 @@ class AsyncStreamClient(_SessionView):
     async def start(self, context: Any, target: Any, frames: int, style_id: str | None = None, style: Any = None,
                     seed: int | None = None, deterministic: bool = False, pace: str = "realtime",
                     character: str | None = None, model: str | None = None, request_id: Any = None,
-                    exact_arrival: bool = False, style_strength: float | None = None) -> str:
+                    exact_arrival: bool | None = None, style_strength: float | None = None) -> str:
         character = character or StreamSession.new_id()
         message = self._fit(StreamSession.start_message(context, target, frames, style_id, style, seed, deterministic,
                                                         pace, character, model, request_id, exact_arrival,
@@ -473,7 +473,7 @@ class AsyncStreamClient(_SessionView):
 
     async def transition(self, context: Any, target: Any, frames: int, style_id: str | None = None,
                          style: Any = None, seed: int | None = None, deterministic: bool = False, pace: str = "asap",
-                         timeout: float = 60.0, exact_arrival: bool = False,
+                         timeout: float = 60.0, exact_arrival: bool | None = None,
                          style_strength: float | None = None) -> Poses:
         c = await self.start(context, target, frames, style_id, style, seed, deterministic, pace,
                              exact_arrival=exact_arrival, style_strength=style_strength)

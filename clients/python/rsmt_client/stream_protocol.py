@@ -225,7 +225,7 @@ class StreamSession:
     @staticmethod
     def start_message(context: Any, target: Any, frames: int, style_id: str | None, style: Any, seed: int | None,
                       deterministic: bool, pace: str, character: str, model: str | None, request_id: Any,
-                      exact_arrival: bool = False, style_strength: float | None = None) -> Message:
+                      exact_arrival: bool | None = None, style_strength: float | None = None) -> Message:
         if (style_id is None) == (style is None):
             raise ValueError("give exactly one of style_id or style")
         msg: Message = {"type": "start", "character": character, "context": motion_payload(context),
@@ -238,8 +238,8 @@ class StreamSession:
         for key, value in (("seed", seed), ("model", model), ("request_id", request_id)):
             if value is not None:
                 msg[key] = value
-        if exact_arrival:  # sent only when asked, so older servers keep accepting the message
-            msg["exact_arrival"] = True
+        if exact_arrival is not None:  # sent only when said (None: the server's default, exact for target_at only),
+            msg["exact_arrival"] = bool(exact_arrival)  # so older servers keep accepting the message
         if style_strength is not None:
             msg["style_strength"] = float(style_strength)
         return msg
