@@ -167,13 +167,13 @@ class Example:
         frames = c.max_transition
         context, target = walk.window(0, c.context), walk.window(c.context + frames - 2, c.context + frames)
         chars = [engine.prepare(context, target, frames, style, seed=i) for i in range(2)]
-        starts = [c.prepared for c in chars]
-        assert all(p is not None for p in starts)
-        ctx = PoseState.cat([p.context for p in starts])  # type: ignore[union-attr]
-        tgt = PoseState.cat([p.target for p in starts])  # type: ignore[union-attr]
+        starts = [c.parked.prepared for c in chars if c.parked is not None and c.parked.prepared is not None]
+        assert len(starts) == len(chars)
+        ctx = PoseState.cat([p.context for p in starts])
+        tgt = PoseState.cat([p.target for p in starts])
         begin = (ctx.rel, ctx.vel, ctx.rot, ctx.root_xz, tgt.rel, tgt.vel, tgt.rot, tgt.root_xz,
-                 torch.tensor([p.frames for p in starts]), torch.cat([p.noise for p in starts]),  # type: ignore[union-attr]
-                 torch.tensor([p.velocity_known for p in starts]))  # type: ignore[union-attr]
+                 torch.tensor([p.frames for p in starts]), torch.cat([p.noise for p in starts]),
+                 torch.tensor([p.velocity_known for p in starts]))
         batch = CharacterBatch(engine)
         for ch in chars:
             batch.add(ch)

@@ -3,13 +3,14 @@ and the poses of a batch step (:mod:`model.inference.engine` runs them)."""
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
 
-from model.inference.output.arrival import ArrivalMemory
+from model.inference.output.arrival import ArrivalPose, ArrivalState
 from model.inference.output.steering import RETARGETED
 from model.inference.reach import Reach
 from model.inference.traced_step import CompiledStep
@@ -84,31 +85,64 @@ class CharacterRequest:
     retargeted: bool = False
 
 
+@dataclass(frozen=True)
+class Parked:
+    """A character's live part while no batch holds it (before it first joins one, or detached from one): its
+    canonical frame (fixed when it starts), its output steps' memory (named rows ``[1, ...]``), exact arrival's
+    memory, and its network row, or before its first frame what its warm-up needs (:class:`PreparedStart`). A batch
+    takes it whole when the character joins (:meth:`CharacterBatch.admit`) and gives it back whole on
+    :meth:`CharacterBatch.detach`; out of a batch only :meth:`Engine.begin`'s row and :meth:`Character.update_row`
+    replace it, never change it (a replica may share it)."""
+
+    frame: CanonicalFrame
+    memory: dict[str, Tensor] = field(repr=False)
+    state: NetState | PreparedStart = field(repr=False)
+    arrival: ArrivalState = field(default_factory=ArrivalState, repr=False)  # copied by the batch that takes it
+
+    @property
+    def row(self) -> NetState | None:
+        """Its network row; None before it has begun."""
+        return None if isinstance(self.state, PreparedStart) else self.state
+
+    @property
+    def prepared(self) -> PreparedStart | None:
+        """What its warm-up needs; None once it has begun."""
+        return self.state if isinstance(self.state, PreparedStart) else None
+
+
+@dataclass(frozen=True)
+class Aim:
+    """The engine's view of a character's target, built whole by :meth:`Engine.prepare` and :meth:`Engine.retarget`:
+    its state in the character's canonical frame and whether its velocity is known, as asked (the network may aim
+    nearer where it is out of reach), its reach notice (:mod:`model.inference.reach`; None: the bundle has no gait
+    limits) and, with exact arrival, the pose it arrives at (:mod:`model.inference.output.arrival`)."""
+
+    goal: PoseState = field(repr=False)
+    velocity_known: bool
+    reach: Reach | None = None
+    arrival: ArrivalPose | None = field(default=None, repr=False)
+
+    @property
+    def bent_to(self) -> ArrivalPose | None:
+        """The pose exact arrival bends its last frames onto: none where its target is out of reach, so it arrives
+        short rather than be dragged onto the target faster than its style walks."""
+        return self.arrival if self.reach is None or self.reach.feasible else None
+
+
 @dataclass(eq=False)  # identity, not field equality: characters are looked up in batches
 class Character:
-    """A handle on one transition in progress: its :class:`CharacterRequest`, its caps (:class:`Limits`, from its
-    style), the frames emitted so far, and its live part. While it is a member of a batch the batch owns that part
-    (its network row, canonical frame rows, output memory, style context and columns) and hands it back when it
-    leaves (``row``, ``frame``, ``memory``); before its first frame it holds what its warm-up needs (``prepared``).
-    The engine keeps its target (``goal``, ``arrival``) and its reach notice."""
+    """A handle on one transition in progress: its :class:`CharacterRequest`, the engine's :class:`Aim`, its caps
+    (:class:`Limits`, from its style), the frames emitted so far, and its live part (:class:`Parked`) while no batch
+    holds it: a batch takes that whole when the character joins (``parked`` is None then) and hands it back whole
+    when it leaves."""
 
     request: CharacterRequest
+    aim: Aim
     limits: Limits = Limits()
     seq: int = 0  # frames emitted so far
     cancelled: bool = False
     slot: int = 0
-    row: NetState | None = field(default=None, repr=False)  # its network state while out of a batch
-    frame: CanonicalFrame | None = field(default=None, repr=False)  # its transition's frame, fixed when it starts
-    # Exact arrival (see model.inference.output.arrival): the target pose in world space and its state.
-    arrival: ArrivalMemory | None = None
-    # Memory of the output pipeline's frame steps while out of a batch: named rows [1, ...].
-    memory: dict[str, Tensor] | None = field(default=None, repr=False)
-    prepared: PreparedStart | None = field(default=None, repr=False)
-    # Whether its target is within its reach (model.inference.reach; None: the bundle has no gait limits).
-    reach: Reach | None = None
-    # Its target's state in its canonical frame and whether its velocity is known, as asked (the network may aim
-    # nearer where it is out of reach: model.inference.engine.Engine.retarget).
-    goal: tuple[PoseState, bool] | None = field(default=None, repr=False)
+    parked: Parked | None = None
 
     @property
     def id(self) -> str:
@@ -130,25 +164,33 @@ class Character:
     def retargeted(self) -> bool:
         return self.request.retargeted
 
+    @property
+    def reach(self) -> Reach | None:
+        """Whether its target is within its reach (:attr:`Aim.reach`)."""
+        return self.aim.reach
+
+    @property
+    def arrival(self) -> ArrivalPose | None:
+        """The pose it arrives at exactly (:attr:`Aim.arrival`; None: the network's own arrival)."""
+        return self.aim.arrival
+
     def replica(self, character_id: str, style: EncodedStyle | None = None) -> Character:
-        """Another character in this one's place (its prepared start or its state shared, never mutated by
-        a batch, which copies what it joins), e.g. for warming a batch of many up."""
+        """Another character in this one's place (its :class:`Parked` part shared: a batch copies what it takes),
+        e.g. for warming a batch of many up."""
         request = replace(self.request, id=character_id, style=self.style if style is None else style)
         return replace(self, request=request, seq=0, cancelled=False)
 
-    def canonical_frame(self) -> CanonicalFrame:
-        """:attr:`frame`, which every prepared character has."""
-        if self.frame is None:
-            raise ValueError("character was not prepared by Engine.prepare")
-        return self.frame
-
     def update_row(self, updates: dict[str, Tensor]) -> None:
         """Set fields of the network row it holds out of a batch (``updates``: name -> ``[1, ...]``; a batch's member
-        is changed through :meth:`CharacterBatch.update_row`)."""
-        if self.row is None:
+        is changed through :meth:`CharacterBatch.update_row`): a new row in a new :class:`Parked`, the old ones as
+        they were."""
+        row = None if self.parked is None else self.parked.row
+        if self.parked is None or row is None:
             raise ValueError(f"character {self.id!r} holds no row: it has not begun, or a batch holds it")
+        row = copy.copy(row)
         for name, value in updates.items():
-            setattr(self.row, name, value)
+            setattr(row, name, value)
+        self.parked = replace(self.parked, state=row)
 
     def column(self, name: str) -> float | bool:
         """Its value in the batch column ``name`` (a step's declared input): one of its :class:`Limits`, or whether

@@ -1,18 +1,30 @@
 """A batch of live characters whose states are stacked so that one step of each weight set advances them all.
 
-While a character is a member, the batch owns its live part: its network state, canonical frame and output memory
-rows, its style context and its columns (the per-character inputs the steps declare: its caps, whether it was
-retargeted). A retarget or a style switch hands the batch the character's new request (:meth:`CharacterBatch.restate`);
+While a character is a member, the batch owns its live part (:class:`model.inference.character.Parked`, taken whole
+when it joins and given back whole when it is detached): its network state, canonical frame, output memory rows and
+exact arrival's memory; besides them, its style context and its columns (the per-character inputs the steps declare:
+its caps, whether it was retargeted). A retarget or a style switch hands the batch the character's new request
+(:meth:`CharacterBatch.restate`), and the engine the character its new :class:`model.inference.character.Aim`;
 nothing else writes the batch's rows."""
 
 from __future__ import annotations
 
+import copy
 from dataclasses import replace
 from typing import Any, Protocol
 
 import torch
 
-from model.inference.character import Character, CharacterRequest, EncodedStyle, Limits, StepOutput, WeightSet
+from model.inference.character import (
+    Character,
+    CharacterRequest,
+    EncodedStyle,
+    Limits,
+    Parked,
+    StepOutput,
+    WeightSet,
+)
+from model.inference.output.arrival import ArrivalState
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.output.smoothing import SPEED_CAP
 from model.inference.output.speed_cap import speed_capped
@@ -29,8 +41,9 @@ def restate_held(ch: Character, request: CharacterRequest, limits: Limits, ws: W
     """Hand a character outside a batch its new request (a retarget or a style switch) and the caps of its style;
     ``ws``: its style's weights. A row it holds is re-encoded by them when they change (one not begun yet is encoded
     by :meth:`Engine.begin`)."""
-    if request.style.weights != ch.style.weights and ch.row is not None:
-        ch.update_row(ws.net.reencoded(ch.row))
+    row = None if ch.parked is None else ch.parked.row
+    if request.style.weights != ch.style.weights and row is not None:
+        ch.update_row(ws.net.reencoded(row))
     ch.request, ch.limits = request, limits
 
 
@@ -83,6 +96,7 @@ class CharacterBatch:
         self._origin: Tensor | None = None
         # The output pipeline's memory, a row per member (model.inference.output.pipeline.FrameSteps.memory_keys).
         self._memory: dict[str, Tensor] | None = None
+        self._arrivals: list[ArrivalState] = []  # each member's exact arrival memory (model.inference.output.arrival)
         # The steps' columns (their declared per-character inputs, model.inference.output.pipeline), a row per member.
         self._names = tuple(dict.fromkeys((*engine.pipeline.loop_columns, *engine.pipeline.frame.columns)))
         self._columns: dict[str, Tensor] = {}
@@ -98,8 +112,9 @@ class CharacterBatch:
 
     def add(self, ch: Character) -> None:
         """Queue a prepared (or detached) character; it joins at the next :meth:`admit`."""
-        if ch.row is None and ch.prepared is None:
-            raise ValueError("character was not prepared by Engine.prepare")
+        if ch.parked is None:
+            raise ValueError(f"character {ch.id!r} holds no live part: it was not prepared by Engine.prepare, or a "
+                             "batch holds it (detach it from that one first)")
         self._pending.append(ch)
 
     def admit(self) -> None:
@@ -113,38 +128,44 @@ class CharacterBatch:
             self._restack()
 
     def _join(self, waiting: list[Character]) -> None:
-        """Stack ``waiting`` under the members; each hands its row, canonical frame and output memory to the batch."""
-        fresh = [c for c in waiting if c.row is None]
-        resumed = [c for c in waiting if c.row is not None]
-        joined = fresh + resumed
-        if any(c.memory is None for c in joined):
-            raise ValueError("character was not prepared by Engine.prepare")
+        """Stack ``waiting`` under the members; each hands its live part (:class:`Parked`) to the batch whole."""
+        parts = [self._parked(c) for c in waiting]
+        fresh = [c for c, p in zip(waiting, parts) if p.row is None]
+        resumed = [p.row for p in parts if p.row is not None]
+        joined = fresh + [c for c, p in zip(waiting, parts) if p.row is not None]
         contexts = [self.engine.context_of(c.style, c.style_strength) for c in joined]
         rows = [] if self._state is None else [self._state]
         if fresh:
             rows.append(self.engine.begin(fresh, contexts[:len(fresh)]))  # one batched warm-up for every newcomer
-        rows += [c.row for c in resumed]  # type: ignore[misc]  # resumed ones hold a row
+        rows += resumed
         self._state = type(rows[0]).stack(rows)
-        self._take_frames_and_memory(joined)
+        self._take_parts(joined)
         self.members.extend(joined)
         self._contexts.extend(contexts)
         self._changed = True
 
-    def _take_frames_and_memory(self, joined: list[Character]) -> None:
-        """The canonical frames and output memories of ``joined`` stacked under the members' (the characters
-        hold neither afterwards, nor their rows and prepared starts)."""
-        frames = [c.canonical_frame() for c in joined]
-        memories = [c.memory for c in joined]
+    @staticmethod
+    def _parked(ch: Character) -> Parked:
+        if ch.parked is None:
+            raise ValueError(f"character {ch.id!r} holds no live part: a batch holds it")
+        return ch.parked
+
+    def _take_parts(self, joined: list[Character]) -> None:
+        """The canonical frames, output memories and exact arrival memories of ``joined`` stacked under the
+        members' (the characters hold no live part afterwards)."""
+        parts = [self._parked(c) for c in joined]
+        frames = [p.frame for p in parts]
+        memories = [p.memory for p in parts]
         if self._yaw is not None and self._origin is not None:
             frames.insert(0, CanonicalFrame(self._yaw, self._origin))
         if self._memory is not None:
             memories.insert(0, self._memory)
         self._yaw = torch.cat([f.yaw for f in frames])
         self._origin = torch.cat([f.origin for f in frames])
-        held = [m for m in memories if m is not None]
-        self._memory = {k: torch.cat([m[k] for m in held]) for k in held[0]}
+        self._memory = {k: torch.cat([m[k] for m in memories]) for k in memories[0]}
+        self._arrivals.extend(copy.copy(p.arrival) for p in parts)  # a replica's shared memory stays as it was
         for c in joined:
-            c.row, c.memory, c.prepared = None, None, None
+            c.parked = None
 
     def _restack(self) -> None:
         """The members' style contexts stacked and grouped by weight set, and their columns stacked."""
@@ -196,6 +217,12 @@ class CharacterBatch:
             raise ValueError(f"character {ch.id!r} is not a member of this batch (one waiting joins at admit())")
         return self.members.index(ch)
 
+    def frame_of(self, ch: Character) -> CanonicalFrame:
+        """A member's canonical frame (``yaw [1]``, ``origin [1, 3]``)."""
+        i = self._index(ch)
+        assert self._yaw is not None and self._origin is not None
+        return CanonicalFrame(self._yaw[i : i + 1], self._origin[i : i + 1])
+
     def row_of(self, ch: Character) -> NetState:
         """A member's network state ``[1]`` (a copy)."""
         i = self._index(ch)
@@ -217,7 +244,8 @@ class CharacterBatch:
         self._keep([m for m in self.members if m is not ch])
 
     def detach(self, ch: Character) -> None:
-        """Take a live character out of the batch but keep its state on it, so :meth:`add` resumes it.
+        """Take a live character out of the batch, handing it back its live part (:class:`Parked`), so :meth:`add`
+        resumes it.
 
         :meth:`remove` discards the state; this lets a scheduler pause one character (its client is
         not reading, say) while the others keep stepping. Costs one restack, like ``remove``.
@@ -228,10 +256,10 @@ class CharacterBatch:
         i = self._index(ch)
         assert self._state is not None and self._yaw is not None and self._origin is not None
         row = torch.tensor([i])
-        ch.row = self._state.index(row)  # a copy: later steps never write into it
-        ch.frame = CanonicalFrame(self._yaw[row], self._origin[row])
         assert self._memory is not None
-        ch.memory = {k: v[i : i + 1].clone() for k, v in self._memory.items()}
+        ch.parked = Parked(CanonicalFrame(self._yaw[row], self._origin[row]),
+                           {k: v[i : i + 1].clone() for k, v in self._memory.items()},
+                           self._state.index(row), self._arrivals[i])  # copies, and its arrival memory leaves with it
         self._keep([m for m in self.members if m is not ch])
 
     def drop_finished(self) -> list[Character]:
@@ -246,7 +274,7 @@ class CharacterBatch:
             return
         if not keep:
             self.members, self._state, self._style, self._yaw, self._origin = [], None, None, None, None
-            self._memory, self._contexts, self._columns = None, [], {}
+            self._memory, self._contexts, self._columns, self._arrivals = None, [], {}, []
             return
         rows = [self.members.index(k) for k in keep]
         idx = torch.tensor(rows)
@@ -256,6 +284,7 @@ class CharacterBatch:
         assert self._memory is not None
         self._memory = {k: v[idx] for k, v in self._memory.items()}
         self._contexts = [self._contexts[i] for i in rows]
+        self._arrivals = [self._arrivals[i] for i in rows]
         self.members = keep
         self._changed = True
 
@@ -286,7 +315,8 @@ class CharacterBatch:
         local, root, new = self.engine.output_fn(self._state.pose, self._yaw, self._origin, remaining,
                                                  self._frame_inputs(memory), shift)
         memory.update({k: new[k] for k in memory})
-        local, root = self.engine.pipeline.arrival(local, root, remaining, [m.arrival for m in self.members])
+        local, root = self.engine.pipeline.arrival(local, root, remaining, [m.aim.bent_to for m in self.members],
+                                                   self._arrivals)
         seq = []
         for m in self.members:
             seq.append(m.seq)

@@ -20,10 +20,12 @@ import torch
 
 from model.inference.bundle import Bundle
 from model.inference.character import (
+    Aim,
     Character,
     CharacterRequest,
     EncodedStyle,
     Limits,
+    Parked,
     PreparedStart,
     StepOutput,
     WeightSet,
@@ -38,7 +40,6 @@ from model.inference.errors import (
     TooManyFrames,
 )
 from model.inference.int8_step import int8_lstm_sampler
-from model.inference.output.arrival import ArrivalMemory
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, ground_distance, reach_of
@@ -206,20 +207,18 @@ class Engine:
         return Limits(math.inf if speed is None else speed / self.config.fps, self.gait_limits.foot_lift(gait),
                       self.gait_limits.planted_rise(gait))
 
-    def _aim(self, style: EncodedStyle, arrival: ArrivalMemory | None, root_xz: Tensor, goal: PoseState,
-             frames: int) -> tuple[PoseState, Reach | None]:
+    def _within_reach(self, style: EncodedStyle, root_xz: Tensor, goal: PoseState,
+                      frames: int) -> tuple[PoseState, Reach | None]:
         """The reach notice of a character of ``style`` for the target state ``goal`` (canonical frame) ``frames``
         frames away from a root at ``root_xz [1, 2]``, and the target the network is to aim at: ``goal``, or where it
         is out of reach (and :attr:`aim_within_reach`), ``goal`` moved toward the root until the capture's speed
         covers it, so the network walks there at a gait it knows and arrives short instead of hurrying (the notice
-        still names the true target). An exact ``arrival`` out of reach is told so (it would drag the body there)."""
+        still names the true target; exact arrival does not bend the frames of one out of reach, :attr:`Aim.bent_to`)."""
         speed = self.max_speed(style)
         if speed is None:
             return goal, None
         root = self.skeleton.roles.root
         reach = reach_of(ground_distance(root_xz, goal.positions(), root), frames, speed, self.config.fps)
-        if arrival is not None:
-            arrival.out_of_reach = not reach.feasible
         if reach.feasible or not self.aim_within_reach:
             return goal, reach
         ahead = goal.root_xz - root_xz
@@ -333,17 +332,17 @@ class Engine:
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
         request = CharacterRequest(character_id or f"c{next(self._ids)}", style, frames, style_strength, retargeted)
-        aim, reach = self._aim(style, arrival, cstate.root_xz[:, -1], tstate, frames)
-        return Character(request, self.limits_of(style), frame=frame, arrival=arrival, reach=reach,
-                         goal=(tstate, known), prepared=PreparedStart(cstate, aim, frames, noise, known),
-                         memory=self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions))
+        steer, reach = self._within_reach(style, cstate.root_xz[:, -1], tstate, frames)
+        memory = self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions)
+        return Character(request, Aim(tstate, known, reach, arrival), self.limits_of(style),
+                         parked=Parked(frame, memory, PreparedStart(cstate, steer, frames, noise, known)))
 
     @torch.inference_mode()
     def begin(self, characters: list[Character], contexts: list[Any] | None = None) -> NetState:
         """Warm the recurrent core of prepared characters on their contexts, all in one batch; ``contexts``: their
         style contexts as the batch runs them (by default from their requests, :meth:`context_of`). Returns their
-        rows and changes nothing of theirs (whoever takes the rows drops the prepared starts)."""
-        inits = [c.prepared for c in characters]
+        rows and changes nothing of theirs (whoever takes the rows replaces their :class:`Parked` parts)."""
+        inits = [None if c.parked is None else c.parked.prepared for c in characters]
         if any(i is None for i in inits):
             raise ValueError("character was not prepared by Engine.prepare, or has begun already")
         starts = [i for i in inits if i is not None]
@@ -379,38 +378,47 @@ class Engine:
                  frames: int | None = None) -> Reach | None:
         """Change where and/or when a live character arrives, from its next frame on (``batch``: the batch it is
         live in or waits to join, if any; one waiting joins it first); returns its reach notice from where it now
-        stands (also kept as ``ch.reach``; None where the bundle has no gait limits)."""
+        stands (also kept in ``ch.aim``; None where the bundle has no gait limits)."""
         if frames is not None:
             self.check_frames(frames)
         if batch is not None:
             batch.admit()  # one waiting is warmed up with the others waiting, as its first step would
-        elif ch.row is None:
-            ch.row, ch.prepared = self.begin([ch]), None
-        request = ch.request
+        else:
+            self._begun(ch)  # one not begun is warmed up on its own
+        request, aim = ch.request, ch.aim
         if target is not None:
             target = self.conform(target, "target")
-            if ch.arrival is not None:
-                ch.arrival.rotations, ch.arrival.root = quat_normalize(target.rotations[-1]), target.root_positions[-1]
-            ch.goal = self._target_state(target, ch.canonical_frame())
+            goal, known = self._target_state(target, self._begun(ch).frame if batch is None else batch.frame_of(ch))
+            arrival = None if aim.arrival is None else self.pipeline.arrival.start(
+                quat_normalize(target.rotations[-1]), target.root_positions[-1])
+            aim = Aim(goal, known, aim.reach, arrival)
             request = replace(request, retargeted=True)
         if frames is not None:
             request = replace(request, frames=ch.seq + frames)
         if request is not ch.request:
             self._restate(ch, request, batch)
-        row = batch.row_of(ch) if batch is not None else ch.row
-        assert row is not None and ch.goal is not None
-        goal, known = ch.goal
-        aim, ch.reach = self._aim(ch.style, ch.arrival, row.pose.root_xz, goal, ch.remaining)
+        row = batch.row_of(ch) if batch is not None else self._begun(ch).row
+        assert row is not None
+        steer, reach = self._within_reach(ch.style, row.pose.root_xz, aim.goal, ch.remaining)
+        ch.aim = replace(aim, reach=reach)  # the engine's view of the target, handed over whole
         updates: dict[str, Tensor] = {} if frames is None else {"tta": torch.tensor([frames])}
-        if target is not None or frames is not None or aim is not goal:  # a new target or time, or one out of reach
+        if target is not None or frames is not None or steer is not aim.goal:  # a new target or time, or out of reach
             with torch.inference_mode():
                 updates.update(self.weights(ch.style.weights).net.target_fields(
-                    row, aim, torch.tensor([known]), torch.tensor([ch.remaining])))
+                    row, steer, torch.tensor([aim.velocity_known]), torch.tensor([ch.remaining])))
         if batch is not None:
             batch.update_row(ch, updates)
         else:
             ch.update_row(updates)
-        return ch.reach
+        return reach
+
+    def _begun(self, ch: Character) -> Parked:
+        """The live part of a character out of a batch, warmed up on its context first if it has not begun."""
+        if ch.parked is None:
+            raise ValueError(f"character {ch.id!r} is in a batch: retarget it with that batch")
+        if ch.parked.row is None:
+            ch.parked = replace(ch.parked, state=self.begin([ch]))
+        return ch.parked
 
     def _restate(self, ch: Character, request: CharacterRequest, batch: CharacterBatch | None) -> None:
         """Hand ``ch`` its new request: to the batch it is in, or to the character itself out of one."""

@@ -14,7 +14,7 @@ Works frame by frame with explicit per-character state, so streaming and whole t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 
@@ -118,17 +118,13 @@ class ArrivalCorrector:
         return rot, root
 
 
-@dataclass
-class ArrivalMemory:
-    """One character's exact arrival: its target pose in world space (local rotations ``[J, 4]``, root ``[3]``)
-    and the corrector's state. ``out_of_reach``: its target is farther than its style's capture speed covers
-    in the frames left (:mod:`model.inference.reach`), so its frames are not bent: it arrives short rather than
-    be dragged onto the target faster than it can walk."""
+@dataclass(frozen=True)
+class ArrivalPose:
+    """Where one character arrives exactly: its target pose in world space (local rotations ``[J, 4]``, root
+    ``[3]``). The corrector's memory of the character (:class:`ArrivalState`) lives beside it, in its batch."""
 
     rotations: Tensor
     root: Tensor
-    state: ArrivalState = field(default_factory=ArrivalState)
-    out_of_reach: bool = False
 
 
 class ExactArrival:
@@ -138,23 +134,24 @@ class ExactArrival:
     def __init__(self, corrector: ArrivalCorrector) -> None:
         self.corrector = corrector
 
-    def start(self, rotations: Tensor, root: Tensor) -> ArrivalMemory:
-        """A character's memory for arriving exactly at the pose ``rotations [J, 4]``, ``root [3]`` (world)."""
-        return ArrivalMemory(rotations, root)
+    def start(self, rotations: Tensor, root: Tensor) -> ArrivalPose:
+        """A character's target for arriving exactly at the pose ``rotations [J, 4]``, ``root [3]`` (world)."""
+        return ArrivalPose(rotations, root)
 
-    def __call__(self, rotations: Tensor, roots: Tensor, remaining: Tensor,
-                 memories: list[ArrivalMemory | None]) -> tuple[Tensor, Tensor]:
-        """A batch's frame (``[N, J, 4]``, ``[N, 3]``; ``remaining [N]``) with the rows whose memory is not None
-        (and whose target is in reach) bent toward their targets; the others as they are."""
-        exact = [i for i, m in enumerate(memories) if m is not None and not m.out_of_reach]
+    def __call__(self, rotations: Tensor, roots: Tensor, remaining: Tensor, targets: list[ArrivalPose | None],
+                 states: list[ArrivalState]) -> tuple[Tensor, Tensor]:
+        """A batch's frame (``[N, J, 4]``, ``[N, 3]``; ``remaining [N]``) with the rows whose target is not None
+        bent toward it (None also where a target is out of reach: :attr:`model.inference.character.Aim.bent_to`),
+        the others as they are; ``states``: each row's corrector memory, the bent rows' updated in place."""
+        exact = [i for i, t in enumerate(targets) if t is not None]
         if not exact:
             return rotations, roots
         idx = torch.tensor(exact)
-        chosen = [m for m in memories if m is not None and not m.out_of_reach]
-        t_rot = torch.stack([m.rotations for m in chosen])
-        t_root = torch.stack([m.root for m in chosen])
+        chosen = [t for t in targets if t is not None]
+        t_rot = torch.stack([t.rotations for t in chosen])
+        t_root = torch.stack([t.root for t in chosen])
         fixed_rot, fixed_root = self.corrector.apply(rotations[idx], roots[idx], t_rot, t_root, remaining[idx],
-                                                     [m.state for m in chosen])
+                                                     [states[i] for i in exact])
         rotations, roots = rotations.clone(), roots.clone()
         rotations[idx], roots[idx] = fixed_rot, fixed_root
         return rotations, roots

@@ -75,8 +75,8 @@ def test_a_waiting_character_joins_when_the_batch_admits_it_not_when_a_row_is_re
     batch.add(ch)
     with pytest.raises(ValueError, match="admit"):
         batch.row_of(ch)
-    assert batch.members == [] and ch.prepared is not None  # still waiting, not warmed up
+    assert batch.members == [] and ch.parked is not None and ch.parked.prepared is not None  # waiting, not warmed up
     batch.admit()
-    assert batch.members == [ch] and ch.prepared is None and ch.memory is None  # the batch holds its rows now
+    assert batch.members == [ch] and ch.parked is None  # the batch holds its live part now
     assert batch.row_of(ch).tta.tolist() == [20]
     torch.testing.assert_close(batch.stacked()[4][PLANT_CAP], torch.tensor([4.0]))  # a clip's style: the largest

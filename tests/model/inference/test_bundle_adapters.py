@@ -121,10 +121,16 @@ def test_a_style_switch_to_other_weights_reencodes_the_target(adapted, walk):
         batch.step()
     # Out of a batch (a parked stream), the row it holds is re-encoded the same way.
     ch2 = _chars(engine, walk, [limp])[0]
-    ch2.row = engine.begin([ch2])
+    parking = CharacterBatch(engine)
+    parking.add(ch2)
+    parking.step()
+    parking.detach(ch2)  # its row handed back, as a stream parked for a full queue holds it
+    assert ch2.parked is not None
+    before = ch2.parked
     engine.set_style(ch2, slow)
-    assert isinstance(ch2.row, SamplerState)
-    assert torch.allclose(ch2.row.target_emb, engine.bundle.sampler.target_encoder(ch2.row.target_vec))
+    held = ch2.parked.row if ch2.parked is not None else None
+    assert isinstance(held, SamplerState) and ch2.parked is not before
+    assert torch.allclose(held.target_emb, engine.bundle.sampler.target_encoder(held.target_vec))
     with pytest.raises(ValueError, match="no weights 'gone'"):
         engine.weights("gone")
 

@@ -109,7 +109,7 @@ def test_a_transition_never_moves_faster_than_its_style_and_says_it_falls_short(
     speed = {"slow": SLOW, "fast": FAST, "": FAST}[gait]
     assert ch.reach is not None and not ch.reach.feasible and ch.reach.max_speed_cm_s == speed
     assert ch.reach.needed_frames == math.ceil((ch.reach.distance_cm - 1.0) * FPS / speed)
-    assert ch.arrival is not None and ch.arrival.out_of_reach  # not dragged onto the target
+    assert ch.arrival is not None and ch.aim.bent_to is None  # not dragged onto the target
     _, roots = engine.generate([ch])[0]
     speeds = _root_speeds(roots, context.root_positions[-1])
     assert float(speeds.max()) <= speed * 1.001

@@ -143,15 +143,16 @@ def test_the_engine_tells_a_flagged_model_whether_the_target_came_with_its_veloc
     style, _ = engine.encode_style(walk.window(20, 60))
     one = engine.prepare(walk.window(0, 10), walk.window(39, 40), 12, style, deterministic=True)
     two = engine.prepare(walk.window(0, 10), walk.window(38, 40), 12, style, deterministic=True)
-    assert one.prepared is not None and two.prepared is not None
-    assert one.prepared.velocity_known is False and two.prepared.velocity_known is True
+    starts = [None if c.parked is None else c.parked.prepared for c in (one, two)]
+    assert [None if s is None else s.velocity_known for s in starts] == [False, True]
     row = engine.begin([one, two])
     assert isinstance(row, SamplerState)
     assert row.target_vec[:, -1].tolist() == [0.0, 1.0]
     assert torch.equal(row.target_vec[0, 3 * J:6 * J], torch.zeros(3 * J))
     ch = engine.prepare(walk.window(0, 10), walk.window(38, 40), 12, style, deterministic=True)
     engine.retarget(ch, target=walk.window(50, 51))
-    assert isinstance(ch.row, SamplerState) and ch.row.target_vec[0, -1].item() == 0.0
+    held = None if ch.parked is None else ch.parked.row
+    assert isinstance(held, SamplerState) and held.target_vec[0, -1].item() == 0.0
     rot, _ = engine.generate([engine.prepare(walk.window(0, 10), walk.window(39, 40), 12, style, deterministic=True)])[0]
     assert rot.shape[0] == 12
 
