@@ -80,3 +80,30 @@ def test_a_waiting_character_joins_when_the_batch_admits_it_not_when_a_row_is_re
     assert batch.members == [ch] and ch.parked is None  # the batch holds its live part now
     assert batch.row_of(ch).tta.tolist() == [20]
     torch.testing.assert_close(batch.stacked()[4][PLANT_CAP], torch.tensor([4.0]))  # a clip's style: the largest
+
+
+def test_the_batch_takes_a_live_part_whole_gives_it_back_whole_and_a_retarget_hands_over_a_new_aim() -> None:
+    walk = synthetic_walk(frames=120)
+    engine = _engine()
+    style, _ = engine.encode_style(walk.window(0, 60))
+    template = engine.prepare(walk.window(0, 10), walk.window(20, 22), 16, style, seed=1, exact_arrival=True)
+    shared = template.parked
+    assert shared is not None and shared.prepared is not None and template.aim.bent_to is not None  # in reach
+    ch = template.replica("a")  # shares the template's Parked
+    batch = CharacterBatch(engine)
+    batch.add(ch)
+    for _ in range(10):  # into exact arrival's window: its memory is written from here on
+        batch.step()
+    assert ch.parked is None and template.parked is shared and shared.arrival.progress is None  # the shared part as was
+    batch.detach(ch)
+    back = ch.parked
+    assert back is not None and back.prepared is None and back.row is not None and back.arrival.progress is not None
+    torch.testing.assert_close(back.frame.origin, shared.frame.origin, rtol=0, atol=0)  # fixed when it started
+    tta, aim = back.row.tta.clone(), ch.aim
+    reach = engine.retarget(ch, target=walk.window(30, 32), frames=8)  # out of a batch: on the part it holds
+    assert ch.aim is not aim and ch.aim.reach is reach and ch.aim.arrival is not aim.arrival
+    assert ch.parked is not back and torch.equal(back.row.tta, tta)  # a new row in a new part; the old one as was
+    assert ch.parked is not None and ch.parked.row is not None and ch.parked.row.tta.tolist() == [8]
+    batch.add(ch)
+    batch.admit()
+    assert ch.parked is None and batch.row_of(ch).tta.tolist() == [8]
