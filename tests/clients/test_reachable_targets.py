@@ -99,7 +99,8 @@ def rows(default_model_eager_server: Server) -> list[Row]:
                 pose = _pose_at(skeleton, roots, rotations, place)
                 for kind in KINDS:
                     target: Any = place if kind == "target_at" else pose
-                    exact = kind == "pose exact"
+                    # A pose target is exact only when asked; a target_at is left to the server's default, exact.
+                    exact = True if kind == "pose exact" else None if kind == "target_at" else False
                     got = c.transition(context, target, FRAMES, style_id=f"builtin:{style}", seed=n,
                                        exact_arrival=exact)
                     out.append(_row(style, kind, "transition", place, roots[-1], got))
