@@ -9,6 +9,8 @@ import torch
 
 from model.data.location import ENV_VAR, find_data_dir
 
+pytest_plugins = ["tests.run_alone"]  # tests marked `alone` run with no other worker's test beside them
+
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:

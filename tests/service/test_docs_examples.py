@@ -32,9 +32,9 @@ SHELL, PYTHON = ("bash", "sh", "shell", "console"), ("python", "py")
 NOT_RUN: dict[tuple[str, str], str] = {
     ("README.md", "pip install -e ./clients/python -e . && rsmt serve"):
         "installs the project into a new virtual environment, then serves on port 8000 until stopped",
-    ("README.md", "pip install -e ./clients/python -e '.[test]' && python -m pytest -q"):
+    ("README.md", "pip install -e ./clients/python -e '.[test]' && python -m pytest -q -n 2"):
         "installs into a new virtual environment and runs the whole test suite, this test included",
-    ("README.md", 'python -m pytest -q -m "not slow"'):
+    ("README.md", 'python -m pytest -q -n 2 -m "not slow"'):
         "the fast test tier: a run of this suite's own unmarked tests, from the repository root",
     ("README.md", "rsmt train recipe default-model"): "trains the default model: about three hours on 2 cores",
     ("README.md", "export RSMT_DATA=$(bash ../shared/data/unpack.sh)"):

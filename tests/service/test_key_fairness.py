@@ -25,7 +25,7 @@ from tests.service.key_flood import KeyFlood
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
-pytestmark = pytest.mark.slow  # two floods of one key beside another key's requests, about 45 s on 2 cores
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # two floods of one key beside another key's requests, about 45 s on 2 cores
 
 KEY_A, KEY_B = "quiet-key-a-0123456789abcdef", "flood-key-b-0123456789abcdef"
 MOST_SLOWDOWN = 3.0

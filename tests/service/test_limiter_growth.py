@@ -17,7 +17,7 @@ import pytest
 from service.ratelimit import RateLimiter
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # 20,000 failed logins from new addresses
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # 20,000 failed logins from new addresses
 
 KEY = "limiter-growth-key-0123456789"
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]

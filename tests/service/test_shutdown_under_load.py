@@ -14,7 +14,7 @@ from tests.service.burst import Burst, metric, wait_for
 from tests.service.conftest import transition_body
 from tests.service.slow_engine import slow_server
 
-pytestmark = pytest.mark.slow  # SIGTERM under a full queue
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # SIGTERM under a full queue
 
 REQUESTS = 64
 DELAY_S = 0.3  # 64 queued hold the one thread ~19 s: far beyond the drain and the grace

@@ -61,6 +61,7 @@ def test_without_keys_the_queue_is_first_come_first_served_with_one_bound():
     asyncio.run(main())
 
 
+@pytest.mark.alone  # timed
 def test_two_busy_keys_get_about_equal_thread_time_whatever_their_job_lengths():
     began = time.monotonic()
     runs: list[tuple[str, float, float]] = []  # owner, when its job started, how long it held the thread
@@ -148,6 +149,7 @@ def test_a_long_job_in_slices_lets_another_keys_job_run_between_them_and_keeps_i
 
 # Cancelled while waiting to start; during its first slice; with its next slice queued behind key c's job.
 @pytest.mark.parametrize("cancel_at_s", [0.01, 0.055, 0.08])
+@pytest.mark.alone  # timed
 def test_a_sliced_job_whose_caller_is_cancelled_goes_no_further_and_frees_its_slot(cancel_at_s: float):
     async def main() -> None:
         with ThreadPoolExecutor(1) as pool:

@@ -15,7 +15,7 @@ import pytest
 from tests.service.probes import GapProbe, cpu_seconds, live, p99
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # sends a 92 MB header beside a stream
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # sends a 92 MB header beside a stream
 
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]
 HUGE = 92 << 20

@@ -15,7 +15,7 @@ import pytest
 from tests.service.probes import GapProbe, p99, run_flood
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # a 5 s flood beside a stream
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # a 5 s flood beside a stream
 
 KEY = "pipelining-key-0123456789abcdef"
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]

@@ -18,7 +18,7 @@ from tests.service.conftest import transition_body
 from tests.service.probes import GapProbe, cpu_seconds, p99, quiet_cpu_rate
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # sends a 40 MB trailer beside a stream
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # sends a 40 MB trailer beside a stream
 
 KEY_A, KEY_B = "trailer-key-a-0123456789abcdef", "trailer-key-b-0123456789abcdef"
 SERVE = ["rsmt", "serve", "--host", "127.0.0.1", "--port", "{port}"]

@@ -18,7 +18,7 @@ from tests.service.conftest import transition_body
 from tests.service.processes import RedisProcess
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # a real redis-server, paused and resumed
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # a real redis-server, paused and resumed
 
 SECONDS = 4.0
 STYLE_ID_CLIENTS = 3

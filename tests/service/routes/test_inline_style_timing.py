@@ -14,7 +14,7 @@ import pytest
 from tests.service.conftest import bvh, transition_body, walk
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # timed transitions against a server of its own
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # timed transitions against a server of its own
 
 KEY_A, KEY_B = "inline-key-a-0123456789abcdef", "inline-key-b-0123456789abcdef"
 PAIRS = 14

@@ -72,6 +72,7 @@ def test_stream_equals_http_transition(server, styles):
     assert np.allclose(rots, np.array([f["rotations"] for f in http]), atol=1e-4)
 
 
+@pytest.mark.alone  # timed
 def test_realtime_pacing(server, styles):
     with Ws(server.ws) as ws:
         ws.send(start_message("rt", 30, pace="realtime", style_id=styles["walk"]))
@@ -253,6 +254,7 @@ def test_oversize_message_closes_1009(server):
     assert server.ready() == 200
 
 
+@pytest.mark.alone  # timed
 def test_idle_connection_closes_1000(server):
     with Ws(server.ws) as ws:
         started = time.monotonic()
@@ -263,6 +265,7 @@ def test_idle_connection_closes_1000(server):
         assert 1.5 < time.monotonic() - started < 6
 
 
+@pytest.mark.alone  # timed
 def test_client_that_never_reads_is_closed_1008(server, styles):
     sock = socket.socket()
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)

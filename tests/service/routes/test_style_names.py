@@ -15,7 +15,7 @@ import pytest
 from tests.service.conftest import bvh, walk
 from tests.service.server import Server, server_with_style_store
 
-pytestmark = pytest.mark.slow  # Redis and timed registrations
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # Redis and timed registrations
 
 KEY_A, KEY_B = "names-key-a-0123456789abcdef", "names-key-b-0123456789abcdef"
 SECRET = "B-private-name-4242"

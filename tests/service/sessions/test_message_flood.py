@@ -15,7 +15,7 @@ from tests.service.probes import GapProbe, p99, run_flood
 from tests.service.server import Server
 from tests.service.wsclient import Ws
 
-pytestmark = pytest.mark.slow  # a 5 s flood beside a stream
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # a 5 s flood beside a stream
 
 KEY_A, KEY_B, KEY_C = "flood-key-a-0123456789abcdef", "flood-key-b-0123456789abcdef", "flood-key-c-0123456789abcdef"
 FLOOD_S = 5.0

@@ -14,7 +14,7 @@ from tests.service import step_share_bench
 from tests.service.probes import GapProbe
 from tests.service.server import Server
 
-pytestmark = pytest.mark.slow  # two keys' asap characters on one server, twice
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # two keys' asap characters on one server, twice
 
 KEY_A, KEY_S = "step-share-key-a-0123456789abcdef", "step-share-key-s-0123456789abcdef"
 SMALL, BIG, SECONDS = 2, 64, 4.0
