@@ -21,7 +21,7 @@ from tests.service.conftest import bvh, walk
 from tests.service.server import Server
 from tests.service.wsclient import start_message
 
-pytestmark = [pytest.mark.slow, pytest.mark.alone]  # 1,200 connections through a real server, about 25 s on 2 cores
+pytestmark = pytest.mark.slow  # 1,200 connections through a real server, about 25 s on 2 cores
 
 KEY = "churn-key-0123456789abcdef"
 WARM_UP, MEASURED, AT_ONCE = 600, 600, 32

@@ -15,7 +15,7 @@ from tests.service.probes import GapProbe, p99
 from tests.service.server import Server
 from tests.service.wsclient import Ws, start_message
 
-pytestmark = [pytest.mark.slow, pytest.mark.alone]  # fills a server's character slots from two keys
+pytestmark = pytest.mark.slow  # fills a server's character slots from two keys
 
 KEY_A, KEY_B = "share-key-a-0123456789abcdef", "share-key-b-0123456789abcdef"
 MAX_CHARACTERS, PER_CONNECTION = 16, 8
