@@ -381,10 +381,7 @@ class Engine:
         stands (also kept in ``ch.aim``; None where the bundle has no gait limits)."""
         if frames is not None:
             self.check_frames(frames)
-        if batch is not None:
-            batch.admit()  # one waiting is warmed up with the others waiting, as its first step would
-        else:
-            self._begun(ch)  # one not begun is warmed up on its own
+        self._row(ch, batch)  # one waiting joins, one not begun is warmed up
         request, aim = ch.request, ch.aim
         if target is not None:
             target = self.conform(target, "target")
@@ -397,12 +394,29 @@ class Engine:
             request = replace(request, frames=ch.seq + frames)
         if request is not ch.request:
             self._restate(ch, request, batch)
-        row = batch.row_of(ch) if batch is not None else self._begun(ch).row
+        return self._reaim(ch, batch, aim, frames, rewrite=target is not None or frames is not None)
+
+    def _row(self, ch: Character, batch: CharacterBatch | None) -> NetState:
+        """A live character's network row (a copy in a batch), warmed up first if it has not begun: with the others
+        waiting to join ``batch``, as its first step would, or on its own out of one."""
+        if batch is not None:
+            batch.admit()
+            return batch.row_of(ch)
+        row = self._begun(ch).row
         assert row is not None
+        return row
+
+    def _reaim(self, ch: Character, batch: CharacterBatch | None, aim: Aim, frames: int | None,
+               rewrite: bool) -> Reach | None:
+        """Work out ``ch``'s reach for ``aim`` from where it now stands, with the frames it has left and its style's
+        capture speed, hand it the new :class:`Aim` whole, and write the target fields of its row (a new ``frames``
+        left: its ``tta`` too) where ``rewrite`` says its target or time changed or the network is to aim nearer (out
+        of reach). Returns the reach notice."""
+        row = self._row(ch, batch)
         steer, reach = self._within_reach(ch.style, row.pose.root_xz, aim.goal, ch.remaining)
         ch.aim = replace(aim, reach=reach)  # the engine's view of the target, handed over whole
         updates: dict[str, Tensor] = {} if frames is None else {"tta": torch.tensor([frames])}
-        if target is not None or frames is not None or steer is not aim.goal:  # a new target or time, or out of reach
+        if rewrite or steer is not aim.goal:
             with torch.inference_mode():
                 updates.update(self.weights(ch.style.weights).net.target_fields(
                     row, steer, torch.tensor([aim.velocity_known]), torch.tensor([ch.remaining])))
@@ -427,10 +441,18 @@ class Engine:
         else:  # an unknown weight set fails before anything changes
             restate_held(ch, request, self.limits_of(request.style), self.weights(request.style.weights))
 
-    def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> None:
-        """Switch a character's style from its next frame (``batch``: the batch it is live in, if any), with its
-        style's caps. A style on other weights re-encodes the target by them; the recurrent state carries over."""
+    def set_style(self, ch: Character, style: EncodedStyle, batch: CharacterBatch | None = None) -> Reach | None:
+        """Switch a character's style from its next frame (``batch``: the batch it is live in or waits to join, if
+        any), with its style's caps. A style on other weights re-encodes the target by them; the recurrent state
+        carries over. Its reach is worked out again at the new style's capture speed from where it now stands
+        (exact arrival follows the new verdict); returns that notice (None where the bundle has no gait limits)."""
+        if batch is None and ch.parked is None:
+            raise ValueError(f"character {ch.id!r} is in a batch: switch its style with that batch")
+        was_short = ch.reach is not None and not ch.reach.feasible and self.aim_within_reach  # its row aims nearer
         self._restate(ch, replace(ch.request, style=style), batch)
+        if self.max_speed(style) is None:
+            return None  # the bundle has no gait limits: no reach to work out
+        return self._reaim(ch, batch, ch.aim, None, rewrite=was_short)
 
     def generate(self, characters: list[Character]) -> list[tuple[Tensor, Tensor]]:
         """Run prepared characters to their end in one batch; ``(rotations [N,J,4], roots [N,3])`` each."""

@@ -5,19 +5,21 @@ transitions and streams and after a retarget mid-stream; a target out of reach i
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
 
 from model.data.synthetic import synthetic_skeleton, synthetic_walk
 from model.inference.bundle import Bundle
+from model.inference.character import Character, EncodedStyle
 from model.inference.character_batch import CharacterBatch
 from model.inference.engine import Engine
 from model.inference.output.settings import OutputConfig
 from model.inference.output.speed_cap import speed_capped
 from model.inference.output.steering import SteeringConfig
 from model.inference.overrides import Overrides
-from model.inference.reach import reach_of
+from model.inference.reach import Reach, reach_of
 from model.motion.clip import Clip
 from model.motion.gait_limits import GaitLimits, StyleGait
 from model.nets.manifold import ManifoldConfig
@@ -160,3 +162,48 @@ def test_a_floating_body_is_lowered_to_its_style_s_lift_and_a_sinking_one_still_
         change = contact.lift_of(contact.kinematics(rot[-1:], up)[0], floor, torch.tensor([cap]))
         assert change[0, 1].item() == pytest.approx(moved, abs=1e-4), (rise, cap)
         assert change[0, ::2].abs().max() == 0
+
+
+def _switched_at(engine: Engine, ch: Character, style: EncodedStyle, seq: int) -> tuple[Reach | None, torch.Tensor]:
+    """Run ``ch`` to its end in a batch, its style switched to ``style`` before frame ``seq``: the notice that
+    switch returned, and its roots."""
+    batch = CharacterBatch(engine)
+    batch.add(ch)
+    reach, roots = None, []
+    while len(batch):
+        if ch.seq == seq:
+            reach = engine.set_style(ch, style, batch)
+        out = batch.step()
+        roots.append(out.root_positions[0])
+        batch.drop_finished()
+    return reach, torch.stack(roots)
+
+
+def test_a_style_switch_works_the_reach_out_again_at_the_new_style_s_speed() -> None:
+    walk = synthetic_walk(frames=120)
+    engine = Engine(_bundle(LIMITS), compiled=False)
+    fast, _ = engine.encode_style(walk.window(0, 60))
+    fast.gait = "fast"
+    slow = replace(fast, gait="slow")
+    context, target = walk.window(0, 10), _far(walk, 1.5)
+    goal = target.root_positions[-1, [0, 2]]
+    # In reach at the fast style's 240 cm/s (150 cm in 40 frames); switched to the slow one (60 cm/s) with 30 frames
+    # left it is not: the switch says so, and exact arrival no longer drags the walk onto the target.
+    ch = engine.prepare(context, target, 40, fast, seed=1, exact_arrival=True)
+    assert ch.reach is not None and ch.reach.feasible and ch.aim.bent_to is not None
+    reach, roots = _switched_at(engine, ch, slow, 10)
+    assert reach is ch.reach and reach is not None and not reach.feasible
+    assert reach.max_speed_cm_s == SLOW and reach.frames == 30 and reach.distance_cm > reach.reachable_cm + 1.0
+    assert ch.arrival is not None and ch.aim.bent_to is None
+    speeds = _root_speeds(roots, context.root_positions[-1])
+    print(f"fast -> slow: {reach.to_dict()}, top speed after {float(speeds[10:].max()):.1f} cm/s, ends "
+          f"{float((roots[-1, [0, 2]] - goal).norm()):.1f} cm short")
+    assert float(speeds[10:].max()) <= SLOW * 1.001  # before the fix exact arrival dragged it at 480 cm/s
+    assert float((roots[-1, [0, 2]] - goal).norm()) > 50.0
+    # Out of reach at the slow style (80 cm in 40 frames), switched to the fast one it is in reach: it arrives.
+    ch = engine.prepare(context, target, 40, slow, seed=1, exact_arrival=True)
+    assert ch.reach is not None and not ch.reach.feasible and ch.aim.bent_to is None
+    reach, roots = _switched_at(engine, ch, fast, 10)
+    assert reach is ch.reach and reach is not None and reach.feasible and reach.max_speed_cm_s == FAST
+    assert ch.aim.bent_to is not None
+    assert float((roots[-1, [0, 2]] - goal).norm()) < 1.0
