@@ -266,7 +266,7 @@ class Session:
         assert stream.scheduler is not None
         from_seq = await stream.scheduler.set_style(stream, style)
         self.conn.send_message({"type": "style_changed", "character": msg.character, "from_seq": from_seq,
-                                "style_id": style.style_id})
+                                "style_id": style.style_id, "reach": reach_body(stream.character)})
 
     def cancel(self, msg: CancelMessage) -> None:
         stream, _ = self._live(msg.character)

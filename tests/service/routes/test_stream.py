@@ -135,6 +135,7 @@ def test_style_switch(server, styles):
     ack = next(m for m in got["messages"] if m["type"] == "style_changed")
     k = ack["from_seq"]
     assert ack["style_id"] == styles["brisk"] and 5 < k < 60
+    assert ack["reach"] is None  # this model has no gait limits: no reach to work out
     _, b_rots = poses_of(base)
     _, s_rots = poses_of(got["frames"])
     assert np.allclose(s_rots[:k], b_rots[:k], atol=1e-4)
