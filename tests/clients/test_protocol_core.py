@@ -164,6 +164,23 @@ def test_a_stream_retargeted_back_within_reach_arrives() -> None:
     assert c.reach is None and not c.stopped_short
 
 
+def test_a_style_switch_s_notice_is_the_last_one() -> None:
+    s = _session()
+    near = {"feasible": True, "distance_cm": 150.0, "frames": 40, "needed_frames": 19, "reachable_cm": 320.0,
+            "max_speed_cm_s": 240.0}
+    slow = {"feasible": False, "distance_cm": 145.6, "frames": 30, "needed_frames": 73, "reachable_cm": 60.0,
+            "max_speed_cm_s": 60.0}
+    d, _ = s.begin_collect("d")
+    for raw in [json.dumps({"type": "started", "character": "d", "slot": 0, "reach": near}),
+                json.dumps({"type": "style_changed", "character": "d", "from_seq": 10, "style_id": "sty_s",
+                            "reach": slow}),
+                json.dumps({"type": "end", "character": "d", "reason": "arrived", "frames": 40})]:
+        if s.take(s.parse(raw), d):
+            break
+    assert d.reach is not None and d.reach.max_speed_cm_s == 60.0 and d.stopped_short
+    assert d.reach.short_cm == pytest.approx(145.6 - 60.0)
+
+
 def test_exact_arrival_is_sent_as_said_and_left_to_the_server_when_not():
     # False must reach the server: a target_at arrives exactly unless the request says "exact_arrival": false.
     bodies = {said: ops.transition_body({"bvh": "H"}, TargetAt(100.0, 0.0, 90.0), 20, "sty_a", None, None, False, "json",

@@ -1,4 +1,5 @@
-"""The ``reach`` notice of a transition or a stream's ``started`` / ``retargeted`` message (docs/api-contract.md).
+"""The ``reach`` notice of a transition or a stream's ``started`` / ``retargeted`` / ``style_changed`` message
+(docs/api-contract.md).
 
 The server keeps a character's root within its style's capture speed, so a target farther than that speed
 covers in the frames asked is not reached: the character arrives short (it does not glide there). The

@@ -28,6 +28,8 @@ from rsmt_client.reach import Reach
 
 # The largest message both clients accept from the server (a binary frame of a very large rig is far less).
 MAX_MESSAGE_BYTES = 16 << 20
+# The messages about a character that carry its reach notice (docs/api-contract.md, "Reach"); the last one holds.
+NOTICES = ("started", "retargeted", "style_changed")
 
 
 def stream_url(url: str, encoding: str = "json", token: str | None = None) -> str:
@@ -55,7 +57,8 @@ def handshake_headers(api_key: str | None, token_in_query: bool) -> dict[str, st
 @dataclass
 class StreamResult:
     """What one character produced: its frames, the ``end`` message and the other messages about it; ``reach``, the
-    last reach notice (its ``started`` or latest ``retargeted``), says whether it arrived or stopped short."""
+    last reach notice (its ``started`` or latest ``retargeted`` or ``style_changed``), says whether it arrived or
+    stopped short."""
 
     character: str
     fps: float
@@ -65,9 +68,9 @@ class StreamResult:
 
     @property
     def reach(self) -> Reach | None:
-        """The notice of the last ``started`` / ``retargeted`` that carried one (None: none did, as for a model
-        without gait limits)."""
-        notices = [m for m in self.messages if m.get("type") in ("started", "retargeted") and m.get("reach")]
+        """The notice of the last ``started`` / ``retargeted`` / ``style_changed`` that carried one (None: none did,
+        as for a model without gait limits; a style switch works the reach out again at the new style's speed)."""
+        notices = [m for m in self.messages if m.get("type") in NOTICES and m.get("reach")]
         return Reach.from_message(notices[-1]) if notices else None
 
     @property
@@ -183,7 +186,7 @@ class StreamSession:
         poses = result.poses(self.joint_names)
         started = next((m for m in result.messages if m.get("type") == "started"), {})
         poses.style_id, poses.model = started.get("style_id"), started.get("model")
-        return poses  # its reach: the latest (re)target's notice (StreamResult.reach)
+        return poses  # its reach: the latest (re)target's or style switch's notice (StreamResult.reach)
 
     # ------------------------------------------------------------------ sending
     def encode(self, message: Message) -> str:

@@ -151,8 +151,9 @@ export class LiveMode {
     this.character = null;
   }
 
-  // The server's reach notice of a start or retarget: a click farther than the style's capture speed covers in
-  // the frames asked is not reached (the character arrives short rather than glide), and the person is told.
+  // The server's reach notice of a start, retarget or style switch: a click farther than the style's capture speed
+  // covers in the frames asked (or left) is not reached (the character arrives short rather than glide), and the
+  // person is told; a switch to a slower style can put a walk out of reach.
   showReach(reach) {
     this.stats.reach = reach || null;
     if (!reach || reach.feasible) return;
@@ -198,6 +199,7 @@ export class LiveMode {
     } else if (msg.type === "style_changed") {
       this.stats.styleChanges += 1;
       status(`style switched from frame ${msg.from_seq}`, "ok");
+      if (msg.character === this.character) this.showReach(msg.reach);
     } else if (msg.type === "error") {
       if (msg.character && msg.character === this.character) this.character = null;
       status(`${msg.code}: ${msg.message}`, "error");
