@@ -163,7 +163,7 @@ export class LiveMode {
            `(${m(reach.max_speed_cm_s)} m/s), not ${reach.frames}: it stops short, at most ${m(reach.reachable_cm)} m on`, "error");
   }
 
-  // The end of a walk: "arrived" only where its last target (the click, or the last retarget) was within reach;
+  // The end of a walk: "arrived" only where the last reach notice (of the click, a retarget or a style switch) said within reach;
   // otherwise the root went as far as the style's capture speed allows and stopped short of the marker, by at
   // least what the notice says (the gait does not keep to its top speed the whole way).
   showEnd(reason) {
