@@ -31,7 +31,7 @@ from tests.service.conftest import poses
 from tests.service.server import Server
 from tests.service.wsclient import Ws, poses_of
 
-pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]
+pytestmark = [pytest.mark.real_data, pytest.mark.alone, pytest.mark.usefixtures("one_thread")]  # keeps the realtime pace
 
 SETTINGS = RetargetSettings()  # 40 frames, retargeted at frame 20, one target frame
 CONNECTIONS = 12  # cases streamed at once, each on its own connection (one connection's messages are handled in turn)
