@@ -22,9 +22,10 @@ from rsmt_client import Client, Poses, StreamClient, TargetAt
 
 from model.inference.bundle import DEFAULT_BUNDLE
 from model.inference.output.arrival import DEFAULT_WINDOW
-from model.motion.rotations import quat_mul, quat_normalize, yaw_quat
+from model.inference.placed_target import Placement, placed_target
+from model.motion.clip import Clip
 from model.motion.skeleton import Skeleton
-from tests.clients.arrival import facing_deg, place_from
+from tests.clients.arrival import place_from
 from tests.service.server import Server
 
 pytestmark = pytest.mark.slow  # a server of the default model
@@ -56,13 +57,12 @@ class Row:
 
 
 def _pose_at(skeleton: Skeleton, roots: np.ndarray, rotations: np.ndarray, place: TargetAt) -> dict[str, Any]:
-    """The context's last pose moved over ``place`` (its height kept) and turned to its facing: a one-frame target."""
-    turn = math.radians(place.yaw - facing_deg(skeleton, roots[-1:], rotations[-1:]))
-    rot = torch.tensor(rotations[-1:], dtype=torch.float64)
-    rot[0, 0] = quat_normalize(quat_mul(yaw_quat(torch.tensor(turn, dtype=torch.float64)), rot[0, 0]))
-    root = roots[-1:].copy()
-    root[0, 0], root[0, 2] = place.x, place.z
-    return {"root_positions": root.tolist(), "rotations": rot.tolist(), "fps": 30.0}
+    """The context's last pose moved over ``place`` (its height kept) and turned to its facing: a one-frame target,
+    as the server makes a ``target_at`` (:func:`model.inference.placed_target.placed_target`), sent as a pose."""
+    context = Clip(skeleton=skeleton, rotations=torch.tensor(rotations, dtype=torch.float64),
+                   root_positions=torch.tensor(roots, dtype=torch.float64), fps=30.0)
+    target = placed_target(context, Placement(place.x, place.z, place.yaw))
+    return {"root_positions": target.root_positions.tolist(), "rotations": target.rotations.tolist(), "fps": target.fps}
 
 
 def _row(style: str, kind: str, surface: str, place: TargetAt, start: np.ndarray, poses: Poses) -> Row:
