@@ -200,11 +200,10 @@ class Engine:
         """The caps of a character of ``style``: its root's ground step (cm a frame) at its capture's top speed, its
         feet's lift off the floor and its planted feet's rise at its capture's; none where the bundle has no gait
         limits. The batch hands them to the steps that read them as columns."""
-        speed = self.max_speed(style)
         if self.gait_limits is None:
-            return Limits(math.inf if speed is None else speed / self.config.fps)
+            return Limits()
         gait = style.gait or None
-        return Limits(math.inf if speed is None else speed / self.config.fps, self.gait_limits.foot_lift(gait),
+        return Limits(self.gait_limits.max_speed(gait) / self.config.fps, self.gait_limits.foot_lift(gait),
                       self.gait_limits.planted_rise(gait))
 
     def _within_reach(self, style: EncodedStyle, root_xz: Tensor, goal: PoseState,
