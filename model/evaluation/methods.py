@@ -146,12 +146,12 @@ class BundleMethod(Method):
                     style, _ = (encode_style_set(self.engine, together, weights=weights) if together
                                 else self.engine.encode_style(clips[b], weights=weights))
                     seed = None if request.seeds is None else int(request.seeds[b])
-                    extra = {"exact_arrival": True} if self.exact_arrival else {}
                     target = Clip(cases.skeletons[b], target_rot[b], target_root[b], cases.fps,
                                   name=f"{cases.cases[b].id}:target")
                     chars.append(self.engine.prepare(cases.context_clip(b), target, v.frames, style,
                                                      seed=seed, deterministic=request.seeds is None,
-                                                     character_id=f"{cases.cases[b].id}:{v.name}", **extra))
+                                                     character_id=f"{cases.cases[b].id}:{v.name}",
+                                                     exact_arrival=self.exact_arrival))
                 for rot, root in self.engine.generate(chars):
                     rots.append(rot)
                     roots.append(root)

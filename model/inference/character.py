@@ -10,6 +10,7 @@ from typing import Any
 
 import torch
 
+from model.inference.controls import Controls
 from model.inference.output.arrival import ArrivalPose, ArrivalState
 from model.inference.output.steering import RETARGETED
 from model.inference.reach import Reach
@@ -73,16 +74,17 @@ class Limits:
 
 @dataclass(frozen=True)
 class CharacterRequest:
-    """What the caller asked of one transition: its id, style (run at ``style_strength``,
-    :mod:`model.inference.style_strength`; None: the engine's setting), its length in frames all told, and whether
-    it was retargeted mid-stream (its facing is finished by the retarget window). Frozen: a retarget or a style
-    switch makes a new one (``dataclasses.replace``) and hands it to the batch (:meth:`CharacterBatch.restate`)."""
+    """What the caller asked of one transition: its id, style, its length in frames all told, whether it was
+    retargeted mid-stream (its facing is finished by the retarget window), and the settings it set for itself
+    (:class:`~model.inference.controls.Controls`, read by the engine step each belongs to). Frozen: a retarget or a
+    style switch makes a new one (``dataclasses.replace``) and hands it to the batch
+    (:meth:`CharacterBatch.restate`)."""
 
     id: str
     style: EncodedStyle
     frames: int
-    style_strength: float | None = None
     retargeted: bool = False
+    controls: Controls = Controls()
 
 
 @dataclass(frozen=True)
@@ -155,10 +157,6 @@ class Character:
     @property
     def frames_total(self) -> int:
         return self.request.frames
-
-    @property
-    def style_strength(self) -> float | None:
-        return self.request.style_strength
 
     @property
     def retargeted(self) -> bool:

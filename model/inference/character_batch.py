@@ -57,7 +57,7 @@ class BatchEngine(Protocol):
 
     def weights(self, name: str = "") -> WeightSet: ...
 
-    def context_of(self, style: EncodedStyle, strength: float | None = None) -> Any: ...
+    def context_of(self, request: CharacterRequest) -> Any: ...
 
     def limits_of(self, style: EncodedStyle) -> Limits: ...
 
@@ -133,7 +133,7 @@ class CharacterBatch:
         fresh = [c for c, p in zip(waiting, parts) if p.row is None]
         resumed = [p.row for p in parts if p.row is not None]
         joined = fresh + [c for c, p in zip(waiting, parts) if p.row is not None]
-        contexts = [self.engine.context_of(c.style, c.style_strength) for c in joined]
+        contexts = [self.engine.context_of(c.request) for c in joined]
         rows = [] if self._state is None else [self._state]
         if fresh:
             rows.append(self.engine.begin(fresh, contexts[:len(fresh)]))  # one batched warm-up for every newcomer
@@ -191,7 +191,7 @@ class CharacterBatch:
         i = self.members.index(ch)
         if request.style.weights != ch.style.weights:
             self.update_row(ch, ws.net.reencoded(self.row_of(ch)))
-        self._contexts[i] = self.engine.context_of(request.style, request.style_strength)
+        self._contexts[i] = self.engine.context_of(request)
         ch.request, ch.limits = request, limits
         self._changed = True
 

@@ -2,8 +2,11 @@
 
 A bundle's ``output`` / ``inference`` sections, :class:`~model.inference.overrides.Overrides`, the CLI flags
 (``rsmt_cli.output_arguments``), the service's ``RSMT_<NAME>`` variables (``service.settings``) and the settings
-table of docs/service.md all come from :data:`SETTINGS`, and :meth:`Setting.check` is the one range check. This
-module imports nothing heavy: ``rsmt --help`` reads it.
+table of docs/service.md all come from :data:`SETTINGS`, and :meth:`Setting.check` is the one range check. A
+setting marked ``per_request`` is also a field a request may set for itself (:data:`REQUEST_CONTROLS`): the
+service's request bodies, :class:`model.inference.controls.Controls` and the engine step that reads it are all the
+code it needs (docs/architecture.md, "Adding a request field"). This module imports nothing heavy: ``rsmt --help``
+reads it.
 """
 
 from __future__ import annotations
@@ -18,7 +21,9 @@ Kind = Literal["switch", "float", "int"]  # on / off; a number in [low, high] (o
 class Setting:
     """One setting: ``name`` (the bundle field, the CLI flag with dashes, ``RSMT_<NAME>``), ``kind``, its range
     ``[low, high]`` (``[low, high)`` with ``high_open``; no ``high``: no upper bound; a switch has none), ``help``
-    (a phrase: what a value does, without the range or the default) and ``metavar`` (the CLI flag's value)."""
+    (a phrase: what a value does, without the range or the default), ``metavar`` (the CLI flag's value) and
+    ``per_request``: a request may set it for itself (a field of ``POST /v1/transition`` and the stream's ``start``;
+    unset there: the engine's setting)."""
 
     name: str
     kind: Kind
@@ -27,6 +32,7 @@ class Setting:
     high: float | None = None
     high_open: bool = False
     metavar: str | None = None
+    per_request: bool = False
 
     @property
     def flag(self) -> str:
@@ -72,6 +78,8 @@ SETTINGS: tuple[Setting, ...] = (
             "bundle's gait limits, planted_rise_cm) down to the floor"),
     Setting("int8_lstm", "switch", "run the LSTM cell of the per-frame step with int8 weights"),
     Setting("style_strength", "float", "move every style away from the bundle's neutral style (the mean of its "
-            "built-in styles) by this factor (1: as encoded)", high=4.0, metavar="K"),
+            "built-in styles) by this factor (1: as encoded)", high=4.0, metavar="K", per_request=True),
 )
 BY_NAME = {s.name: s for s in SETTINGS}
+#: The settings a request may set for itself, in declaration order.
+REQUEST_CONTROLS: tuple[Setting, ...] = tuple(s for s in SETTINGS if s.per_request)

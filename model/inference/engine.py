@@ -13,6 +13,7 @@ import itertools
 import logging
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
@@ -31,6 +32,7 @@ from model.inference.character import (
     WeightSet,
 )
 from model.inference.character_batch import CharacterBatch, by_weights, inverse_of, restate_held
+from model.inference.controls import Controls
 from model.inference.errors import (
     EngineError,
     FramesOutOfRange,
@@ -44,7 +46,7 @@ from model.inference.output.pipeline import OutputPipeline
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, ground_distance, reach_of
 from model.inference.style_codes import LRUCache, clip_content_hash
-from model.inference.style_strength import NeutralStyle, check_strength
+from model.inference.style_strength import NeutralStyle
 from model.inference.traced_step import CompiledFrameOutput, CompiledStep
 from model.motion.clip import Clip
 from model.motion.features import CanonicalFrame, FacingChains, local_frame_features
@@ -151,12 +153,25 @@ class Engine:
             raise NoNeutralStyle(f"style_strength needs built-in styles to find the neutral style; model "
                                  f"{self.bundle.meta.name!r} has none (send 1 or leave it out)")
 
-    def context_of(self, style: EncodedStyle, strength: float | None = None) -> Any:
-        """``style``'s context as this engine runs it: at ``strength``, or the inference settings' style strength
-        where None."""
+    def context_of(self, request: CharacterRequest) -> Any:
+        """The context of ``request``'s style as this engine runs it: at the request's ``style_strength``, or the
+        inference settings' where it set none."""
         if self.neutral_style is None:  # only strength 1 is accepted then
-            return style.context
-        return self.neutral_style.scaled(style.context, self.inference.style_strength if strength is None else strength)
+            return request.style.context
+        strength = request.controls.get("style_strength", self.inference.style_strength)
+        return self.neutral_style.scaled(request.style.context, float(strength or 0.0))
+
+    def check_controls(self, given: Mapping[str, Any] | None) -> Controls:
+        """The settings a request set for itself (:class:`Controls`), checked against their declarations and
+        against what this engine can do with them; an :class:`EngineError` names the one that is not."""
+        try:
+            controls = Controls.of(given)
+        except ValueError as exc:
+            raise EngineError(str(exc)) from None
+        strength = controls.get("style_strength")
+        if strength is not None:
+            self._usable_strength(float(strength))
+        return controls
 
     def weights(self, name: str = "") -> WeightSet:
         """The weight set ``name`` (``""``: the bundle's own); an unknown name is a ValueError naming the sets."""
@@ -297,23 +312,18 @@ class Engine:
     # ------------------------------------------------------------------ transitions
     def prepare(self, context: Clip, target: Clip, frames: int, style: EncodedStyle, seed: int | None = None,
                 deterministic: bool = False, character_id: str | None = None, exact_arrival: bool = False,
-                retargeted: bool = False, style_strength: float | None = None) -> Character:
+                retargeted: bool = False, controls: Mapping[str, Any] | None = None) -> Character:
         """Validate a transition request and build its (unbatched) initial state.
 
         With ``exact_arrival`` the last frames are bent so the arrival frame equals the target pose
         exactly (:mod:`model.inference.output.arrival`); otherwise the network's own arrival is returned.
         ``retargeted`` starts the character as one retargeted mid-stream (its facing is finished by the
         retarget window): a stream resumed on another server after a retarget, from the frames received.
-        ``style_strength``: the strength its style runs at (:mod:`model.inference.style_strength`; None: the
-        engine's setting).
+        ``controls``: the settings the request set for itself by name (``per_request`` in
+        :mod:`model.inference.declared_settings`, e.g. ``{"style_strength": 1.5}``; one left out: the engine's).
         """
         c = self.config
-        if style_strength is not None:
-            try:
-                style_strength = check_strength(style_strength)
-            except ValueError as exc:
-                raise EngineError(str(exc)) from None
-            self._usable_strength(style_strength)
+        checked = self.check_controls(controls)
         self.check_frames(frames)
         context = self.conform(context, "context")
         target = self.conform(target, "target")
@@ -330,7 +340,7 @@ class Engine:
         noise = self.net.noise(gen)
         arrival = (self.pipeline.arrival.start(quat_normalize(target.rotations[-1]), target.root_positions[-1])
                    if exact_arrival else None)
-        request = CharacterRequest(character_id or f"c{next(self._ids)}", style, frames, style_strength, retargeted)
+        request = CharacterRequest(character_id or f"c{next(self._ids)}", style, frames, retargeted, checked)
         steer, reach = self._within_reach(style, cstate.root_xz[:, -1], tstate, frames)
         memory = self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions)
         return Character(request, Aim(tstate, known, reach, arrival), self.limits_of(style),
@@ -351,7 +361,7 @@ class Engine:
         noise = torch.cat([i.noise for i in starts])
         known = torch.tensor([i.velocity_known for i in starts])
         if contexts is None:
-            contexts = [self.context_of(c.style, c.style_strength) for c in characters]
+            contexts = [self.context_of(c.request) for c in characters]
         style = self.net.style_type.stack(contexts)
         groups = by_weights(characters)
         if len(groups) == 1:

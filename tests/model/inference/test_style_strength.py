@@ -105,7 +105,7 @@ def test_a_character_runs_at_its_own_strength():
 
     def run(strength: float | None) -> torch.Tensor:
         ch = engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, style, deterministic=True,
-                            style_strength=strength)
+                            controls={"style_strength": strength})
         return engine.generate([ch])[0][0]
 
     assert torch.equal(run(None), run(1.0))
@@ -116,4 +116,4 @@ def test_a_character_runs_at_its_own_strength():
     bare = Engine(Bundle.load(DEFAULT_BUNDLE, styles=False), threads=1)
     bare_style, _ = bare.encode_style(walk.window(20, 140))
     with pytest.raises(NoNeutralStyle, match="send 1 or leave it out"):
-        bare.prepare(walk.window(0, 10), walk.window(40, 42), 20, bare_style, style_strength=1.5)
+        bare.prepare(walk.window(0, 10), walk.window(40, 42), 20, bare_style, controls={"style_strength": 1.5})
