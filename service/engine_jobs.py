@@ -56,7 +56,7 @@ def run_transition(model: LoadedModel, caller: Caller, req: TransitionRequest, q
     seed = req.seed if req.seed is not None else new_seed()
     try:
         ch = engine.prepare(context, target, req.frames, style, seed=seed, deterministic=req.deterministic,
-                            exact_arrival=req.exact_arrival, style_strength=req.style_strength)
+                            exact_arrival=req.exact_arrival, controls=req.controls)
     except EngineError as exc:
         raise from_engine(exc) from exc
     steps = TransitionSteps(engine, ch)
@@ -125,7 +125,7 @@ def _prepared_character(model: LoadedModel, msg: StartMessage, character_id: str
     try:
         ch = model.engine.prepare(context, target, msg.frames, style, seed=seed, deterministic=msg.deterministic,
                                   character_id=character_id, exact_arrival=msg.exact_arrival,
-                                  retargeted=msg.retargeted, style_strength=msg.style_strength)
+                                  retargeted=msg.retargeted, controls=msg.controls)
     except EngineError as exc:
         raise from_engine(exc) from exc
     return ch, style, seed

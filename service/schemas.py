@@ -10,6 +10,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, TypeAdapter, model_validator
 
+from service.request_controls import RequestControls
+
 # Hard ceilings for any model; the configured limits (service.settings) are usually lower.
 MAX_FRAMES_ANY = 100_000
 MAX_JOINTS_ANY = 1_000
@@ -31,8 +33,6 @@ Seed = Annotated[StrictInt, Field(ge=0, le=SEED_MAX, description="sampling seed,
 CharacterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
 StyleId = Annotated[str, Field(min_length=1, max_length=128)]
 ModelName = Annotated[str, Field(min_length=1, max_length=128)]
-StyleStrength = Annotated[float, Field(ge=0, le=4, description="the style moved away from the model's neutral style by "
-                                       "this factor (1: as encoded; default: the server's setting)")]
 RequestId = Annotated[str | int | None, Field(None, description="echoed in any error this message causes")]
 
 _EXAMPLE_BVH = """HIERARCHY
@@ -243,7 +243,7 @@ class Timing(BaseModel):
     parse: float = Field(description="ms converting the Motion payloads")
 
 
-class TransitionRequest(_TargetChoice, _StyleChoice):
+class TransitionRequest(_TargetChoice, _StyleChoice, RequestControls):
     """``POST /v1/transition``."""
 
     model_config = ConfigDict(
@@ -258,7 +258,6 @@ class TransitionRequest(_TargetChoice, _StyleChoice):
     seed: Seed | None = None
     deterministic: StrictBool = Field(False, description="no sampling noise")
     exact_arrival: StrictBool = Field(False, description="bend the last frames so the arrival frame equals the target pose")
-    style_strength: StyleStrength | None = None
     output: Literal["json", "bvh"] = "json"
     model: ModelName | None = None
 
@@ -324,7 +323,7 @@ class _WsMessage(BaseModel):
     request_id: RequestId = None
 
 
-class StartMessage(_WsMessage, _TargetChoice, _StyleChoice):
+class StartMessage(_WsMessage, _TargetChoice, _StyleChoice, RequestControls):
     type: Literal["start"]
     character: CharacterId | None = None
     context: Motion
@@ -333,7 +332,6 @@ class StartMessage(_WsMessage, _TargetChoice, _StyleChoice):
     deterministic: StrictBool = False
     exact_arrival: StrictBool = False
     retargeted: StrictBool = False  # a resume of a character retargeted mid-motion: its facing takes the retarget window
-    style_strength: StyleStrength | None = None
     pace: Literal["realtime", "asap"] = "realtime"
     model: ModelName | None = None
 
