@@ -105,8 +105,8 @@ def prepare_character(model: LoadedModel, caller: Caller, msg: StartMessage, cha
     """Build a streamed character's initial state (the scheduler steps it from then on); ``registered``: as
     for :func:`run_transition`. In three slices (:class:`Continue`: the motions read, the style resolved (an
     inline clip read and encoded), the character prepared), so that another key's start waits for one of them
-    at most, not for this whole start."""
-    check_frames(model, msg.frames)
+    at most, not for this whole start. The stream session has checked ``frames`` before it reserved the character
+    (:func:`check_frames`); the engine's :meth:`Engine.prepare` checks it again last."""
     context = motion_to_clip(msg.context, model.engine, model.limits, "context")
     target = motion_to_clip(msg.target, model.engine, model.limits, "target")
     return Continue(_styled_character, (model, caller, msg, character_id, registered, context, target))

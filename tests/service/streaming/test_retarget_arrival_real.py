@@ -5,7 +5,8 @@ its target moved 1 m sideways, arrives where the in-process yardstick
 
 A retarget applies from the next frame the server makes, so the client sends it when frame 19 comes in;
 on a loaded 2-core machine it often comes in a frame or more late (the server's ``retargeted`` reply says
-the frame it took effect from). So the test checks that the server streams what the yardstick scores (the
+the frame it took effect from), and beside another test a client may fall so far behind that its retarget comes after
+the stream has ended: such a case is streamed again. So the test checks that the server streams what the yardstick scores (the
 in-process stream retargeted at those same frames arrives where the server's frames do) and that the
 yardstick, every retarget at frame 20, is under 8 cm. Each case has its own connection: the messages of one
 connection are read in turn, so the targets of several characters' retargets would be read one after another.
@@ -31,10 +32,12 @@ from tests.service.conftest import poses
 from tests.service.server import Server
 from tests.service.wsclient import Ws, poses_of
 
-pytestmark = [pytest.mark.real_data, pytest.mark.alone, pytest.mark.usefixtures("one_thread")]  # keeps the realtime pace
+pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]  # keeps the realtime pace
 
 SETTINGS = RetargetSettings()  # 40 frames, retargeted at frame 20, one target frame
 CONNECTIONS = 12  # cases streamed at once, each on its own connection (one connection's messages are handled in turn)
+LATE_FRAMES = 15  # a retarget taking effect later than this after frame 20 came from a client behind the pace
+TRIES = 3  # a case whose retarget came too late (its client fell behind beside other work) is streamed again
 TARGET_CM = 8.0
 
 
@@ -53,9 +56,13 @@ def server(default_model_server: Server) -> Server:
     return default_model_server  # tests/service/conftest.py: shared with the other read-only streams of the default model
 
 
-def _stream_one(server: Server, cases: CaseSet, b: int) -> tuple[np.ndarray, np.ndarray, int]:
+Streamed = tuple[np.ndarray, np.ndarray, int]
+
+
+def _stream_one(server: Server, cases: CaseSet, b: int) -> Streamed | None:
     """Case ``b`` streamed on its own connection and retargeted when frame 19 comes in:
-    ``(roots, rotations, the frame the retarget took effect from)``."""
+    ``(roots, rotations, the frame the retarget took effect from)``; None where the retarget took effect more than
+    :data:`LATE_FRAMES` after frame 20 or not before the stream ended (the client read frame 19 too late)."""
     first, moved = variant("gap40"), variant("gap40-side1m")
     retarget = json.dumps({"type": "retarget", "character": "c",
                            "target": poses(cases.target_clip(b, moved, SETTINGS.target_frames))})
@@ -72,16 +79,38 @@ def _stream_one(server: Server, cases: CaseSet, b: int) -> tuple[np.ndarray, np.
         got = ws.run({"c"}, timeout=120.0, on_frame=on_frame)["c"]
     frames = got["frames"]
     assert [f["seq"] for f in frames] == list(range(SETTINGS.frames)) and got["end"]["reason"] == "arrived"
-    (ack,) = [m for m in got["messages"] if m["type"] == "retargeted"]
+    acks = [m for m in got["messages"] if m["type"] == "retargeted"]
+    assert len(acks) <= 1, got["messages"]
+    if not acks or acks[0]["from_seq"] > SETTINGS.at + LATE_FRAMES:
+        return None
+    assert acks[0]["from_seq"] >= SETTINGS.at  # never early
     roots, rotations = poses_of(frames)
-    return roots, rotations, ack["from_seq"]
+    return roots, rotations, acks[0]["from_seq"]
+
+
+def _stream_all(server: Server, cases: CaseSet) -> tuple[list[Streamed], int]:
+    """Every case streamed (:func:`_stream_one`), a case whose retarget came too late again, up to :data:`TRIES`
+    times; and how many streams were run again."""
+    done: dict[int, Streamed] = {}
+    again = 0
+    with ThreadPoolExecutor(CONNECTIONS) as pool:
+        for attempt in range(TRIES):
+            todo = [b for b in range(len(cases)) if b not in done]
+            if not todo:
+                break
+            again += len(todo) if attempt else 0
+            for b, result in zip(todo, pool.map(lambda b: _stream_one(server, cases, b), todo)):
+                if result is not None:
+                    done[b] = result
+    late = [b for b in range(len(cases)) if b not in done]
+    assert not late, f"cases {late} were retargeted too late {TRIES} times"
+    return [done[b] for b in range(len(cases))], again
 
 
 def test_a_stream_retargeted_at_frame_20_arrives_within_8_cm_through_the_server(server, cases):
-    with ThreadPoolExecutor(CONNECTIONS) as pool:
-        streamed = list(pool.map(lambda b: _stream_one(server, cases, b), range(len(cases))))
+    streamed, again = _stream_all(server, cases)
     at = [seq for _, _, seq in streamed]
-    assert all(SETTINGS.at <= a <= SETTINGS.at + 15 for a in at), Counter(at)  # never early; 5 frames left at least
+    print(f"{again} streams run again after a retarget that came too late", Counter(at))
     roots = torch.from_numpy(np.stack([r for r, _, _ in streamed]))
     rotations = torch.from_numpy(np.stack([q for _, q, _ in streamed]))
     target = cases.target_positions(variant("gap40-side1m"))
