@@ -3,15 +3,16 @@
 A test marked ``alone`` compares rates, latencies or shares of the machine against a baseline it takes itself; a
 test on another worker beside it would move its figures. So every test holds a lock on a file that the run's
 workers share: ``alone`` tests exclusively, the others shared, and a turnstile before it keeps a waiting ``alone``
-test from being starved by the shared holders. In one process (no ``-n``) nothing runs beside a test and no lock
-is taken."""
+test from being starved by the shared holders. ``alone`` tests that follow each other on a worker keep the hold from
+one to the next (otherwise another worker's test would slip in between and the next one would wait for it). In one
+process (no ``-n``) nothing runs beside a test and no lock is taken."""
 
 from __future__ import annotations
 
 import fcntl
 import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import IO
 
@@ -46,11 +47,43 @@ def _lock(f: IO[str], how: int) -> None:
     fcntl.flock(f.fileno(), how)
 
 
+def is_alone(item: pytest.Item | None) -> bool:
+    return item is not None and item.get_closest_marker("alone") is not None
+
+
+class _Room:
+    """The exclusive hold of this worker, kept from one ``alone`` test to the next when they follow each other, so
+    that no other worker's test slips in between (each would make the next ``alone`` test wait for it)."""
+
+    hold: ExitStack | None = None
+
+    @classmethod
+    def release(cls) -> None:
+        if cls.hold is not None:
+            cls.hold.close()
+            cls.hold = None
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
     folder = lock_folder(item.config)
     if folder is None:
         yield
         return
-    with held(folder, item.get_closest_marker("alone") is not None):
+    if not is_alone(item):
+        with held(folder, alone=False):
+            yield
+        return
+    if _Room.hold is None:
+        hold = ExitStack()
+        hold.enter_context(held(folder, alone=True))
+        _Room.hold = hold
+    try:
         yield
+    finally:
+        if not is_alone(nextitem):
+            _Room.release()
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    _Room.release()
