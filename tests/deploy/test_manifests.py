@@ -81,15 +81,8 @@ def test_kustomize_output_is_valid_kubernetes(target):
         assert image == "registry.example.com/games/rsmt:0.1.0"
 
 
-def test_deployment_fits_the_service():
-    resources = base_resources()
-    config = by_kind(resources, "ConfigMap", "rsmt-config")["data"]
-    fields = {f"RSMT_{name.upper()}" for name in Settings.model_fields}
-    assert set(config) <= fields, set(config) - fields  # every key is a setting
-    settings = Settings(**{k[5:].lower(): v for k, v in config.items()})  # and every value parses
-    deploy = by_kind(resources, "Deployment", "rsmt")
-    pod = deploy["spec"]["template"]["spec"]
-    (container,) = pod["containers"]
+def _check_pod(pod: dict[str, Any], container: dict[str, Any], settings: Settings) -> None:
+    """Probes, shutdown timing, security context, writable /tmp and resource bounds of the rsmt pod."""
     assert container["readinessProbe"]["httpGet"]["path"] == "/v1/health/ready"
     assert container["livenessProbe"]["httpGet"]["path"] == "/v1/health/live"
     assert pod["terminationGracePeriodSeconds"] >= settings.shutdown_drain_s + settings.shutdown_grace_s + 1
@@ -100,7 +93,11 @@ def test_deployment_fits_the_service():
     assert tmp and all("emptyDir" in v for v in pod["volumes"] if v["name"] in tmp)
     for kind in ("requests", "limits"):
         assert {"cpu", "memory"} <= set(container["resources"][kind])
-    labels = pod and deploy["spec"]["template"]["metadata"]["labels"]
+
+
+def _check_routing(resources: list[dict[str, Any]], container: dict[str, Any], labels: dict[str, Any],
+                   settings: Settings) -> None:
+    """Service, PodDisruptionBudget, autoscaler, Ingress and the style store all point at the rsmt pods."""
     service = by_kind(resources, "Service", "rsmt")
     assert service["spec"]["selector"].items() <= labels.items()
     assert service["spec"]["ports"][0]["targetPort"] in {p["name"] for p in container["ports"]}
@@ -116,6 +113,20 @@ def test_deployment_fits_the_service():
     store = urlsplit(settings.style_store)
     redis = by_kind(resources, "Service", "rsmt-redis")
     assert store.hostname == "rsmt-redis" and store.port == redis["spec"]["ports"][0]["port"]
+
+
+def test_deployment_fits_the_service():
+    resources = base_resources()
+    config = by_kind(resources, "ConfigMap", "rsmt-config")["data"]
+    fields = {f"RSMT_{name.upper()}" for name in Settings.model_fields}
+    assert set(config) <= fields, set(config) - fields  # every key is a setting
+    settings = Settings(**{k[5:].lower(): v for k, v in config.items()})  # and every value parses
+    deploy = by_kind(resources, "Deployment", "rsmt")
+    pod = deploy["spec"]["template"]["spec"]
+    (container,) = pod["containers"]
+    _check_pod(pod, container, settings)
+    labels = pod and deploy["spec"]["template"]["metadata"]["labels"]
+    _check_routing(resources, container, labels, settings)
 
 
 # ---------------------------------------------------------------------- compose.yaml and deploy/haproxy.cfg
