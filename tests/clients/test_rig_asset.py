@@ -132,9 +132,9 @@ def _check_accessors(gltf: dict) -> None:
             np.testing.assert_allclose(data.max(0), acc["max"], atol=1e-6)
 
 
-def test_gltf_is_a_well_formed_skinned_rig(gltf, tpose):
-    assert gltf["asset"]["version"] == "2.0"
-    _check_accessors(gltf)
+def _check_node_tree(gltf: dict) -> tuple[dict[int, int], list[int]]:
+    """The nodes form a tree whose roots are the scene's nodes, with unit rotations; returns child -> parent
+    and the roots."""
     nodes = gltf["nodes"]
     child_of: dict[int, int] = {}
     for n, node in enumerate(nodes):
@@ -145,6 +145,25 @@ def test_gltf_is_a_well_formed_skinned_rig(gltf, tpose):
             assert abs(np.linalg.norm(node["rotation"]) - 1.0) < 1e-6
     roots = [n for n in range(len(nodes)) if n not in child_of]
     assert sorted(gltf["scenes"][gltf["scene"]]["nodes"]) == roots
+    return child_of, roots
+
+
+def _check_mesh(gltf: dict, mesh_node: dict) -> None:
+    """The skinned mesh's attributes agree in length, index its vertices and weigh existing joints to 1."""
+    prim = gltf["meshes"][mesh_node["mesh"]]["primitives"][0]
+    verts = read_accessor(gltf, prim["attributes"]["POSITION"])
+    joints = read_accessor(gltf, prim["attributes"]["JOINTS_0"])
+    weights = read_accessor(gltf, prim["attributes"]["WEIGHTS_0"])
+    index = read_accessor(gltf, prim["indices"])
+    assert len(verts) == len(joints) == len(weights) and index.max() < len(verts) and len(index) % 3 == 0
+    assert joints.max() < len(NAMES) and np.allclose(weights.sum(1), 1.0)
+
+
+def test_gltf_is_a_well_formed_skinned_rig(gltf, tpose):
+    assert gltf["asset"]["version"] == "2.0"
+    _check_accessors(gltf)
+    nodes = gltf["nodes"]
+    child_of, roots = _check_node_tree(gltf)
     skin = gltf["skins"][0]
     assert [nodes[j]["name"] for j in skin["joints"]] == NAMES
     assert [child_of.get(j, -1) for j in skin["joints"]] == PARENTS and nodes[skin["skeleton"]]["name"] == "Hips"
@@ -159,13 +178,7 @@ def test_gltf_is_a_well_formed_skinned_rig(gltf, tpose):
     ibm = read_accessor(gltf, skin["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1)   # column-major
     for j in range(len(NAMES)):
         np.testing.assert_allclose(ibm[j] @ world[j], np.eye(4), atol=1e-5)
-    prim = gltf["meshes"][mesh_node["mesh"]]["primitives"][0]
-    verts = read_accessor(gltf, prim["attributes"]["POSITION"])
-    joints = read_accessor(gltf, prim["attributes"]["JOINTS_0"])
-    weights = read_accessor(gltf, prim["attributes"]["WEIGHTS_0"])
-    index = read_accessor(gltf, prim["indices"])
-    assert len(verts) == len(joints) == len(weights) and index.max() < len(verts) and len(index) % 3 == 0
-    assert joints.max() < len(NAMES) and np.allclose(weights.sum(1), 1.0)
+    _check_mesh(gltf, mesh_node)
 
 
 def test_gltf_animation_matches_the_bvh(gltf):
