@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Iterator
 
 import httpx
 import numpy as np
 import pytest
 
-from model.motion.bvh import BvhDocument
+from model.motion.bvh import BvhDocument, BvhJoint
 from tests.service.conftest import (
     bvh,
     context_clip,
@@ -145,14 +146,11 @@ def test_inline_style_and_json_poses(client):
 
 
 # ---------------------------------------------------------------------- bad input
-def test_bad_requests(client, server, style_id):
-    def post(body: object) -> httpx.Response:  # json.dumps writes NaN and Infinity, as some clients do
-        return client.post("/v1/transition", content=json.dumps(body), headers={"content-type": "application/json"})
+Post = Callable[[object], httpx.Response]
 
-    ok = transition_body(10, style_id=style_id)
-    assert post(ok).status_code == 200
 
-    # Malformed BVH, with the line.
+def _check_bad_bvh(post: Post, ok: dict) -> None:
+    """Malformed BVH names the line; a deep hierarchy is an error, not a crash; missing joints are named."""
     assert_error(post({**ok, "context": {"bvh": "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0\n}"}}), 422, "bad_motion", "line 4")
     text = bvh(context_clip())["bvh"].splitlines()
     text[-1] = text[-1] + " 1.0"
@@ -165,7 +163,6 @@ def test_bad_requests(client, server, style_id):
     doc = BvhDocument.parse(bvh(context_clip())["bvh"])
     keep = [i for i, n in enumerate(doc.names) if n not in ("Hand_L",)]
     cols = [c for i in keep for c in range(doc.channel_slices()[i].start, doc.channel_slices()[i].stop)]
-    from model.motion.bvh import BvhJoint
     joints = []
     for i in keep:
         j = doc.joints[i]
@@ -174,7 +171,9 @@ def test_bad_requests(client, server, style_id):
     missing = BvhDocument(joints, doc.frame_time, doc.motion[:, cols]).format()
     assert_error(post({**ok, "context": {"bvh": missing}}), 422, "skeleton_mismatch", "Hand_L")
 
-    # JSON poses: NaN, non-unit quaternions, wrong joint count, ragged, missing named joints.
+
+def _check_bad_poses(post: Post, ok: dict) -> None:
+    """JSON poses: NaN, non-unit quaternions, wrong joint count, ragged, missing named joints."""
     p = poses(context_clip())
     nan = {**p, "rotations": [[list(q) for q in f] for f in p["rotations"]]}
     nan["rotations"][3][5][1] = float("nan")
@@ -193,6 +192,35 @@ def test_bad_requests(client, server, style_id):
     assert_error(post({**ok, "context": named}), 422, "skeleton_mismatch", "Hips")
     assert_error(post({**ok, "context": {**p, "root_positions": p["root_positions"][:-1]}}), 422, "bad_motion")
     assert_error(post({**ok, "context": {**p, "root_positions": [[0, 0]] * 20}}), 422, "validation_error")
+
+
+def _check_bad_bodies(client: httpx.Client) -> None:
+    """Not JSON, not an object, too big (whole or chunked), and an unknown path."""
+    bad = client.post("/v1/transition", content=b"{nope", headers={"content-type": "application/json"})
+    assert_error(bad, 400, "invalid_json")
+    assert_error(client.post("/v1/transition", json=[1, 2]), 422, "validation_error")
+    huge = client.post("/v1/transition", content=b"[" + b"0," * (600 << 10) + b"0]",
+                       headers={"content-type": "application/json"})
+    assert_error(huge, 413, "payload_too_large")
+
+    def chunks() -> Iterator[bytes]:
+        for _ in range(40):
+            yield b" " * (32 << 10)
+
+    chunked = client.post("/v1/transition", content=chunks(), headers={"content-type": "application/json"})
+    assert_error(chunked, 413, "payload_too_large")
+    assert_error(client.get("/v1/nothing"), 404, "not_found")
+
+
+def test_bad_requests(client, server, style_id):
+    def post(body: object) -> httpx.Response:  # json.dumps writes NaN and Infinity, as some clients do
+        return client.post("/v1/transition", content=json.dumps(body), headers={"content-type": "application/json"})
+
+    ok = transition_body(10, style_id=style_id)
+    assert post(ok).status_code == 200
+
+    _check_bad_bvh(post, ok)
+    _check_bad_poses(post, ok)
 
     # Frame counts.
     assert_error(post({**ok, "frames": 0}), 422, "validation_error", "frames")
@@ -213,21 +241,7 @@ def test_bad_requests(client, server, style_id):
     assert_error(post({**ok, "output": "fbx"}), 422, "validation_error", "output")
     assert_error(post({**ok, "extra": 1}), 422, "validation_error", "extra")
 
-    # Not JSON, not an object, too big.
-    bad = client.post("/v1/transition", content=b"{nope", headers={"content-type": "application/json"})
-    assert_error(bad, 400, "invalid_json")
-    assert_error(client.post("/v1/transition", json=[1, 2]), 422, "validation_error")
-    huge = client.post("/v1/transition", content=b"[" + b"0," * (600 << 10) + b"0]",
-                       headers={"content-type": "application/json"})
-    assert_error(huge, 413, "payload_too_large")
-
-    def chunks():
-        for _ in range(40):
-            yield b" " * (32 << 10)
-
-    chunked = client.post("/v1/transition", content=chunks(), headers={"content-type": "application/json"})
-    assert_error(chunked, 413, "payload_too_large")
-    assert_error(client.get("/v1/nothing"), 404, "not_found")
+    _check_bad_bodies(client)
     assert_error(client.put("/v1/transition", json={}), 405, "method_not_allowed")
 
     assert server.ready() == 200
