@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -106,6 +107,50 @@ def _stage_lines(out: str) -> list[str]:
     return [line for line in out.splitlines() if line.startswith("stage ")]
 
 
+def _check_stage_report(out: str) -> None:
+    """The run prints one timed line per stage, naming the command it ran, then the total."""
+    lines = _stage_lines(out)
+    assert len(lines) == 2
+    assert re.match(r"stage 1/2 A \(rsmt train all --preset smoke\): \d+ s", lines[0])
+    assert re.match(r"stage 2/2 B \(rsmt train sampler --preset smoke-critics\): \d+ s", lines[1])
+    assert re.search(r"^total: \d+ s", out, re.M)
+
+
+def _check_shipped_bundle(ship: Bundle, ship_dir: Path, run_dir: Path, out: str) -> None:
+    """The packaged bundle: its name, gait limits and output settings, the last stage's weights in float16 and
+    the last preset's config; it generates frames."""
+    assert ship.meta.name == "rsmt-smoke"
+    # The capture's gait limits of the training takes come with it: every style it trained on, speeds measured.
+    assert ship.gait_limits is not None and set(ship.gait_limits.styles) == set(SYNTHETIC_STYLES)
+    assert all(g.max_speed_cm_s > 0 for g in ship.gait_limits.styles.values()) and "gait limits: " in out
+    assert (ship.output.smoothing, ship.output.foot_lock, ship.inference.int8_lstm) == (0.3, True, True)
+    # The last stage's bundle, packaged: its config is the last preset's, its weights float16.
+    last = Bundle.load(stage_folder(run_dir, load_recipe("smoke").stages[-1])).tensors()
+    shipped = ship.tensors()
+    assert shipped.keys() == last.keys()
+    assert all(torch.equal(shipped[k], v.half().float() if v.is_floating_point() else v) for k, v in last.items())
+    saved = json.loads((ship_dir / "train_config.json").read_text())
+    assert saved["sampler_stage"] == json.loads(json.dumps(load_preset("smoke-critics").to_dict()))["sampler_stage"]
+    engine = Engine(ship)
+    walk = synthetic_walk(frames=60)
+    style, _ = engine.encode_style(walk.window(10, 50))
+    rot, _ = engine.generate([engine.prepare(walk.window(0, 10), walk.window(30, 32), 8, style, deterministic=True)])[0]
+    assert rot.shape[0] == 8
+
+
+def _check_rerun_skips_finished_stages(args: list[str], run_dir: Path, ship_again: Path, ship: Bundle,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Run again: both stages are found finished and skipped, their bundles untouched; packaging runs again."""
+    stamps = [(stage_folder(run_dir, s) / "weights.safetensors").stat().st_mtime_ns for s in load_recipe("smoke").stages]
+    assert main([*args[:-2], str(ship_again), "--quiet"]) == 0
+    again = _stage_lines(capsys.readouterr().out)
+    assert [line.split(":")[1].strip() for line in again] == ["done before, skipped; bundle " + str(run_dir / "stages" / s)
+                                                              for s in ("A", "B")]
+    assert [(stage_folder(run_dir, s) / "weights.safetensors").stat().st_mtime_ns
+            for s in load_recipe("smoke").stages] == stamps
+    assert Bundle.load(ship_again).version == ship.version
+
+
 @pytest.mark.slow  # trains a recipe and its stages by hand
 def test_a_recipe_runs_end_to_end_packages_and_skips_finished_stages(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("RSMT_CACHE", str(tmp_path / "cache"))
@@ -117,39 +162,10 @@ def test_a_recipe_runs_end_to_end_packages_and_skips_finished_stages(tmp_path, m
             str(tmp_path / "ship"), "--quiet"]
     assert main(args) == 0
     out = capsys.readouterr().out
-    lines = _stage_lines(out)
-    assert len(lines) == 2
-    assert re.match(r"stage 1/2 A \(rsmt train all --preset smoke\): \d+ s", lines[0])
-    assert re.match(r"stage 2/2 B \(rsmt train sampler --preset smoke-critics\): \d+ s", lines[1])
-    assert re.search(r"^total: \d+ s", out, re.M)
+    _check_stage_report(out)
     ship = Bundle.load(tmp_path / "ship")
-    assert ship.meta.name == "rsmt-smoke"
-    # The capture's gait limits of the training takes come with it: every style it trained on, speeds measured.
-    assert ship.gait_limits is not None and set(ship.gait_limits.styles) == set(SYNTHETIC_STYLES)
-    assert all(g.max_speed_cm_s > 0 for g in ship.gait_limits.styles.values()) and "gait limits: " in out
-    assert (ship.output.smoothing, ship.output.foot_lock, ship.inference.int8_lstm) == (0.3, True, True)
-    # The last stage's bundle, packaged: its config is the last preset's, its weights float16.
-    last = Bundle.load(stage_folder(run_dir, load_recipe("smoke").stages[-1])).tensors()
-    shipped = ship.tensors()
-    assert shipped.keys() == last.keys()
-    assert all(torch.equal(shipped[k], v.half().float() if v.is_floating_point() else v) for k, v in last.items())
-    saved = json.loads((tmp_path / "ship" / "train_config.json").read_text())
-    assert saved["sampler_stage"] == json.loads(json.dumps(load_preset("smoke-critics").to_dict()))["sampler_stage"]
-    engine = Engine(ship)
-    walk = synthetic_walk(frames=60)
-    style, _ = engine.encode_style(walk.window(10, 50))
-    rot, _ = engine.generate([engine.prepare(walk.window(0, 10), walk.window(30, 32), 8, style, deterministic=True)])[0]
-    assert rot.shape[0] == 8
-
-    # Run again: both stages are found finished and skipped, their bundles untouched; packaging runs again.
-    stamps = [(stage_folder(run_dir, s) / "weights.safetensors").stat().st_mtime_ns for s in load_recipe("smoke").stages]
-    assert main([*args[:-2], str(tmp_path / "ship-again"), "--quiet"]) == 0
-    again = _stage_lines(capsys.readouterr().out)
-    assert [line.split(":")[1].strip() for line in again] == ["done before, skipped; bundle " + str(run_dir / "stages" / s)
-                                                              for s in ("A", "B")]
-    assert [(stage_folder(run_dir, s) / "weights.safetensors").stat().st_mtime_ns
-            for s in load_recipe("smoke").stages] == stamps
-    assert Bundle.load(tmp_path / "ship-again").version == ship.version
+    _check_shipped_bundle(ship, tmp_path / "ship", run_dir, out)
+    _check_rerun_skips_finished_stages(args, run_dir, tmp_path / "ship-again", ship, capsys)
 
     # The recipe trains what its commands run by hand give.
     hand = ["--data", str(data), "--run", str(tmp_path / "hand"), "--device", "cpu", "--quiet"]
