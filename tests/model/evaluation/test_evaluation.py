@@ -143,14 +143,8 @@ def test_matched_reference_round_robin() -> None:
 
 
 # ------------------------------------------------------------------ whole runs
-def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
-    methods = [resolve_method(m) for m in ("interp", "zerovel", "gt")]
-    run = evaluate(cache, methods, EvalSettings(limit=9, render_cases=2), progress=False, stats=stats)
-    report = run.report
-    assert report["format"] == "rsmt-eval/2" and report["cases"] == 9 and report["classifier"] is None
-    assert [v["name"] for v in report["variants"]] == list(GAPS + CONTROLS + LOCOMOTION_CONTROLS)
-    assert set(report["methods"]) == {"interp", "zerovel", "gt"}
-    json.dumps(report)  # JSON-ready
+def _check_baseline_rows(report: dict) -> None:
+    """interp and zerovel arrive exactly, score every gap and control, and interp beats zerovel on each gap."""
     for name in ("interp", "zerovel"):
         rows = report["methods"][name]["variants"]
         for v in GAPS + CONTROLS:
@@ -164,6 +158,11 @@ def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
     for v in GAPS:
         interp, zerovel = (report["methods"][m]["variants"][v] for m in ("interp", "zerovel"))
         assert interp["l2p"] < zerovel["l2p"] and interp["mpjpe_cm"] < zerovel["mpjpe_cm"]
+
+
+def _check_ground_truth_rows(report: dict) -> None:
+    """gt scores zero on every gap, matches the ground truth's foot skate, and is unavailable for the controls."""
+    for v in GAPS:
         gt = report["methods"]["gt"]["variants"][v]
         for key in ("l2p", "l2q", "npss", "mpjpe_cm", "last_frame_cm"):
             assert gt[key] < 1e-4, (v, key)
@@ -173,9 +172,42 @@ def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
     for v in LOCOMOTION_CONTROLS:  # the synthetic contents are all locomotion
         assert "no ground truth" in report["methods"]["gt"]["locomotion"][v]["unavailable"]
         assert report["methods"]["interp"]["locomotion"][v]["last_frame_cm"] < 1e-3
+
+
+def test_baselines_and_ground_truth(cache: MotionCache, stats) -> None:
+    methods = [resolve_method(m) for m in ("interp", "zerovel", "gt")]
+    run = evaluate(cache, methods, EvalSettings(limit=9, render_cases=2), progress=False, stats=stats)
+    report = run.report
+    assert report["format"] == "rsmt-eval/2" and report["cases"] == 9 and report["classifier"] is None
+    assert [v["name"] for v in report["variants"]] == list(GAPS + CONTROLS + LOCOMOTION_CONTROLS)
+    assert set(report["methods"]) == {"interp", "zerovel", "gt"}
+    json.dumps(report)  # JSON-ready
+    _check_baseline_rows(report)
+    _check_ground_truth_rows(report)
     assert len(run.render_index) == 2 and run.render["interp"]["gap40"].shape == (2, 41, 21, 3)
     text = markdown(report, "rsmt eval ...")
     assert "| 40 | interp |" in text and "gap 40, d=-1" in text and "n/a" in text
+
+
+def _check_style_scores(model: dict, stdout: str) -> None:
+    """The 40-frame gap's classifier and judge scores are shares, per style too, and the report prints them."""
+    gap40 = model["variants"]["gap40"]
+    for key in ("style_accuracy", "style_accuracy_cross", "style_cross_as_context"):
+        assert 0.0 <= gap40[key] <= 1.0
+    # The clip and the context are of different styles, so a transition is read as at most one of them.
+    assert gap40["style_accuracy_cross"] + gap40["style_cross_as_context"] <= 1.0 + 1e-6
+    assert "read as the context's style" in stdout
+    for key, heading in (("style_accuracy_by_style", "Same-style accuracy per requested style"),
+                         ("style_accuracy_cross_by_style", "Other-style accuracy per requested style"),
+                         ("style_accuracy_cross_by_context", "Other-style accuracy per context style")):
+        assert set(gap40[key]) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in gap40[key].values()), key
+        assert heading in stdout
+    assert gap40["fmd"] >= 0 and gap40["fmd_cross"] >= 0
+    for group in (model["variants"], model["locomotion"]):  # the judge, with the same-style and the other-style clip
+        g40 = group["gap40"]
+        assert 0.0 <= g40["judge_accuracy"] <= 1.0 and 0.0 <= g40["judge_accuracy_cross"] <= 1.0
+        assert g40["judge_accuracy_cross"] + g40["judge_cross_as_context"] <= 1.0 + 1e-9
+    assert "judge_accuracy" in model["locomotion"]["gap40-side1m"]
 
 
 @pytest.mark.slow  # trains a classifier and runs rsmt eval
@@ -205,31 +237,11 @@ def test_eval_command_with_bundle_and_classifier(dataset: tuple[Path, Path], bun
     for v in GAPS:
         assert rows[v]["diversity_cm"] > 0 and rows[v]["diversity_cases"] == 2
         assert rows[v]["l2p"] > 0 and rows[v]["last_frame_cm"] >= 0
-    gap40 = rows["gap40"]
-    for key in ("style_accuracy", "style_accuracy_cross", "style_cross_as_context"):
-        assert 0.0 <= gap40[key] <= 1.0
-    # The clip and the context are of different styles, so a transition is read as at most one of them.
-    assert gap40["style_accuracy_cross"] + gap40["style_cross_as_context"] <= 1.0 + 1e-6
-    assert "read as the context's style" in stdout
-    per_style = gap40["style_accuracy_by_style"]
-    assert set(per_style) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_style.values())
-    assert "Same-style accuracy per requested style" in stdout
-    per_clip = gap40["style_accuracy_cross_by_style"]
-    assert set(per_clip) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_clip.values())
-    assert "Other-style accuracy per requested style" in stdout
-    per_context = gap40["style_accuracy_cross_by_context"]
-    assert set(per_context) <= {"bouncy", "brisk", "slow"} and all(0.0 <= a <= 1.0 for a in per_context.values())
-    assert "Other-style accuracy per context style" in stdout
-    assert gap40["fmd"] >= 0 and gap40["fmd_cross"] >= 0
+    _check_style_scores(model, stdout)
     assert 0.0 <= report["ground_truth"]["gap40"]["style_accuracy"] <= 1.0
     interp = report["methods"]["interp"]["variants"]
     assert "diversity_cm" not in interp["gap40"] and interp["gap40"]["last_frame_cm"] < 1e-3
     assert report["classifier"]["styles"] == ["bouncy", "brisk", "slow"]
-    for group in (rows, model["locomotion"]):  # the judge, with the same-style and the other-style clip
-        g40 = group["gap40"]
-        assert 0.0 <= g40["judge_accuracy"] <= 1.0 and 0.0 <= g40["judge_accuracy_cross"] <= 1.0
-        assert g40["judge_accuracy_cross"] + g40["judge_cross_as_context"] <= 1.0 + 1e-9
-    assert "judge_accuracy" in model["locomotion"]["gap40-side1m"]
 
 
 def test_contact_sheet_always_has_interpolation(cache: MotionCache, stats) -> None:
