@@ -9,6 +9,7 @@ import json
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -395,8 +396,9 @@ def test_live_429_is_retried_after_retry_after(client_bundle, motions):
 
 # ---------------------------------------------------------------------- CLI
 
-def test_cli_commands(server, motions, tmp_path, capsys):
-    common = ["--url", server.url, "--api-key", API_KEY]
+def _check_cli_styles(common: list[str], motions: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> dict:
+    """`rsmt client styles add` registers one clip or several, `styles list` shows them as JSON lines or a table;
+    returns the first style added."""
     assert rsmt_main(["client", "styles", "add", str(motions["style"]), "--name", "walk", *common]) == 0
     added = json.loads(capsys.readouterr().out)
     assert added["name"] == "walk" and added["style_id"].startswith("sty_")
@@ -416,9 +418,12 @@ def test_cli_commands(server, motions, tmp_path, capsys):
     assert table[0].split() == ["style_id", "frames", "model", "kind", "name"]
     assert table[1].split() == ["builtin:walk", "40", "rsmt", "built-in", "walk"]
     assert [line.split()[3] for line in table[2:]] == ["registered"] * (len(table) - 2)
+    return added
 
-    motion = ["--context", str(motions["context"]), "--target", str(motions["target"]), "--frames", "20",
-              "--style", added["style_id"], "--seed", "5", "--deterministic"]
+
+def _check_cli_http_matches_stream(common: list[str], motion: list[str], tmp_path: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """`client transition` and `client stream` write the same deterministic transition."""
     out_http, out_ws = tmp_path / "http.bvh", tmp_path / "ws.bvh"
     assert rsmt_main(["client", "transition", *motion, "-o", str(out_http), *common]) == 0
     summary = json.loads(capsys.readouterr().out)
@@ -431,6 +436,14 @@ def test_cli_commands(server, motions, tmp_path, capsys):
     assert a.num_frames == b.num_frames == 20
     np.testing.assert_allclose(a.root_positions.numpy(), b.root_positions.numpy(), atol=1e-3)
     assert _rot_close(a.rotations.numpy(), b.rotations.numpy(), atol=1e-3)
+
+
+def test_cli_commands(server, motions, tmp_path, capsys):
+    common = ["--url", server.url, "--api-key", API_KEY]
+    added = _check_cli_styles(common, motions, capsys)
+    motion = ["--context", str(motions["context"]), "--target", str(motions["target"]), "--frames", "20",
+              "--style", added["style_id"], "--seed", "5", "--deterministic"]
+    _check_cli_http_matches_stream(common, motion, tmp_path, capsys)
 
     # A style clip path works in place of an id; errors print the server's code and exit 1.
     assert rsmt_main(["client", "transition", *motion[:6], "--style", str(motions["style2"]), *common]) == 0
