@@ -1,5 +1,6 @@
-"""Capture and network together: a transition plays the motion database's window where it matches the request well
-(its match cost at most ``limit``), and the RSMT sampler makes the motion where the data runs out.
+"""Capture and network together: a transition plays the matching source's window (of its style clip's own frames
+first, else of the motion database) where it matches the request well (its match cost at most ``limit``), and the
+RSMT sampler makes the motion where the data runs out.
 
 Both run in lockstep for every character: the sampler warms up on the context and steps every frame, reading the
 pose the character actually has, so a played character's recurrent state follows the capture it plays. A retarget or
@@ -17,7 +18,7 @@ from typing import ClassVar
 import torch
 from torch import nn
 
-from model.nets.matching_net import MatchingNet, PlayState
+from model.nets.matching_net import DatabaseStyle, MatchingNet, PlayState
 from model.nets.pose_state import PoseState
 from model.nets.sampler import SamplerState, StyleContext, TransitionSampler
 from model.nets.tensor_record import TensorRecord
@@ -58,9 +59,10 @@ class HybridState(TensorRecord):
 
 @dataclass
 class HybridStyle(TensorRecord):
-    """The sampler's style context (:class:`StyleContext`'s fields) and the database rows of the style."""
+    """The sampler's style context (:class:`StyleContext`'s fields) and the matching source's
+    (:class:`DatabaseStyle`'s: the database rows of the style and the style clip's own frames)."""
 
-    TIME_AXES: ClassVar[dict[str, int]] = StyleContext.TIME_AXES
+    TIME_AXES: ClassVar[dict[str, int]] = {**StyleContext.TIME_AXES, **DatabaseStyle.TIME_AXES}
 
     gamma1: Tensor
     beta1: Tensor
@@ -72,9 +74,15 @@ class HybridStyle(TensorRecord):
     values2: Tensor
     mask: Tensor
     rows: Tensor
+    clip_pos: Tensor
+    clip_rot: Tensor
+    clip_segment: Tensor
 
     def sampler_part(self) -> StyleContext:
         return StyleContext(**{f.name: getattr(self, f.name) for f in fields(StyleContext)})
+
+    def matching_part(self) -> DatabaseStyle:
+        return DatabaseStyle(**{f.name: getattr(self, f.name) for f in fields(DatabaseStyle)})
 
 
 class HybridNet(nn.Module):
@@ -93,8 +101,9 @@ class HybridNet(nn.Module):
 
     def style_context(self, code: Tensor) -> HybridStyle:
         ctx = self.sampler.style_context(self.sampler.encode_style(code))
-        rows = self.matching.style_context(self.matching.encode_style(code)).rows
-        return HybridStyle(**{f.name: getattr(ctx, f.name) for f in fields(StyleContext)}, rows=rows)
+        played = self.matching.style_context(self.matching.encode_style(code))
+        return HybridStyle(**{f.name: getattr(ctx, f.name) for f in fields(StyleContext)},
+                           **{f.name: getattr(played, f.name) for f in fields(DatabaseStyle)})
 
     def noise(self, generator: torch.Generator | None) -> Tensor:
         return self.sampler.noise(generator)
@@ -103,7 +112,7 @@ class HybridNet(nn.Module):
               velocity_known: Tensor | None = None) -> HybridState:
         s = self.sampler.begin(context, target, frames, noise, style.sampler_part(), velocity_known=velocity_known)
         now = context.index((slice(None), -1))
-        rel, rot, root, cost = self.matching.plan(now, target, frames.long(), style.rows)
+        rel, rot, root, cost = self.matching.plan(now, target, frames.long(), style.rows, style.matching_part())
         return HybridState(**{f.name: getattr(s, f.name) for f in fields(SamplerState)}, plan_rel=rel, plan_rot=rot,
                            plan_root=root, frames=frames.long().clamp(1, self.matching.horizon - 1),
                            played=cost <= self.limit)

@@ -7,10 +7,14 @@ context pose and ends at its target ``frames`` later, among the rows of its styl
 the pose and blended onto the target as its plan; ``step`` hands out the plan's next frame. A retarget or a new
 duration plans again from the pose the character stands in (:meth:`MatchingNet.target_fields`).
 
-Its style is the database's: a style clip's code is its frames' key-joint positions and velocities (from the style
-encoder's input), and its context is the rows of the database style whose frames lie nearest those (the mean over the
-clip's frames of the distance to that style's nearest frame), so a clip of a style the database lacks plays the
-nearest it has. A switch of style keeps the plan under way.
+Its style is two things. A style clip's code is the clip's frames themselves (the style encoder's input), from which
+its context rebuilds the clip's motion (:mod:`model.motion.features_inverse`; several clips of a style set, each its
+own segment) and picks the rows of the database style whose frames lie nearest the clip's (by their key joints'
+positions and velocities: the mean over the clip's frames of the distance to that style's nearest frame). A plan
+searches the clip's own windows first: one plays where its match cost times :data:`CLIP_COST_FACTOR` is at most the
+best database window's, so "move like this clip" shows the clip's motion even for a style the database lacks; where
+the clip has no window long enough or matches worse, the database's rows of the nearest style play. A switch of
+style keeps the plan under way; a retarget plans from the whole database (the state keeps no style).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import torch
 from torch import nn
 
 from model.motion.features import local_frame_features
+from model.motion.features_inverse import global_frames
 from model.motion.kinematics import forward_kinematics
 from model.motion.rotations import quat_to_sixd, sixd_to_quat
 from model.nets.pose_state import GROUND_TO_3D, PoseState
@@ -33,6 +38,9 @@ from model.retrieval.windows import WindowSearch, play
 
 Tensor = torch.Tensor
 STYLE_ROW_STRIDE = 2  # every other database row is compared with a style clip's frames
+# A style clip's window plays where its match cost times this is at most the database's best: the clip is searched
+# first (half, as in the first experiment that lifted unseen styles' recognition; not tuned further).
+CLIP_COST_FACTOR = 0.5
 
 
 @dataclass
@@ -55,9 +63,16 @@ class PlayState(TensorRecord):
 
 @dataclass
 class DatabaseStyle(TensorRecord):
-    """The database rows a style's characters are played from: ``rows [B, N]``."""
+    """What a style's characters are played from: the database ``rows [B, N]`` of its style and the style clip's own
+    frames, global ``clip_pos [B, T, J, 3]`` and ``clip_rot [B, T, J, 4]`` (quaternions) in ``clip_segment [B, T]``
+    (1 up for each clip; 0: no frame, e.g. padding)."""
+
+    TIME_AXES: ClassVar[dict[str, int]] = {"clip_pos": 1, "clip_rot": 1, "clip_segment": 1}
 
     rows: Tensor
+    clip_pos: Tensor
+    clip_rot: Tensor
+    clip_segment: Tensor
 
 
 class MatchingNet(nn.Module):
@@ -97,18 +112,24 @@ class MatchingNet(nn.Module):
 
     # ------------------------------------------------------------------ style
     def encode_style(self, features: Tensor) -> Tensor:
-        return (self._codes(features) - self.code_mean) / self.code_std
+        return features  # the clip's frames themselves: its style context rebuilds them (style_context)
 
     def style_context(self, code: Tensor) -> DatabaseStyle:
-        """The rows of the database style whose frames lie nearest the clip's: the mean over its frames of the
-        distance to the nearest frame of each style."""
-        rows = []
-        for clip in code:  # [T, D]
-            nearest = torch.cdist(clip, self.row_codes)  # [T, N']
+        """The rows of the database style whose frames lie nearest the clip's (the mean over its frames of the
+        distance to the nearest frame of each style), and the clip's own frames rebuilt from ``code [B, T, J*12]``
+        (:func:`model.motion.features_inverse.global_frames`)."""
+        rows, positions, rotations, segments = [], [], [], []
+        for clip in code:  # [T, J*12]
+            keys = (self._codes(clip) - self.code_mean) / self.code_std
+            nearest = torch.cdist(keys, self.row_codes)  # [T, N']
             per_style = torch.stack([nearest[:, self.row_styles == s].amin(1).mean()
                                      for s in range(len(self.db.styles))])
             rows.append(self.style_rows[per_style.argmin()])
-        return DatabaseStyle(torch.stack(rows))
+            pos, rot, segment = global_frames(clip, self.db.skeleton)
+            positions.append(pos)
+            rotations.append(rot)
+            segments.append(segment + 1)
+        return DatabaseStyle(torch.stack(rows), torch.stack(positions), torch.stack(rotations), torch.stack(segments))
 
     def style_name(self, context: DatabaseStyle) -> list[str]:
         """The database style each row of ``context`` plays."""
@@ -118,10 +139,12 @@ class MatchingNet(nn.Module):
     def noise(self, generator: torch.Generator | None) -> Tensor:
         return torch.zeros(1, 1)  # plays capture: nothing to draw
 
-    def plan(self, pose: PoseState, target: PoseState, frames: Tensor,
-             rows: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    def plan(self, pose: PoseState, target: PoseState, frames: Tensor, rows: Tensor,
+             clip: DatabaseStyle | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Plans ``(rel [B, P, J, 3], rot [B, P, J, 6], root [B, P, 2])`` from ``pose [B, J, *]`` to ``target`` in
-        ``frames [B]``, each from its allowed database ``rows [B, N]``, and their match costs ``[B]``."""
+        ``frames [B]``, each from its allowed database ``rows [B, N]`` or, first, the frames of its style ``clip``
+        (where its window's cost times :data:`CLIP_COST_FACTOR` is at most the database's), and their match costs
+        ``[B]`` (a clip window's after the factor)."""
         b, j = pose.rel.shape[0], pose.rel.shape[1]
         now = pose.positions()
         now_rot, target_rot = sixd_to_quat(pose.rot), sixd_to_quat(target.rot)
@@ -131,11 +154,17 @@ class MatchingNet(nn.Module):
         root = now.new_zeros(b, self.horizon, 2)
         costs = now.new_zeros(b)
         r = self.db.skeleton.roles.root
+        before = now - pose.vel
         for n in sorted({int(f) for f in frames.clamp(1, self.horizon - 1)}):
             idx = torch.nonzero(frames.clamp(1, self.horizon - 1) == n).flatten()
-            first, costs[idx] = self.search.search(now[idx], now[idx] - pose.vel[idx], goal[idx], n, rows[idx])
+            first, costs[idx] = self.search.search(now[idx], before[idx], goal[idx], n, rows[idx])
             pos, q = play(first, n, self.positions, self.rotations, self.db.skeleton, now[idx], now_rot[idx],
                           goal[idx], target_rot[idx])
+            if clip is not None:
+                for k, i in enumerate(idx.tolist()):
+                    played = self._clip_window(clip, i, now, before, goal, now_rot, target_rot, n, float(costs[i]))
+                    if played is not None:
+                        pos[k], q[k], costs[i] = played
             ground = pos[..., r, :] * torch.tensor([1.0, 0.0, 1.0])
             tail = torch.arange(self.horizon).clamp(max=n)  # frames after the last repeat it
             rel[idx] = (pos - ground.unsqueeze(-2))[:, tail]
@@ -143,10 +172,22 @@ class MatchingNet(nn.Module):
             root[idx] = pos[:, tail, r][..., [0, 2]]
         return rel, rot, root, costs
 
+    def _clip_window(self, clip: DatabaseStyle, i: int, now: Tensor, before: Tensor, goal: Tensor, now_rot: Tensor,
+                     target_rot: Tensor, n: int, database_cost: float) -> tuple[Tensor, Tensor, Tensor] | None:
+        """Request ``i``'s best window of its style clip, played, and its cost after :data:`CLIP_COST_FACTOR`, where
+        that cost is at most ``database_cost``; None where the database's window plays."""
+        ii = slice(i, i + 1)
+        start, cost = self.search.search_in(clip.clip_pos[i], clip.clip_segment[i] - 1, now[ii], before[ii], goal[ii], n)
+        if not float(cost) * CLIP_COST_FACTOR <= database_cost:
+            return None
+        pos, q = play(start, n, clip.clip_pos[i], clip.clip_rot[i], self.db.skeleton, now[ii], now_rot[ii], goal[ii],
+                      target_rot[ii])
+        return pos[0], q[0], cost[0] * CLIP_COST_FACTOR
+
     def begin(self, context: PoseState, target: PoseState, frames: Tensor, noise: Tensor, style: DatabaseStyle, *,
               velocity_known: Tensor | None = None) -> PlayState:
         now = context.index((slice(None), -1))
-        rel, rot, root, _ = self.plan(now, target, frames.long(), style.rows)
+        rel, rot, root, _ = self.plan(now, target, frames.long(), style.rows, style)
         return PlayState(now, frames.long(), target.positions(), target.rot, rel, rot, root,
                          frames.long().clamp(1, self.horizon - 1))
 

@@ -56,6 +56,14 @@ def stack_groups(groups: dict[str, Tensor]) -> Tensor:
     return torch.cat([groups[k] * (w / groups[k].shape[1] ** 0.5) for k, w in GROUP_WEIGHTS.items()], dim=1)
 
 
+def window_starts(segment: Tensor, n: int) -> Tensor:
+    """The first rows of the windows of ``n + 1`` frames that have a frame before them, all in one ``segment [N]``
+    (a segment below 0 holds no window)."""
+    start = torch.arange(1, max(1, len(segment) - n))
+    same = (segment[start - 1] == segment[start]) & (segment[start] == segment[start + n]) & (segment[start] >= 0)
+    return start[same]
+
+
 class WindowSearch:
     """Windows of every length over rows of global positions ``positions [N, J, 3]`` whose segment is ``segment
     [N]``: the standardised features of each length's windows, kept for the last :data:`CACHED_LENGTHS` lengths."""
@@ -70,19 +78,35 @@ class WindowSearch:
         if n in self._lengths:
             self._lengths.move_to_end(n)
             return self._lengths[n]
-        start = torch.arange(1, max(1, len(self.segment) - n))
-        same = (self.segment[start - 1] == self.segment[start]) & (self.segment[start] == self.segment[start + n])
-        start = start[same]
+        start = window_starts(self.segment, n)
         if len(start) == 0:
             raise ValueError(f"no database window of {n + 1} frames")
-        p = self.positions
-        raw = stack_groups(window_features(p[start], p[start - 1], p[start + n], self.skeleton, self.fps))
+        raw = self._raw(self.positions, start, n)
         mean, std = raw.mean(0), raw.std(0).clamp_min(1e-3)
         features = ((raw - mean) / std).contiguous()
         self._lengths[n] = (start, features, features.square().sum(1), mean, std)
         if len(self._lengths) > CACHED_LENGTHS:
             self._lengths.popitem(last=False)
         return self._lengths[n]
+
+    def _raw(self, positions: Tensor, start: Tensor, n: int) -> Tensor:
+        p = positions
+        return stack_groups(window_features(p[start], p[start - 1], p[start + n], self.skeleton, self.fps))
+
+    def search_in(self, positions: Tensor, segment: Tensor, now: Tensor, before: Tensor, target: Tensor,
+                  n: int) -> tuple[Tensor, Tensor]:
+        """As :meth:`search` for one request (``now [1, J, 3]`` ...), among the windows of other rows of global
+        ``positions [M, J, 3]`` in ``segment [M]`` (a style clip's frames), standardised as the database's windows of
+        that length so that their costs compare: the first row and cost ``[1]`` (an infinite cost where there is no
+        such window)."""
+        start = window_starts(segment, n)
+        if len(start) == 0:
+            return now.new_zeros(1, dtype=torch.long), now.new_full((1,), float("inf"))
+        _, _, _, mean, std = self.windows(n)
+        clip = (self._raw(positions, start, n) - mean) / std
+        q = (stack_groups(window_features(now, before, target, self.skeleton, self.fps)) - mean) / std
+        cost, best = (clip - q).square().sum(1).min(0)
+        return start[best].view(1), cost.view(1)
 
     def search(self, now: Tensor, before: Tensor, target: Tensor, n: int,
                allowed: Tensor | None = None) -> tuple[Tensor, Tensor]:
