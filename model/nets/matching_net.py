@@ -157,14 +157,22 @@ class MatchingNet(nn.Module):
         before = now - pose.vel
         for n in sorted({int(f) for f in frames.clamp(1, self.horizon - 1)}):
             idx = torch.nonzero(frames.clamp(1, self.horizon - 1) == n).flatten()
-            first, costs[idx] = self.search.search(now[idx], before[idx], goal[idx], n, rows[idx])
-            pos, q = play(first, n, self.positions, self.rotations, self.db.skeleton, now[idx], now_rot[idx],
-                          goal[idx], target_rot[idx])
-            if clip is not None:
-                for k, i in enumerate(idx.tolist()):
-                    played = self._clip_window(clip, i, now, before, goal, now_rot, target_rot, n, float(costs[i]))
-                    if played is not None:
-                        pos[k], q[k], costs[i] = played
+            first, cost = self.search.search(now[idx], before[idx], goal[idx], n, rows[idx])
+            sources = [(first, self.positions, self.rotations, torch.ones_like(cost, dtype=torch.bool))]
+            if clip is not None:  # the clip's window where it costs, after the factor, at most the database's
+                start, clip_cost, positions, rotations = self._clip_windows(clip, idx, n, now, before, goal)
+                better = clip_cost <= cost
+                cost = torch.where(better, clip_cost, cost)
+                sources = [(first, self.positions, self.rotations, ~better), (start, positions, rotations, better)]
+            costs[idx] = cost
+            pos = now.new_zeros(len(idx), n + 1, j, 3)
+            q = now.new_zeros(len(idx), n + 1, j, 4)
+            for starts, positions, rotations, chosen in sources:
+                k = torch.nonzero(chosen).flatten()
+                if len(k):
+                    i = idx[k]
+                    pos[k], q[k] = play(starts[k], n, positions, rotations, self.db.skeleton, now[i], now_rot[i],
+                                        goal[i], target_rot[i])
             ground = pos[..., r, :] * torch.tensor([1.0, 0.0, 1.0])
             tail = torch.arange(self.horizon).clamp(max=n)  # frames after the last repeat it
             rel[idx] = (pos - ground.unsqueeze(-2))[:, tail]
@@ -172,17 +180,18 @@ class MatchingNet(nn.Module):
             root[idx] = pos[:, tail, r][..., [0, 2]]
         return rel, rot, root, costs
 
-    def _clip_window(self, clip: DatabaseStyle, i: int, now: Tensor, before: Tensor, goal: Tensor, now_rot: Tensor,
-                     target_rot: Tensor, n: int, database_cost: float) -> tuple[Tensor, Tensor, Tensor] | None:
-        """Request ``i``'s best window of its style clip, played, and its cost after :data:`CLIP_COST_FACTOR`, where
-        that cost is at most ``database_cost``; None where the database's window plays."""
-        ii = slice(i, i + 1)
-        start, cost = self.search.search_in(clip.clip_pos[i], clip.clip_segment[i] - 1, now[ii], before[ii], goal[ii], n)
-        if not float(cost) * CLIP_COST_FACTOR <= database_cost:
-            return None
-        pos, q = play(start, n, clip.clip_pos[i], clip.clip_rot[i], self.db.skeleton, now[ii], now_rot[ii], goal[ii],
-                      target_rot[ii])
-        return pos[0], q[0], cost[0] * CLIP_COST_FACTOR
+    def _clip_windows(self, clip: DatabaseStyle, idx: Tensor, n: int, now: Tensor, before: Tensor,
+                      goal: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Requests ``idx``'s best windows of ``n + 1`` frames of their style clips, searched together, each among
+        its own clip's frames: ``(first rows [b], costs times CLIP_COST_FACTOR [b] (infinite: none), positions
+        [M, J, 3], rotations [M, J, 4])``, the rows indexing those frames."""
+        b, t = len(idx), clip.clip_pos.shape[1]
+        owner = torch.arange(b).repeat_interleave(t)
+        segment = clip.clip_segment[idx]  # [b, T]: 1 up per clip, 0 none
+        segment = torch.where(segment > 0, owner.view(b, t) * (t + 1) + segment, -1).flatten()
+        positions, rotations = clip.clip_pos[idx].flatten(0, 1), clip.clip_rot[idx].flatten(0, 1)
+        start, cost = self.search.search_in(positions, segment, owner, now[idx], before[idx], goal[idx], n)
+        return start, cost * CLIP_COST_FACTOR, positions, rotations
 
     def begin(self, context: PoseState, target: PoseState, frames: Tensor, noise: Tensor, style: DatabaseStyle, *,
               velocity_known: Tensor | None = None) -> PlayState:

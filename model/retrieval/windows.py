@@ -93,20 +93,22 @@ class WindowSearch:
         p = positions
         return stack_groups(window_features(p[start], p[start - 1], p[start + n], self.skeleton, self.fps))
 
-    def search_in(self, positions: Tensor, segment: Tensor, now: Tensor, before: Tensor, target: Tensor,
-                  n: int) -> tuple[Tensor, Tensor]:
-        """As :meth:`search` for one request (``now [1, J, 3]`` ...), among the windows of other rows of global
-        ``positions [M, J, 3]`` in ``segment [M]`` (a style clip's frames), standardised as the database's windows of
-        that length so that their costs compare: the first row and cost ``[1]`` (an infinite cost where there is no
-        such window)."""
+    def search_in(self, positions: Tensor, segment: Tensor, owner: Tensor, now: Tensor, before: Tensor,
+                  target: Tensor, n: int) -> tuple[Tensor, Tensor]:
+        """As :meth:`search`, among the windows of other rows of global ``positions [M, J, 3]`` in ``segment [M]``
+        (style clips' frames; a segment below 0 holds none), request ``b`` among the rows whose ``owner [M]`` is
+        ``b``; standardised as the database's windows of that length, so that the costs compare. The first rows
+        ``[B]`` and costs ``[B]`` (infinite where a request has no such window)."""
         start = window_starts(segment, n)
         if len(start) == 0:
-            return now.new_zeros(1, dtype=torch.long), now.new_full((1,), float("inf"))
+            return now.new_zeros(now.shape[0], dtype=torch.long), now.new_full((now.shape[0],), float("inf"))
         _, _, _, mean, std = self.windows(n)
         clip = (self._raw(positions, start, n) - mean) / std
         q = (stack_groups(window_features(now, before, target, self.skeleton, self.fps)) - mean) / std
-        cost, best = (clip - q).square().sum(1).min(0)
-        return start[best].view(1), cost.view(1)
+        dist = torch.cdist(q, clip).square()  # [B, W]
+        dist = dist.masked_fill(owner[start].unsqueeze(0) != torch.arange(now.shape[0]).unsqueeze(1), float("inf"))
+        cost, best = dist.min(1)
+        return start[best], cost
 
     def search(self, now: Tensor, before: Tensor, target: Tensor, n: int,
                allowed: Tensor | None = None) -> tuple[Tensor, Tensor]:
