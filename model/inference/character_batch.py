@@ -316,7 +316,7 @@ class CharacterBatch:
                                                  self._frame_inputs(memory), shift)
         memory.update({k: new[k] for k in memory})
         local, root = self.engine.pipeline.arrival(local, root, remaining, [m.aim.bent_to for m in self.members],
-                                                   self._arrivals)
+                                                   self._arrivals, caps)
         seq = []
         for m in self.members:
             seq.append(m.seq)

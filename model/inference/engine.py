@@ -42,6 +42,7 @@ from model.inference.errors import (
     TooManyFrames,
 )
 from model.inference.int8_step import int8_lstm_sampler
+from model.inference.output.arrival import ArrivalState
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, ground_distance, reach_of
@@ -344,7 +345,8 @@ class Engine:
         steer, reach = self._within_reach(style, cstate.root_xz[:, -1], tstate, frames)
         memory = self.pipeline.frame.start(quat_normalize(context.rotations), context.root_positions)
         return Character(request, Aim(tstate, known, reach, arrival), self.limits_of(style),
-                         parked=Parked(frame, memory, PreparedStart(cstate, steer, frames, noise, known)))
+                         parked=Parked(frame, memory, PreparedStart(cstate, steer, frames, noise, known),
+                                       ArrivalState(root=context.root_positions[-1].clone())))
 
     @torch.inference_mode()
     def begin(self, characters: list[Character], contexts: list[Any] | None = None) -> NetState:

@@ -59,3 +59,44 @@ def test_a_planted_foot_stays_while_the_swinging_foot_takes_the_correction():
     # The planted left ankle does not move until the arrival frame, where it takes its target place.
     assert (left[1:-1] - left[0]).norm(dim=-1).max() < 0.05
     assert (left[-1] - left[0]).norm() == pytest.approx(4.0, abs=0.1)
+
+
+def _ground_steps(root: torch.Tensor, start: torch.Tensor) -> torch.Tensor:
+    ground = torch.cat([start[None], root])[:, ::2]
+    return (ground[1:] - ground[:-1]).norm(dim=-1)
+
+
+def test_a_capped_arrival_reaches_the_target_without_a_step_over_the_cap():
+    walk = synthetic_walk(frames=60)
+    gen_rot, gen_root = walk.rotations[1:41], walk.root_positions[1:41]
+    start = walk.root_positions[0]
+    speed = float(_ground_steps(gen_root, start).max())
+    # A target 60 cm past where the motion ends: reachable at 1.5 times its speed in 40 frames, not in the last 10.
+    ahead = gen_root[-1] - gen_root[-2]
+    target_root = gen_root[-1] + ahead / ahead.norm() * 60.0
+    cap = 1.5 * speed
+    assert float((target_root - start)[::2].norm()) < 40 * cap
+    _, loose = exact_arrival(gen_rot, gen_root, gen_rot[-1], target_root, walk.skeleton, window=10)
+    print(f"walk {speed:.2f} cm/frame, cap {cap:.2f}; uncapped bend's top step "
+          f"{float(_ground_steps(loose, start).max()):.2f}")
+    assert float(_ground_steps(loose, start).max()) > cap  # the bend alone outruns it
+    rot, root = exact_arrival(gen_rot, gen_root, gen_rot[-1], target_root, walk.skeleton, window=10, cap=cap,
+                              start=start)
+    steps = _ground_steps(root, start)
+    print(f"capped bend's top step {float(steps.max()):.2f}")
+    assert float(steps.max()) <= cap * 1.0001
+    assert torch.allclose(root[-1], target_root, atol=1e-4)
+    assert quat_angle(rot[-1], gen_rot[-1]).max() < 1e-5
+
+
+def test_a_capped_arrival_out_of_reach_goes_straight_at_the_target_at_the_cap():
+    walk = synthetic_walk(frames=60)
+    gen_rot, gen_root = walk.rotations[1:21], walk.root_positions[1:21]
+    start = walk.root_positions[0]
+    cap = 1.2 * float(_ground_steps(gen_root, start).max())
+    target_root = start + torch.tensor([0.0, 0.0, 1.0]) * (20 * cap + 50.0) + torch.tensor([0.0, gen_root[-1, 1], 0.0])
+    _, root = exact_arrival(gen_rot, gen_root, gen_rot[-1], target_root, walk.skeleton, window=10, cap=cap,
+                            start=start)
+    assert float(_ground_steps(root, start).max()) <= cap * 1.0001
+    miss = float((root[-1] - target_root)[::2].norm())
+    assert miss >= 50.0 - 1e-3  # short by what the cap cannot cover, never dragged on

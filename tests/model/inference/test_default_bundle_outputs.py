@@ -31,7 +31,10 @@ PINNED = {
     "every step off": "e64ae7fd2e7af6b6391cbf82f73e862eb87b0b89b9c24746febeb5c952bfdbc4",
     "no foot lock, seeded noise": "4e27f0a47cf611d728327c7c477cc17fb022d6a85887a9e969318a0abf61a61d",
     "no stride warp, eager": "f42ba6f5c8976002b1cb327f1597b96968b34b8da9fd0224ba9b854472474e97",
-    "stream of two, retargeted": "7ea34546c3f2f88f4259b5d5df1d2544ce987d3cea0097acc85a5a0809cea8f0",
+    # Re-pinned on the AVX-512 machine of the recorded frames when exact arrival stopped outrunning the speed cap
+    # (issue 63 item 5: the exact character's root on three bent frames, by up to 1.6 cm); an AVX2 machine passes
+    # it by those frames.
+    "stream of two, retargeted": "9eb985fcba20b1b96a720b0561819dd5e599375af5a83d55ab78d54b851ae7c0",
 }
 
 
