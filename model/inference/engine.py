@@ -114,8 +114,10 @@ class Engine:
                 math.isfinite(s.planted_rise_cm) for s in self.gait_limits.styles.values())):
             log.warning("the foot plant is on but %s's gait limits give no style a planted rise: it moves no foot "
                         "(rsmt bundle gait-limits measures them)", bundle.meta.name)
-        # Style strength moves every style from the mean of the bundle's own built-in styles.
-        own = [s.context for s in bundle.styles.values() if not s.weights]
+        # Style strength moves every style from the mean of the bundle's own built-in styles: their network contexts,
+        # so under another source (whose style contexts are of another kind) there is no neutral style.
+        own = [s.context for s in bundle.styles.values()
+               if not s.weights and isinstance(s.context, self.net.style_type)]
         self.neutral_style = NeutralStyle.of(own) if own else None
         self._usable_strength(self.inference.style_strength)
         self.aim_within_reach = True  # the network aims at the nearest point in reach of a target out of reach
@@ -149,8 +151,13 @@ class Engine:
         return WeightSet(name, net, step, version)
 
     def _usable_strength(self, strength: float) -> None:
-        """A :class:`NoNeutralStyle` where ``strength`` is not 1 and the bundle has no built-in styles."""
+        """A :class:`NoNeutralStyle` where ``strength`` is not 1 and there is no neutral style: the bundle has no
+        built-in styles, or the engine runs another motion source than the network."""
         if strength != 1.0 and self.neutral_style is None:
+            if self.source != "network":
+                raise NoNeutralStyle(f"style_strength moves the network's style codes; model {self.bundle.meta.name!r} "
+                                     f"runs the {self.source} source here, which plays capture (send 1 or leave it out, "
+                                     "or serve the network source)")
             raise NoNeutralStyle(f"style_strength needs built-in styles to find the neutral style; model "
                                  f"{self.bundle.meta.name!r} has none (send 1 or leave it out)")
 

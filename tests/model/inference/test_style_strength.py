@@ -117,3 +117,23 @@ def test_a_character_runs_at_its_own_strength():
     bare_style, _ = bare.encode_style(walk.window(20, 140))
     with pytest.raises(NoNeutralStyle, match="send 1 or leave it out"):
         bare.prepare(walk.window(0, 10), walk.window(40, 42), 20, bare_style, controls={"style_strength": 1.5})
+
+
+@pytest.mark.parametrize("source", ["matching", "hybrid"])
+def test_a_source_that_plays_capture_refuses_a_strength_and_runs_at_one(source: str):
+    """Style strength moves the network's codes: another source's style contexts have no neutral style, so a strength
+    other than 1 is refused with the reason, where it once failed inside the batch."""
+    from model.inference.errors import NoNeutralStyle
+
+    engine = Engine(Bundle.load(DEFAULT_BUNDLE), threads=1, source=source)
+    walk = synthetic_walk(frames=160)
+    style, _ = engine.encode_style(walk.window(20, 140))
+
+    def prepare(strength: float):
+        return engine.prepare(walk.window(0, 10), walk.window(40, 42), 20, style, deterministic=True,
+                              controls={"style_strength": strength})
+
+    with pytest.raises(NoNeutralStyle, match=f"runs the {source} source"):
+        prepare(1.5)
+    rotations, _ = engine.generate([prepare(1.0)])[0]
+    assert rotations.shape[0] == 20
