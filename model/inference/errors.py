@@ -21,7 +21,8 @@ class TooManyFrames(EngineError):
 
 
 class NoNeutralStyle(EngineError):
-    """A style strength other than 1 asked of a model without built-in styles to find its neutral style."""
+    """A style strength other than 1 asked where there is no neutral style: a model without built-in styles, or an
+    engine running a source other than the network."""
 
 
 class FramesOutOfRange(EngineError):
