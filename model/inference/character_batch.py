@@ -27,10 +27,11 @@ from model.inference.character import (
 from model.inference.output.arrival import ArrivalState
 from model.inference.output.pipeline import OutputPipeline
 from model.inference.output.smoothing import SPEED_CAP
-from model.inference.output.speed_cap import speed_capped
+from model.inference.output.speed_cap import kept_in_reach, speed_capped
 from model.inference.output.steering import RETARGETED
 from model.inference.traced_step import CompiledFrameOutput
 from model.motion.features import CanonicalFrame
+from model.motion.skeleton import Skeleton
 from model.nets.transition_net import NetState
 
 Tensor = torch.Tensor
@@ -52,6 +53,7 @@ class BatchEngine(Protocol):
 
     output_fn: CompiledFrameOutput
     pipeline: OutputPipeline
+    skeleton: Skeleton
 
     def begin(self, characters: list[Character], contexts: list[Any] | None = None) -> NetState: ...
 
@@ -309,6 +311,8 @@ class CharacterBatch:
             shift = None if shifts[0] is None else torch.cat([s for s in shifts if s is not None])[self._inverse]
         if before is not None:  # each row's root within its style's capture speed (model.inference.output.speed_cap)
             self._state, shift = speed_capped(before, self._state, shift, caps)
+            if self.engine.pipeline.steering.window > 0:  # ground steering on: its target kept within reach too
+                self._state, shift = kept_in_reach(before, self._state, shift, caps, self.engine.skeleton.roles.root)
         memory = self._memory
         assert memory is not None and self._yaw is not None and self._origin is not None
         remaining = torch.tensor([m.remaining - 1 for m in self.members])

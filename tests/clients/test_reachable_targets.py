@@ -116,15 +116,10 @@ def rows(default_model_eager_server: Server) -> list[Row]:
 def test_every_target_within_reach_is_said_to_be_and_reached_within_8_cm(rows: list[Row]) -> None:
     assert len(rows) == len(STYLES) * len(SHARES) * len(KINDS) * 2
     assert all(r.feasible for r in rows), [str(r) for r in rows if not r.feasible]
-    missed = [r for r in rows if r.miss_cm > ARRIVAL_CM]
-    if missed and all(r.kind == "pose" and r.distance_cm > 0.8 * r.reachable_cm for r in missed):
-        # Known and measured: near the reach line the network's own arrival does not get there. The notice counts
-        # the capture's top speed over every frame; the network walks well under it most of the way (normal, 7.9 m
-        # in 60 frames: about 350 of 440 cm/s) and the speed cap holds its late catch-up to 440. Exact arrivals get
-        # there, by outrunning the capture (the next test). A miss anywhere else fails.
-        pytest.xfail(f"{len(missed)} of {len(rows)} targets called reachable are missed by more than {ARRIVAL_CM:g} cm, "
-                     f"all at 90% of the reach without exact arrival: {'; '.join(map(str, missed))}")
-    assert not missed, [str(r) for r in missed]
+    # Near the reach line the network walks under the cap for half the transition; the speed cap step then keeps
+    # its target within reach (model/inference/output/speed_cap.py, kept_in_reach), so it gets there.
+    missed = [str(r) for r in rows if r.miss_cm > ARRIVAL_CM]
+    assert not missed, missed
 
 
 def test_the_network_s_own_arrival_never_outruns_the_capture(rows: list[Row]) -> None:

@@ -8,6 +8,13 @@ velocities), so the next step starts from where the character now is. The pull-b
 shift steering reports, so the stride warp and the foot lock after it treat it as carried motion: a planted
 foot stays planted and the character arrives late or short instead of gliding. A cap of ``inf`` leaves a row
 as it is (a bundle without gait limits).
+
+The cap alone would let a character that walks slower than its target needs fall behind until the target is out
+of reach (the network's own arrival walked well under the cap for half a transition, then met the cap and fell
+short). :func:`kept_in_reach` runs after it: where a row's target is farther than the cap covers in the frames
+left, its step is bent toward the target (never longer than the cap) until it is not, so a target within reach
+when the transition starts is still within reach on every frame, and is reached. Rows that keep their target
+within reach are left as they are, and so is every row where ground steering is off (the network alone).
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ from typing import TypeVar
 
 import torch
 
+from model.inference.output.arrival import capped_root
 from model.inference.output.steering import shifted
 from model.nets.transition_net import NetState
 
@@ -36,3 +44,22 @@ def speed_capped(before_xz: Tensor, state: S, shift: Tensor | None,
     scale = torch.where(over, cap / norm.clamp_min(1e-6), torch.ones_like(norm))
     back = step * (scale - 1.0).unsqueeze(-1)
     return shifted(state, back), back if shift is None else shift + back
+
+
+def kept_in_reach(before_xz: Tensor, state: S, shift: Tensor | None, cap: Tensor,
+                  root: int) -> tuple[S, Tensor | None]:
+    """``state`` (stepped from ``before_xz [N, 2]`` and held within ``cap [N]``) with each row whose target root
+    (``state.target_pos``, joint ``root``) is farther than ``cap`` times its frames left moved along on the ground
+    to the nearest point that is within both (:func:`model.inference.output.arrival.capped_root`), and
+    ``shift`` with that move added (None stays None where no row moved)."""
+    here = state.pose.root_xz
+    goal = state.target_pos[:, root, ::2]
+    left = state.tta.clamp_min(0).to(here.dtype)
+    behind = ((goal - here).norm(dim=-1) > cap * left) & torch.isfinite(cap)
+    if not bool(behind.any()):
+        return state, shift
+    move = torch.zeros_like(here)
+    for i in torch.nonzero(behind).flatten().tolist():
+        placed = capped_root(here[i], before_xz[i], goal[i], float(cap[i]), int(left[i]))
+        move[i] = placed - here[i]
+    return shifted(state, move), move if shift is None else shift + move

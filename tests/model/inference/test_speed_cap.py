@@ -16,7 +16,7 @@ from model.inference.character import Character, EncodedStyle
 from model.inference.character_batch import CharacterBatch
 from model.inference.engine import Engine
 from model.inference.output.settings import OutputConfig
-from model.inference.output.speed_cap import speed_capped
+from model.inference.output.speed_cap import kept_in_reach, speed_capped
 from model.inference.output.steering import SteeringConfig
 from model.inference.overrides import Overrides
 from model.inference.reach import Reach, reach_of
@@ -53,6 +53,25 @@ def test_a_step_over_the_cap_is_pulled_back_to_it_and_the_others_are_left_alone(
     # The whole body moves back: every joint's velocity by the same amount, relative positions unchanged.
     assert torch.allclose(out.pose.vel[0] - after.pose.vel[0], torch.tensor([-24.0, 0.0, -32.0]).expand(J, 3))
     assert torch.equal(out.pose.rel, after.pose.rel)
+
+
+def test_a_root_falling_out_of_its_target_s_reach_is_moved_on_within_the_cap() -> None:
+    before = torch.zeros(4, 2)
+    after = _state(torch.full((4, 2), 0.0) + torch.tensor([0.0, 6.0]))  # each stepped 6 cm on, 10 frames left
+    goal = torch.zeros(4, J, 3)
+    # 102 cm to go (more than 10 frames at 10 cm), 84 (less), 119 (out of reach even from before), no cap.
+    goal[:, 0, 2] = torch.tensor([108.0, 90.0, 125.0, 108.0])
+    after = replace(after, target_pos=goal)
+    cap = torch.tensor([10.0, 10.0, 10.0, math.inf])
+    out, shift = kept_in_reach(before, after, None, cap, 0)
+    # On to the nearest point still within reach (100 cm at 10 frames of 10 cm), or straight on at the cap.
+    assert out.pose.root_xz[0].tolist() == pytest.approx([0.0, 8.0])
+    assert out.pose.root_xz[2].tolist() == pytest.approx([0.0, 10.0])
+    assert torch.equal(out.pose.root_xz[1], after.pose.root_xz[1]) and torch.equal(out.pose.root_xz[3],
+                                                                                  after.pose.root_xz[3])
+    assert shift is not None and shift[:, 1].tolist() == pytest.approx([2.0, 0.0, 4.0, 0.0])
+    # The whole body moves on: every joint's velocity by the same amount.
+    assert torch.allclose(out.pose.vel[0] - after.pose.vel[0], torch.tensor([0.0, 0.0, 2.0]).expand(J, 3))
 
 
 def test_steering_s_shift_takes_the_pull_back() -> None:
