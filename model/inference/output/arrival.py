@@ -209,10 +209,9 @@ class ExactArrival:
         every row's emitted root remembered (a row may be bent from a later retarget on); ``caps [N]``: each row's
         speed cap (cm a frame; None or ``inf``: none), which no bent root step exceeds."""
         exact = [i for i, t in enumerate(targets) if t is not None]
-        for i, t in enumerate(targets):
-            if t is None:
-                states[i].root = roots[i].clone()
         if not exact:
+            for st, root in zip(states, roots.clone().unbind(0), strict=True):
+                st.root = root
             return rotations, roots
         idx = torch.tensor(exact)
         chosen = [t for t in targets if t is not None]
@@ -222,6 +221,8 @@ class ExactArrival:
                                                      [states[i] for i in exact], None if caps is None else caps[idx])
         rotations, roots = rotations.clone(), roots.clone()
         rotations[idx], roots[idx] = fixed_rot, fixed_root
+        for st, root in zip(states, roots.clone().unbind(0), strict=True):
+            st.root = root
         return rotations, roots
 
 
