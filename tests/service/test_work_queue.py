@@ -15,7 +15,7 @@ from tests.service.conftest import bvh, transition_body, walk
 from tests.service.slow_engine import slow_server
 from tests.service.wsclient import Ws, start_message
 
-pytestmark = pytest.mark.slow  # fills the work queue of a server slowed by sleeps (its bounds are in those sleeps: it may share the machine)
+pytestmark = pytest.mark.slow  # fills the work queue of a slowed server (bounds in its sleeps: it may share the machine)
 
 DELAY_S = 1.5  # each transition holds the one work thread this long
 LIMIT = 4
