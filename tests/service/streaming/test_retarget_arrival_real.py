@@ -35,7 +35,7 @@ from tests.service.wsclient import Ws, poses_of
 pytestmark = [pytest.mark.real_data, pytest.mark.usefixtures("one_thread")]  # keeps the realtime pace
 
 SETTINGS = RetargetSettings()  # 40 frames, retargeted at frame 20, one target frame
-CONNECTIONS = 12  # cases streamed at once, each on its own connection (one connection's messages are handled in turn)
+CONNECTIONS = 24  # cases streamed at once, each on its own connection (one connection's messages are handled in turn)
 LATE_FRAMES = 15  # a retarget taking effect later than this after frame 20 came from a client behind the pace
 TRIES = 3  # a case whose retarget came too late (its client fell behind beside other work) is streamed again
 TARGET_CM = 8.0
