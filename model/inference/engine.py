@@ -166,8 +166,9 @@ class Engine:
         inference settings' where it set none."""
         if self.neutral_style is None:  # only strength 1 is accepted then
             return request.style.context
-        strength = request.controls.get("style_strength", self.inference.style_strength)
-        return self.neutral_style.scaled(request.style.context, float(strength or 0.0))
+        strength = request.controls.get("style_strength")
+        return self.neutral_style.scaled(request.style.context,
+                                         self.inference.style_strength if strength is None else float(strength))
 
     def check_controls(self, given: Mapping[str, Any] | None) -> Controls:
         """The settings a request set for itself (:class:`Controls`), checked against their declarations and
